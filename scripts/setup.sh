@@ -79,7 +79,7 @@ if [ ! -f "$VENV/.aslip-cmake-fixed" ]; then
 fi
 
 # --- 3. the ROS-free core and the `aslip` command -------------------------------------------
-core="$(cat setup.py | sha256sum | cut -d' ' -f1)"
+core="$(cat setup.py pyproject.toml | sha256sum | cut -d' ' -f1)"
 if [ "$(cat "$VENV/.aslip-core" 2>/dev/null)" != "$core" ] || [ ! -x "$VENV/bin/aslip" ]; then
   say "installing the aslip_ros core into the venv (editable)"
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
