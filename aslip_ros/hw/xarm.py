@@ -1,0 +1,602 @@
+"""xArm adapter: :class:`~aslip_ros.control.arm.Arm` over xarm-python-sdk (``XArmAPI``).
+
+The SDK reports failures as integer return codes, never as exceptions, so a caller that
+forgets one check keeps driving an arm that has already refused. This adapter checks every
+code: a non-zero code stops the arm (best effort) and raises :class:`XArmError`, a subclass
+of :class:`~aslip_ros.control.arm.ArmError` carrying the code and its meaning.
+
+Safety properties, all enforced here rather than trusted to callers:
+
+- every velocity command carries the controller-side ``duration`` (the arm stops by itself
+  if the commands stop), and firmware too old to honour it is refused at connect;
+- commands are clipped to the configured speed and acceleration, and no faster than
+  ``max_rate_hz`` (the controller drops commands above 250 Hz);
+- each command checks the TCP against the workspace box: a component that would leave the
+  box within the command's duration is clipped to reach the wall, and a TCP already outside
+  the box stops the arm and raises;
+- connecting happens in a worker thread with a deadline, so an unreachable arm raises
+  instead of hanging the caller.
+
+SI units at the interface; millimetres appear only in the SDK calls below.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import math
+import socket
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Optional, Sequence, Tuple
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from aslip_ros.control.arm import ArmError
+from aslip_ros.control.frames import as_vector3
+
+_LOG = logging.getLogger(__name__)
+
+#: Cartesian velocity control mode (``set_mode(5)``).
+MODE_CARTESIAN_VELOCITY = 5
+#: Motion state (``set_state(0)``) and stop state (``set_state(4)``).
+STATE_MOTION = 0
+STATE_STOP = 4
+#: The controller discards Cartesian velocity commands arriving faster than this.
+CONTROLLER_MAX_RATE_HZ = 250.0
+#: First firmware that honours ``duration`` in ``vc_set_cartesian_velocity``; older
+#: firmware silently treats every command as "forever".
+MIN_FIRMWARE_FOR_DURATION = (1, 8, 0)
+
+# SDK return codes (xarm/x3/code.py, APIState), described in our own words.
+_CODE_MEANING = {
+    -1: 'not connected',
+    -2: 'not ready (motion not enabled or state not set)',
+    -3: 'API exception, possibly an invalid parameter',
+    -4: 'command does not exist',
+    -6: 'Cartesian limit reached',
+    -7: 'joint limit reached',
+    -8: 'out of range',
+    -9: 'emergency stop',
+    1: 'controller has an uncleared error',
+    2: 'controller has an uncleared warning',
+    3: 'reply timeout',
+    4: 'reply length error',
+    5: 'reply sequence number error',
+    6: 'protocol flag error',
+    7: 'reply does not match the command',
+    8: 'send failed',
+    9: 'not ready to move',
+    10: 'result invalid or execution failed',
+    11: 'other error',
+    12: 'parameter error',
+    51: 'wrong mode',
+}
+
+
+def describe_code(code: int) -> str:
+    """A human-readable meaning for an SDK return code."""
+    return _CODE_MEANING.get(int(code), 'unknown code')
+
+
+def _controller_error_text(error_code: int) -> str:
+    """The SDK's own title for a controller error number, if the SDK is importable."""
+    try:
+        from xarm.core.config.x_code import ControllerErrorCodeMap
+        return ControllerErrorCodeMap[int(error_code)]['en']['title']
+    except Exception:  # noqa: BLE001 - a missing description must not mask the error
+        return 'see the xArm controller error table'
+
+
+class XArmError(ArmError):
+    """An SDK call returned a non-zero code (``code``), or the adapter refused to go on."""
+
+    def __init__(self, message: str, code: Optional[int] = None,
+                 controller_error: Optional[int] = None) -> None:
+        super().__init__(message)
+        self.code = code
+        self.controller_error = controller_error
+
+
+def _tuple3(name: str, value: Sequence[float]) -> Tuple[float, float, float]:
+    return tuple(float(x) for x in as_vector3(value, name))  # type: ignore[return-value]
+
+
+def _check_positive(name: str, value: float) -> None:
+    if not math.isfinite(float(value)) or float(value) <= 0.0:
+        raise ValueError(f'{name} must be finite and > 0, got {value}')
+
+
+@dataclass(frozen=True)
+class XArmConfig:
+    """xArm connection and safety limits (SI units, ``link_base``).
+
+    The workspace defaults are a conservative box in front of an xArm on a table; measure
+    your cell and set them (docs/hardware.md).
+
+    :param ip: controller IP address.
+    :param max_speed_m_s: TCP speed limit; faster commands are scaled down (direction kept).
+    :param max_acc_m_s2: limit on the change of commanded velocity per second; a zero
+        command (a stop) is never delayed by it.
+    :param workspace_min_m: lower corner of the allowed TCP box.
+    :param workspace_max_m: upper corner of the allowed TCP box.
+    :param max_rate_hz: command rate limit, at most 250 Hz (the controller's own limit).
+    :param max_duration_s: longest ``duration`` ever sent; longer requests are shortened.
+    :param connect_timeout_s: deadline for connecting before the arm counts as unreachable.
+    :param mode_settle_s: wait after switching mode/state, before the first command.
+    """
+
+    ip: str
+    max_speed_m_s: float = 0.1
+    max_acc_m_s2: float = 1.0
+    workspace_min_m: Sequence[float] = (0.15, -0.45, 0.02)
+    workspace_max_m: Sequence[float] = (0.70, 0.45, 0.60)
+    max_rate_hz: float = 200.0
+    max_duration_s: float = 0.5
+    connect_timeout_s: float = 5.0
+    mode_settle_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.ip, str) or not self.ip.strip():
+            raise ValueError('ip must be a non-empty string')
+        for name in ('max_speed_m_s', 'max_acc_m_s2', 'max_rate_hz', 'max_duration_s',
+                     'connect_timeout_s'):
+            _check_positive(name, getattr(self, name))
+        if self.max_rate_hz > CONTROLLER_MAX_RATE_HZ:
+            raise ValueError(f'max_rate_hz must be <= {CONTROLLER_MAX_RATE_HZ:g} (the xArm '
+                             f'drops faster commands), got {self.max_rate_hz}')
+        if not math.isfinite(self.mode_settle_s) or self.mode_settle_s < 0.0:
+            raise ValueError(f'mode_settle_s must be finite and >= 0, got {self.mode_settle_s}')
+        lo = _tuple3('workspace_min_m', self.workspace_min_m)
+        hi = _tuple3('workspace_max_m', self.workspace_max_m)
+        if not all(a < b for a, b in zip(lo, hi)):
+            raise ValueError(f'workspace_min_m {lo} must be below workspace_max_m {hi} on '
+                             'every axis')
+        object.__setattr__(self, 'workspace_min_m', lo)
+        object.__setattr__(self, 'workspace_max_m', hi)
+
+
+_SDK_LOG = logging.getLogger(__name__ + '.sdk')
+_import_lock = threading.Lock()
+_sdk_api_class: Any = None
+
+
+class _ForwardToLogging(logging.Handler):
+    """Re-emits the SDK's log records on this package's logger (stderr / the ROS logger)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        """Forward one record."""
+        try:
+            _SDK_LOG.log(record.levelno, '%s', record.getMessage())
+        except Exception:  # noqa: BLE001 - logging must never raise into the SDK
+            self.handleError(record)
+
+
+def _route_sdk_logging() -> None:
+    """Send the SDK's loggers through :mod:`logging` instead of raw ``sys.stdout``.
+
+    The SDK binds ``StreamHandler(sys.stdout)`` to two loggers at import; stdout may carry
+    a protocol (a launch file, a piped tool) and must stay ours.
+    """
+    try:
+        from xarm.core.utils import log as sdk_log
+    except Exception:  # noqa: BLE001 - a layout change must not stop the arm from working
+        return
+    for sdk_logger in (getattr(sdk_log, 'logger', None), getattr(sdk_log, 'origin_logger', None)):
+        if not isinstance(sdk_logger, logging.Logger):
+            continue
+        for handler in list(sdk_logger.handlers):
+            if type(handler) is logging.StreamHandler:
+                sdk_logger.removeHandler(handler)
+        if not any(isinstance(h, _ForwardToLogging) for h in sdk_logger.handlers):
+            sdk_logger.addHandler(_ForwardToLogging())
+        sdk_logger.propagate = False
+
+
+def _import_sdk() -> Any:
+    """Import ``XArmAPI`` once, containing the import's side effects.
+
+    Importing prints the SDK version to stdout (captured here and logged at debug level)
+    and installs stdout log handlers (rerouted by :func:`_route_sdk_logging`). It also
+    creates ``~/.UFACTORY/log``, which cannot be avoided.
+    """
+    global _sdk_api_class
+    with _import_lock:
+        if _sdk_api_class is None:
+            captured = io.StringIO()
+            with contextlib.redirect_stdout(captured):
+                from xarm.wrapper import XArmAPI
+            _route_sdk_logging()
+            text = captured.getvalue().strip()
+            if text:
+                _SDK_LOG.debug('%s', text)
+            _sdk_api_class = XArmAPI
+        return _sdk_api_class
+
+
+@contextlib.contextmanager
+def _socket_default_timeout_restored():
+    """Undo the SDK's ``socket.setdefaulttimeout(1)``, which it calls for every connection.
+
+    Left in place, every later socket in the process (DDS helpers, HTTP clients) would
+    silently get a 1 s timeout.
+    """
+    saved = socket.getdefaulttimeout()
+    try:
+        yield
+    finally:
+        socket.setdefaulttimeout(saved)
+
+
+def default_api_factory(ip: str) -> Any:
+    """Create an unconnected ``XArmAPI`` (``do_not_open=True``; radians by default)."""
+    api_class = _import_sdk()
+    with _socket_default_timeout_restored():
+        return api_class(ip, is_radian=True, do_not_open=True)
+
+
+def _code_of(ret: Any) -> int:
+    """The return code of an SDK call: an int, or the first item of ``(code, data)``."""
+    if isinstance(ret, (tuple, list)):
+        ret = ret[0]
+    if ret is None:
+        # Some SDK calls return None when they did nothing; treat it as success only if
+        # the call is documented to do so, which none of the ones used here is.
+        return -3
+    return int(ret)
+
+
+class XArmAdapter:
+    """An xArm as an :class:`~aslip_ros.control.arm.Arm`. Thread-safe.
+
+    :param config: connection and limits.
+    :param api_factory: ``ip -> XArmAPI-like`` object, created unconnected; tests inject a
+        fake here. Default: :func:`default_api_factory`.
+    :param clock: monotonic time source for the rate and acceleration limits.
+    :param sleep: used by the rate limit and the mode settle time.
+    """
+
+    def __init__(self, config: XArmConfig,
+                 api_factory: Optional[Callable[[str], Any]] = None,
+                 clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        """Create the adapter; nothing is contacted until :meth:`connect`."""
+        self._cfg = config
+        self._factory = api_factory or default_api_factory
+        self._clock = clock
+        self._sleep = sleep
+        self._lock = threading.RLock()
+        self._api: Any = None
+        self._enabled = False
+        self._lo = np.array(config.workspace_min_m)
+        self._hi = np.array(config.workspace_max_m)
+        self._last_send_t: Optional[float] = None
+        self._last_v = np.zeros(3)
+        self._last_duration = 0.0
+        self.commands_sent = 0
+        self.commands_delayed = 0
+        self.commands_clipped = 0
+
+    # -- Arm protocol -----------------------------------------------------------------------
+
+    def connect(self) -> None:
+        """Connect within ``connect_timeout_s``; raise :class:`XArmError` if unreachable.
+
+        Also refuses firmware that cannot honour ``duration`` and an arm that reports a
+        controller error (clearing errors is left to a person who has looked at the arm).
+        """
+        with self._lock:
+            if self._api is not None:
+                return
+            ip = self._cfg.ip
+            try:
+                api = self._factory(ip)
+            except Exception as exc:  # noqa: BLE001 - any SDK failure means "no arm"
+                raise XArmError(f'cannot create the xArm API for {ip}: {exc}') from exc
+            outcome: dict = {}
+            handover = threading.Lock()   # decides atomically who owns the connection
+
+            def worker() -> None:
+                try:
+                    with _socket_default_timeout_restored():
+                        api.connect()
+                    ok = True
+                except BaseException as exc:  # noqa: BLE001 - reported to the caller
+                    outcome['error'] = exc
+                    ok = False
+                with handover:
+                    outcome['done'] = True
+                    abandoned = outcome.get('abandoned', False)
+                if ok and abandoned:
+                    # The caller gave up waiting: do not leave a live connection behind.
+                    try:
+                        with _socket_default_timeout_restored():
+                            api.disconnect()
+                    except Exception:  # noqa: BLE001 - nobody left to report to
+                        pass
+
+            # The SDK's connect blocks on sockets and version queries; a daemon thread with
+            # a deadline turns "unreachable" into an error instead of a hung node.
+            t = threading.Thread(target=worker, name='xarm-connect', daemon=True)
+            t.start()
+            t.join(self._cfg.connect_timeout_s)
+            with handover:
+                finished = outcome.get('done', False)
+                if not finished:
+                    outcome['abandoned'] = True
+            if not finished:
+                raise XArmError(f'xArm at {ip} did not answer within '
+                                f'{self._cfg.connect_timeout_s:g} s')
+            if 'error' in outcome:
+                raise XArmError(f'cannot connect to xArm at {ip}: {outcome["error"]}') \
+                    from outcome['error']
+            if not getattr(api, 'connected', False):
+                raise XArmError(f'cannot connect to xArm at {ip}: SDK reports no connection')
+            self._api = api
+            try:
+                self._check_firmware()
+                self._refuse_if_controller_error()
+            except BaseException:
+                self._disconnect_quietly()
+                raise
+
+    def enable_velocity_mode(self) -> None:
+        """Enable motion, switch to Cartesian velocity mode (5) and the motion state (0)."""
+        with self._lock:
+            self._require_connected()
+            self._call('motion_enable', enable=True)
+            self._call('set_mode', MODE_CARTESIAN_VELOCITY)
+            self._call('set_state', STATE_MOTION)
+            # Mode and state calls report success even while the controller holds an
+            # error (the SDK maps that code to 0 for non-motion calls), so ask explicitly.
+            self._refuse_if_controller_error()
+            # The controller applies a mode change asynchronously; a command sent at once
+            # can be rejected or applied in the old mode.
+            if self._cfg.mode_settle_s > 0.0:
+                self._sleep(self._cfg.mode_settle_s)
+            self._enabled = True
+            self._last_send_t = None
+            self._last_v = np.zeros(3)
+
+    def send_velocity(self, v_xyz_m_s: np.ndarray, duration_s: float) -> None:
+        """Command a TCP velocity [m/s, ``link_base``], valid for ``duration_s`` [s].
+
+        The velocity is clipped to the speed, acceleration and workspace limits. Raises
+        :class:`XArmError` (after stopping the arm) on an invalid request, a TCP outside the
+        workspace or any non-zero SDK code.
+        """
+        with self._lock:
+            self._require_connected()
+            if not self._enabled:
+                raise XArmError('velocity mode is not enabled (after connect() or stop(), call '
+                                'enable_velocity_mode())')
+            try:
+                v = as_vector3(v_xyz_m_s, 'velocity')
+                duration = float(duration_s)
+                if not math.isfinite(duration) or duration <= 0.0:
+                    # duration <= 0 means "never stop" to the SDK: never let it through.
+                    raise ValueError(f'duration must be finite and > 0 s, got {duration_s}')
+            except ValueError as exc:
+                self._stop_quietly()
+                raise XArmError(f'refused command: {exc}') from exc
+            duration = min(duration, self._cfg.max_duration_s)
+
+            self._respect_rate_limit()
+            position = self._position_m()
+            if np.any(position < self._lo) or np.any(position > self._hi):
+                self._stop_quietly()
+                raise XArmError(f'TCP {np.round(position, 4).tolist()} m is outside the '
+                                f'workspace {self._lo.tolist()}..{self._hi.tolist()}; stopped')
+            now = self._clock()
+            cmd = self._limit(v, position, duration, now)
+            if not np.array_equal(cmd, v):
+                self.commands_clipped += 1
+            mm = cmd * 1000.0
+            self._call('vc_set_cartesian_velocity',
+                       [float(mm[0]), float(mm[1]), float(mm[2]), 0.0, 0.0, 0.0],
+                       is_radian=True, is_tool_coord=False, duration=duration)
+            self._last_send_t = now
+            self._last_v = cmd
+            self._last_duration = duration
+            self.commands_sent += 1
+
+    def stop(self) -> None:
+        """Stop now: zero velocity, then the stop state. Safe at any time.
+
+        Velocity mode must be re-enabled before the next :meth:`send_velocity`. Raises
+        :class:`XArmError` only if the arm is connected and neither way of stopping was
+        accepted (an arm already halted by a controller error counts as stopped).
+        """
+        with self._lock:
+            self._enabled = False
+            self._last_v = np.zeros(3)
+            api = self._api
+            if api is None or not getattr(api, 'connected', False):
+                return
+            codes = []
+            for name, args, kwargs in (
+                    ('vc_set_cartesian_velocity', ([0.0] * 6,),
+                     {'is_radian': True, 'is_tool_coord': False,
+                      'duration': self._cfg.max_duration_s}),
+                    ('set_state', (STATE_STOP,), {})):
+                try:
+                    codes.append(_code_of(getattr(api, name)(*args, **kwargs)))
+                except Exception as exc:  # noqa: BLE001 - keep trying the other way
+                    _LOG.warning('xArm %s during stop raised %s', name, exc)
+                    codes.append(-3)
+            # Code 1 (uncleared controller error): the controller has already halted.
+            if not any(c in (0, 1) for c in codes):
+                raise XArmError(f'xArm did not accept stop (codes {codes}: '
+                                f'{", ".join(describe_code(c) for c in codes)})', code=codes[-1])
+
+    def tcp_pose(self) -> np.ndarray:
+        """TCP pose ``(x, y, z, qx, qy, qz, qw)`` in ``link_base`` [m]."""
+        with self._lock:
+            self._require_connected()
+            _, pos = self._call_get('get_position', is_radian=True)
+            return self._to_pose(pos)
+
+    def close(self) -> None:
+        """Stop and disconnect; safe to call more than once."""
+        with self._lock:
+            if self._api is None:
+                return
+            try:
+                self.stop()
+            except ArmError as exc:
+                _LOG.warning('stop during close failed: %s', exc)
+            self._disconnect_quietly()
+
+    # -- extras -----------------------------------------------------------------------------
+
+    @property
+    def config(self) -> XArmConfig:
+        """The adapter's configuration."""
+        return self._cfg
+
+    @property
+    def connected(self) -> bool:
+        """True after a successful :meth:`connect` while the SDK reports a connection."""
+        with self._lock:
+            return self._api is not None and bool(getattr(self._api, 'connected', False))
+
+    @property
+    def velocity_mode_enabled(self) -> bool:
+        """True between :meth:`enable_velocity_mode` and the next stop or error."""
+        with self._lock:
+            return self._enabled
+
+    def __enter__(self) -> 'XArmAdapter':
+        """Connect on entering a ``with`` block."""
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        """Stop and disconnect on leaving it."""
+        self.close()
+
+    # -- internals --------------------------------------------------------------------------
+
+    def _require_connected(self) -> None:
+        if self._api is None:
+            raise XArmError('not connected (call connect())', code=-1)
+
+    def _refuse_if_controller_error(self) -> None:
+        code, err_warn = self._call_get('get_err_warn_code')
+        error = int(err_warn[0]) if err_warn else 0
+        if error != 0:
+            self._stop_quietly()
+            raise XArmError(f'xArm at {self._cfg.ip} reports controller error {error}: '
+                            f'{_controller_error_text(error)}; clear it on the arm',
+                            code=code, controller_error=error)
+
+    def _check_firmware(self) -> None:
+        version = tuple(getattr(self._api, 'version_number', ()) or ())
+        if len(version) < 3 or tuple(int(x) for x in version[:3]) < MIN_FIRMWARE_FOR_DURATION:
+            raise XArmError(f'xArm firmware {version} cannot honour the velocity command '
+                            f'duration (needs >= {MIN_FIRMWARE_FOR_DURATION}); refusing')
+
+    def _call(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        """Call an SDK method and check its code; on failure stop and raise."""
+        try:
+            ret = getattr(self._api, name)(*args, **kwargs)
+        except Exception as exc:  # noqa: BLE001 - the SDK should not raise; if it does, stop
+            self._stop_quietly()
+            raise XArmError(f'xArm {name} raised {exc!r}; stopped') from exc
+        code = _code_of(ret)
+        if code != 0:
+            self._stop_quietly()
+            message = f'xArm {name} failed with code {code} ({describe_code(code)})'
+            controller_error = None
+            if code == 1:
+                controller_error = self._controller_error()
+                if controller_error:
+                    message += (f'; controller error {controller_error}: '
+                                f'{_controller_error_text(controller_error)}')
+            raise XArmError(message + '; stopped', code=code, controller_error=controller_error)
+        return ret
+
+    def _call_get(self, name: str, *args: Any, **kwargs: Any) -> Tuple[int, Any]:
+        ret = self._call(name, *args, **kwargs)
+        if not isinstance(ret, (tuple, list)) or len(ret) < 2:
+            self._stop_quietly()
+            raise XArmError(f'xArm {name} returned {ret!r}, expected (code, data)')
+        return int(ret[0]), ret[1]
+
+    def _controller_error(self) -> Optional[int]:
+        try:
+            ret = self._api.get_err_warn_code()
+            if _code_of(ret) in (0, 1) and ret[1]:
+                return int(ret[1][0])
+        except Exception:  # noqa: BLE001 - only used to enrich an error message
+            pass
+        return None
+
+    def _stop_quietly(self) -> None:
+        try:
+            self.stop()
+        except Exception as exc:  # noqa: BLE001 - already reporting a worse error
+            _LOG.error('xArm stop after an error failed too: %s', exc)
+
+    def _disconnect_quietly(self) -> None:
+        api, self._api = self._api, None
+        self._enabled = False
+        if api is None:
+            return
+        try:
+            with _socket_default_timeout_restored():
+                api.disconnect()
+        except Exception as exc:  # noqa: BLE001 - nothing more can be done
+            _LOG.warning('xArm disconnect raised %s', exc)
+
+    def _respect_rate_limit(self) -> None:
+        if self._last_send_t is None:
+            return
+        wait = 1.0 / self._cfg.max_rate_hz - (self._clock() - self._last_send_t)
+        if wait > 0.0:
+            # Delaying beats dropping: a dropped command could be the one that slows down.
+            self.commands_delayed += 1
+            self._sleep(wait)
+
+    def _position_m(self) -> np.ndarray:
+        _, pos = self._call_get('get_position', is_radian=True)
+        return self._to_pose(pos)[:3]
+
+    def _to_pose(self, pos: Sequence[float]) -> np.ndarray:
+        values = np.asarray(pos, dtype=np.float64).reshape(-1)
+        if values.shape[0] < 6 or not np.all(np.isfinite(values[:6])):
+            self._stop_quietly()
+            raise XArmError(f'xArm returned an invalid pose {pos!r}; stopped')
+        # The SDK's roll/pitch/yaw are fixed-axis x-y-z angles, scipy's lowercase 'xyz'.
+        quat = Rotation.from_euler('xyz', values[3:6]).as_quat()
+        return np.concatenate([values[:3] / 1000.0, quat])
+
+    def _limit(self, v: np.ndarray, position: np.ndarray, duration: float,
+               now: float) -> np.ndarray:
+        """Speed, then acceleration, then workspace limits (the last one wins)."""
+        speed = float(np.linalg.norm(v))
+        if speed > self._cfg.max_speed_m_s:
+            v = v * (self._cfg.max_speed_m_s / speed)
+        if np.any(v != 0.0):
+            previous = np.zeros(3)
+            dt = 1.0 / self._cfg.max_rate_hz
+            if self._last_send_t is not None:
+                elapsed = now - self._last_send_t
+                # After its duration the previous command has expired: the arm is at rest.
+                if elapsed <= self._last_duration:
+                    previous = self._last_v
+                dt = max(dt, elapsed)
+            dv = v - previous
+            max_dv = self._cfg.max_acc_m_s2 * dt
+            n = float(np.linalg.norm(dv))
+            if n > max_dv:
+                v = previous + dv * (max_dv / n)
+        # Aim each component at most at the box wall within this command's duration.
+        v = v.copy()
+        reach_hi = (self._hi - position) / duration
+        reach_lo = (self._lo - position) / duration
+        v = np.minimum(np.maximum(v, reach_lo), reach_hi)
+        return v
