@@ -1,0 +1,568 @@
+"""Export rosbags to the windowed training dataset (library and ``aslip export``).
+
+Everything about the recording comes from the bag: sample rate, channel count and names
+from the ``AudioFrame`` messages, pose rates from the pose stamps, scenario fields from the
+metadata (``custom_data['aslip']`` or the metadata topic). Defaults when a bag carries no
+metadata: labels from motion capture, identity grasp-plane calibration, trial id = the
+bag's name, and ``object``/``pad``/``condition``/``induced`` = ``"unknown"``.
+
+Windows follow a regular grid in the audio stream's sample index: window ``n =
+round(window_s * sample_rate)`` frames every ``hop = round(hop_s * sample_rate)`` frames
+from the first received sample. A window is kept when all its samples were received and it
+has a label; otherwise it is dropped and counted under one reason:
+
+- ``audio_gap``: the window touches samples missing from the stream
+  (``first_sample_index`` jumped);
+- ``label_gap``: a pose stream has a dropout longer than ``max_gap_s`` over the window;
+- ``label_coverage``: the window is outside the pose streams' time span.
+
+Audio time: the block stamps (time of each block's first sample) are fitted by a line in
+the sample index, which averages out host-clock jitter and follows a slightly off nominal
+rate. Labels use header stamps (log time where a stamp is zero).
+
+Any error leaves no dataset behind (it is built in a temporary directory and renamed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from aslip_ros.data.bags import (AUDIO_TYPE, DEFAULT_TOPICS, POSE_TYPE, BagError,
+                                 BagReader, Topics, find_bags, stamp_to_ns)
+from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
+from aslip_ros.data.labels import (DEFAULT_MAX_GAP_S, IDENTITY_POSE, OK, REASONS,
+                                   PoseTrack, mocap_window_velocity, robot_window_velocity)
+
+DEFAULT_WINDOW_S = 0.2
+DEFAULT_HOP_S = 0.1
+# 5 mm/s = 1 mm of slip per 200 ms window: several times the velocity noise of
+# sub-millimetre motion capture differenced over a window (about 1-3 mm/s), and the size
+# of the paper's magnitude error, so "slip" means motion the sensor can be asked to see.
+DEFAULT_EPSILON_M_S = 0.005
+LABEL_SOURCES = ("auto", "mocap", "robot")
+UNKNOWN = "unknown"
+DROP_REASONS = ("audio_gap",) + tuple(REASONS.values())
+
+
+@dataclass(frozen=True)
+class ExportConfig:
+    """Export parameters (SI units)."""
+
+    window_s: float = DEFAULT_WINDOW_S
+    hop_s: float = DEFAULT_HOP_S
+    epsilon_m_s: float = DEFAULT_EPSILON_M_S
+    label_source: str = "auto"
+    max_gap_s: float = DEFAULT_MAX_GAP_S
+    topics: Topics = DEFAULT_TOPICS
+    overwrite: bool = False
+    skip_bad: bool = False
+    progress: bool = True
+
+    def validate(self) -> None:
+        """Raise ValueError on parameters that cannot produce a dataset."""
+        for name in ("window_s", "hop_s", "max_gap_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
+        if not (math.isfinite(self.epsilon_m_s) and self.epsilon_m_s >= 0):
+            raise ValueError(f"epsilon_m_s must be >= 0 m/s, got {self.epsilon_m_s!r}")
+        if self.label_source not in LABEL_SOURCES:
+            raise ValueError(f"label_source must be one of {LABEL_SOURCES}, "
+                             f"got {self.label_source!r}")
+
+
+@dataclass
+class BagResult:
+    """What one bag contributed."""
+
+    bag: str
+    trial_id: str = ""
+    label_source: str = ""
+    audio_s: float = 0.0
+    kept: int = 0
+    dropped: dict = field(default_factory=dict)
+    error: str = ""
+
+
+@dataclass
+class ExportSummary:
+    """Totals of an export; ``str()`` gives the human-readable report."""
+
+    dataset: str
+    sample_rate: float = 0.0
+    channel_names: list = field(default_factory=list)
+    layout: str = ""
+    bags: list = field(default_factory=list)
+    kept: int = 0
+    dropped: dict = field(default_factory=dict)
+    audio_s: float = 0.0
+    elapsed_s: float = 0.0
+    warnings: list = field(default_factory=list)
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.audio_s / self.elapsed_s if self.elapsed_s > 0 else float("inf")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["realtime_factor"] = self.realtime_factor
+        return d
+
+    def __str__(self) -> str:
+        ok = [b for b in self.bags if not b.error]
+        bad = [b for b in self.bags if b.error]
+        drops = ", ".join(f"{k} {v}" for k, v in self.dropped.items() if v) or "none"
+        lines = [
+            f"export: {len(ok)} bag(s) -> {self.dataset}",
+            f"  audio: {self.sample_rate:g} Hz x {len(self.channel_names)} ch "
+            f"({', '.join(self.channel_names)}), layout {self.layout or UNKNOWN!r}",
+            f"  windows kept {self.kept}, dropped {sum(self.dropped.values())} ({drops})",
+            f"  {self.audio_s:.1f} s of audio in {self.elapsed_s:.2f} s "
+            f"({self.realtime_factor:.0f}x real time)",
+        ]
+        lines += [f"  skipped {b.bag}: {b.error}" for b in bad]
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------
+
+
+def _label_source(cfg: ExportConfig, meta: dict) -> str:
+    if cfg.label_source != "auto":
+        return cfg.label_source
+    return "robot" if meta.get("induced") == "robot" else "mocap"
+
+
+def _label_topics(cfg: ExportConfig, source: str) -> list[str]:
+    t = cfg.topics
+    return [t.tcp] if source == "robot" else [t.finger, t.object]
+
+
+def _calibration(meta: dict, key: str, bag: Path) -> np.ndarray:
+    value = meta.get(key)
+    if value is None:
+        return IDENTITY_POSE.copy()
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.size != 7 or not np.all(np.isfinite(arr)) or np.linalg.norm(arr[3:]) < 1e-9:
+        raise BagError(f"bag {bag}: metadata {key} must be a pose x y z qx qy qz qw, "
+                       f"got {value!r}")
+    return arr
+
+
+def _audio_clock(idx: np.ndarray, stamps_ns: np.ndarray, sample_rate: float,
+                 ref_ns: int):
+    """Return (intercept_s, slope_s_per_sample): t(i) = intercept + (i - idx[0]) * slope."""
+    x = (idx - idx[0]).astype(np.float64)
+    y = (stamps_ns - ref_ns).astype(np.float64) * 1e-9
+    nominal = 1.0 / sample_rate
+    if x.size >= 2 and x[-1] > 0:
+        slope, intercept = np.polyfit(x, y, 1)
+        # A fit far from the nominal rate means bad stamps, not a slow ADC: fall back.
+        if abs(slope * sample_rate - 1.0) < 0.01:
+            return float(intercept), float(slope)
+    return float(np.median(y - x * nominal)), nominal
+
+
+class _PoseBuffer:
+    """Growable arrays of pose samples."""
+
+    def __init__(self, capacity: int):
+        capacity = max(16, int(capacity))
+        self.n = 0
+        self.stamp = np.zeros(capacity, np.int64)
+        self.log = np.zeros(capacity, np.int64)
+        self.pose = np.zeros((capacity, 7), np.float64)
+
+    def append(self, stamp_ns: int, log_ns: int, pose: np.ndarray) -> None:
+        if self.n == self.stamp.size:      # the index undercounted: grow geometrically
+            grow = self.stamp.size
+            self.stamp = np.concatenate([self.stamp, np.zeros(grow, np.int64)])
+            self.log = np.concatenate([self.log, np.zeros(grow, np.int64)])
+            self.pose = np.concatenate([self.pose, np.zeros((grow, 7))])
+        self.stamp[self.n] = stamp_ns
+        self.log[self.n] = log_ns
+        self.pose[self.n] = pose
+        self.n += 1
+
+
+class _Stream:
+    """Dataset-wide audio format, fixed by the first bag."""
+
+    def __init__(self):
+        self.sample_rate: float | None = None
+        self.channel_names: tuple[str, ...] | None = None
+        self.source = ""
+        self.layouts: set[str] = set()
+
+    def check(self, sample_rate: float, names: tuple[str, ...], bag: Path) -> None:
+        if self.sample_rate is None:
+            self.sample_rate, self.channel_names, self.source = sample_rate, names, str(bag)
+            return
+        if abs(sample_rate - self.sample_rate) > 1e-6 * self.sample_rate:
+            raise BagError(f"bag {bag}: sample rate {sample_rate:g} Hz differs from "
+                           f"{self.sample_rate:g} Hz of {self.source}; one dataset needs "
+                           "one sample rate")
+        if names != self.channel_names:
+            raise BagError(f"bag {bag}: channel names {list(names)} differ from "
+                           f"{list(self.channel_names)} of {self.source}; one dataset needs "
+                           "one channel set")
+
+
+def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: DatasetWriter,
+                stream: _Stream, bar) -> tuple[BagResult, dict]:
+    path = reader.path
+    topics = cfg.topics
+    source = _label_source(cfg, meta)
+    label_topics = _label_topics(cfg, source)
+    res = BagResult(bag=str(path), label_source=source)
+
+    audio = None
+    names: tuple[str, ...] | None = None
+    sample_rate = 0.0
+    layout_msg = ""
+    blk_idx: list[int] = []
+    blk_ns: list[int] = []
+    blk_log: list[int] = []
+    seg_start: list[int] = []      # stream index of each contiguous segment's first frame
+    seg_file: list[int] = []       # its offset in the trial's audio file
+    seg_len: list[int] = []
+    expected = None
+    # Compact per-topic buffers (stamp, log time, pose7) sized from the bag's index, so a
+    # long recording costs 72 bytes per pose rather than a Python object per value.
+    poses = {t: _PoseBuffer(reader.info.counts.get(t, 0)) for t in label_topics}
+    n_msgs = max(1, sum(reader.info.counts.get(t, 0) for t in [topics.audio] + label_topics))
+    pending = 0
+
+    for m in reader.messages([topics.audio] + label_topics, fast_poses=True):
+        pending += 1
+        if pending >= 512:
+            # Fractional updates: the bar counts bags, moving smoothly within each one.
+            bar.update(pending / n_msgs)
+            pending = 0
+        if m.topic == topics.audio:
+            if m.msgtype != AUDIO_TYPE:
+                raise BagError(f"bag {path}: topic {m.topic} holds {m.msgtype}, expected "
+                               f"{AUDIO_TYPE}")
+            msg = m.msg
+            if names is None:
+                names = tuple(msg.channel_names)
+                sample_rate = float(msg.sample_rate)
+                layout_msg = msg.layout
+                if not names:
+                    raise BagError(f"bag {path}: AudioFrame without channel_names")
+                if not (math.isfinite(sample_rate) and sample_rate > 0):
+                    raise BagError(f"bag {path}: AudioFrame sample_rate {sample_rate!r}")
+                stream.check(sample_rate, names, path)
+                audio = writer.begin_trial(len(names))
+            elif float(msg.sample_rate) != sample_rate or tuple(msg.channel_names) != names:
+                raise BagError(f"bag {path}: sample rate or channel names change within the "
+                               f"audio stream at first_sample_index {msg.first_sample_index}")
+            data = msg.data
+            c = len(names)
+            if data.size % c:
+                raise BagError(f"bag {path}: AudioFrame with {data.size} samples is not a "
+                               f"whole number of {c}-channel frames")
+            frames = data.size // c
+            idx = int(msg.first_sample_index)
+            if expected is None or idx > expected:
+                seg_start.append(idx)
+                seg_file.append(audio.n_frames)
+                seg_len.append(0)
+            elif idx < expected:
+                raise BagError(f"bag {path}: audio first_sample_index goes back from "
+                               f"{expected} to {idx} (restarted capture?); split the bag")
+            audio.append(data.reshape(frames, c))
+            seg_len[-1] += frames
+            expected = idx + frames
+            blk_idx.append(idx)
+            blk_ns.append(stamp_to_ns(msg.header.stamp))
+            blk_log.append(m.log_ns)
+        else:
+            if m.msgtype != POSE_TYPE:
+                raise BagError(f"bag {path}: topic {m.topic} holds {m.msgtype}, expected "
+                               f"{POSE_TYPE}")
+            poses[m.topic].append(m.msg.stamp_ns, m.log_ns, m.msg.pose)
+
+    bar.update(pending / n_msgs)
+    if audio is None:
+        raise BagError(f"bag {path}: no messages on audio topic {topics.audio}")
+    for t, buf in poses.items():
+        if buf.n < 2:
+            raise BagError(f"bag {path}: topic {t} has {buf.n} message(s); labels from "
+                           f"{source} need a pose stream")
+
+    idx = np.asarray(blk_idx, dtype=np.int64)
+    stamps = np.asarray(blk_ns, dtype=np.int64)
+    if not stamps.any():           # unstamped driver: the recorder's clock is all we have
+        stamps = np.asarray(blk_log, dtype=np.int64)
+    ref_ns = int(stamps[0])
+    intercept, slope = _audio_clock(idx, stamps, sample_rate, ref_ns)
+
+    def pose_track(topic: str) -> PoseTrack:
+        buf = poses[topic]
+        t_ns = buf.stamp[:buf.n]
+        if not t_ns.any():
+            t_ns = buf.log[:buf.n]
+        return PoseTrack((t_ns - ref_ns) * 1e-9, buf.pose[:buf.n], name=topic)
+
+    # Window grid over the stream's sample index.
+    n_win = int(round(cfg.window_s * sample_rate))
+    hop = int(round(cfg.hop_s * sample_rate))
+    if n_win < 1 or hop < 1:
+        raise BagError(f"window {cfg.window_s} s / hop {cfg.hop_s} s is below one sample at "
+                       f"{sample_rate:g} Hz")
+    s_first, s_end = int(seg_start[0]), int(expected)
+    starts = np.arange(s_first, s_end - n_win + 1, hop, dtype=np.int64)
+    seg_s = np.asarray(seg_start, dtype=np.int64)
+    seg_n = np.asarray(seg_len, dtype=np.int64)
+    seg_f = np.asarray(seg_file, dtype=np.int64)
+    j = np.searchsorted(seg_s, starts, side="right") - 1
+    audio_ok = starts + n_win <= seg_s[j] + seg_n[j]
+    file_pos = seg_f[j] + (starts - seg_s[j])
+
+    t0 = intercept + (starts - idx[0]) * slope
+    t1 = t0 + n_win * slope
+    if source == "robot":
+        calib = _calibration(meta, "grasp_plane_in_tcp", path)
+        track = pose_track(topics.tcp)
+        labels = robot_window_velocity(track, t0, t1, calib, cfg.max_gap_s)
+        rate = track.rate_hz
+    else:
+        calib = _calibration(meta, "grasp_plane_in_finger", path)
+        finger = pose_track(topics.finger)
+        labels = mocap_window_velocity(finger, pose_track(topics.object), t0, t1, calib,
+                                       cfg.max_gap_s)
+        rate = finger.rate_hz
+
+    dropped = Counter()
+    dropped["audio_gap"] = int((~audio_ok).sum())
+    for code, name in REASONS.items():
+        dropped[name] = int((audio_ok & (labels.reason == code)).sum())
+    keep = audio_ok & (labels.reason == OK)
+    rows = np.zeros(int(keep.sum()), dtype=WINDOW_DTYPE)
+    rows["start"] = file_pos[keep]
+    rows["vx"] = labels.vx[keep]
+    rows["vz"] = labels.vz[keep]
+    speed = labels.speed[keep]
+    rows["speed"] = speed
+    rows["slip"] = speed > cfg.epsilon_m_s
+
+    res.kept = int(rows.size)
+    res.dropped = {k: int(dropped[k]) for k in DROP_REASONS}
+    res.audio_s = audio.n_frames / sample_rate
+    info = {
+        "object": meta.get("object") or UNKNOWN, "pad": meta.get("pad") or UNKNOWN,
+        "layout": meta.get("layout") or layout_msg or "",
+        "condition": meta.get("condition") or UNKNOWN,
+        "induced": meta.get("induced") or UNKNOWN,
+        "source_bag": str(path), "label_source": source,
+        "seed": meta.get("seed"), "label_rate_hz": round(rate, 3),
+        "dropped": res.dropped, "audio_gaps": len(seg_start) - 1,
+        "has_metadata": bool(meta),
+    }
+    return res, {"info": info, "rows": rows}
+
+
+def _bag_name(path: Path) -> str:
+    return path.stem if path.is_file() else path.name
+
+
+def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
+           config: ExportConfig | None = None, **overrides: Any) -> ExportSummary:
+    """Export ``bags`` (bag files/directories, or directories holding bags) to ``out``.
+
+    ``overrides`` replace fields of ``config`` (e.g. ``window_s=0.1``). Raises ValueError
+    (BagError for bag problems) with a message naming the bag and what is wrong; on any
+    error no dataset is left at ``out``.
+    """
+    cfg = replace(config or ExportConfig(), **overrides)
+    cfg.validate()
+    t_start = time.perf_counter()
+    paths = find_bags(bags)
+    if not paths:
+        raise ValueError(f"no rosbag2 bags found in {', '.join(map(str, bags))}")
+    from tqdm import tqdm
+
+    summary = ExportSummary(dataset=str(out))
+    stream = _Stream()
+    ids: Counter = Counter()
+    layouts: dict[str, str] = {}
+    with DatasetWriter(out, overwrite=cfg.overwrite) as writer, \
+            tqdm(total=len(paths), desc="export", disable=not cfg.progress, leave=False,
+                 bar_format="{l_bar}{bar}| {n:.1f}/{total} bags [{elapsed}<{remaining}"
+                            "{postfix}]") as bar:
+        for p in paths:
+            done = bar.n
+            try:
+                with BagReader(p) as r:
+                    meta = r.read_metadata(cfg.topics.metadata) or {}
+                    source = _label_source(cfg, meta)
+                    r.require([cfg.topics.audio], "audio")
+                    r.require(_label_topics(cfg, source), f"labels from {source}")
+                    bar.set_postfix_str(_bag_name(p), refresh=False)
+                    res, trial = _export_bag(r, meta, cfg, writer, stream, bar)
+                bar.update(done + 1 - bar.n)
+            except BagError as exc:
+                writer.abort_trial()
+                bar.update(done + 1 - bar.n)
+                if not cfg.skip_bad:
+                    raise
+                summary.bags.append(BagResult(bag=str(p), error=str(exc)))
+                continue
+            info = trial["info"]
+            tid = str(meta.get("trial_id") or _bag_name(p))
+            ids[tid] += 1
+            if ids[tid] > 1:
+                summary.warnings.append(f"trial id {tid!r} repeats ({p}); renamed "
+                                        f"{tid}~{ids[tid]}")
+                tid = f"{tid}~{ids[tid]}"
+            info["id"] = res.trial_id = tid
+            if info["layout"]:
+                layouts.setdefault(info["layout"], str(p))
+            if len(layouts) > 1:
+                writer.abort_trial()
+                raise BagError(f"bag {p}: layouts differ within one dataset: "
+                               + ", ".join(f"{k!r} ({v})" for k, v in layouts.items()))
+            writer.end_trial(info, trial["rows"])
+            summary.bags.append(res)
+        if stream.sample_rate is None:
+            raise ValueError("no bag could be exported")
+        summary.sample_rate = stream.sample_rate
+        summary.channel_names = list(stream.channel_names)
+        summary.layout = next(iter(layouts), "")
+        ok = [b for b in summary.bags if not b.error]
+        summary.kept = sum(b.kept for b in ok)
+        summary.dropped = {k: sum(b.dropped.get(k, 0) for b in ok) for k in DROP_REASONS}
+        summary.audio_s = sum(b.audio_s for b in ok)
+        n_win = int(round(cfg.window_s * stream.sample_rate))
+        writer.finish(
+            sample_rate=stream.sample_rate, channel_names=list(stream.channel_names),
+            layout=summary.layout, window_s=cfg.window_s, hop_s=cfg.hop_s,
+            n_window_samples=n_win, hop_samples=int(round(cfg.hop_s * stream.sample_rate)),
+            epsilon_m_s=cfg.epsilon_m_s, max_gap_s=cfg.max_gap_s,
+            label_source=cfg.label_source, topics=asdict(cfg.topics),
+            dropped=summary.dropped, skipped_bags=[b.bag for b in summary.bags if b.error],
+            created_by="aslip export")
+    summary.elapsed_s = time.perf_counter() - t_start
+    return summary
+
+
+# ---------------------------------------------------------------------------------------
+# Command line
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``aslip export``."""
+    parser.add_argument("bags", nargs="*", type=Path,
+                        help="bag directories, .mcap files, or directories holding bags")
+    parser.add_argument("-o", "--out", type=Path, help="dataset directory to create")
+    parser.add_argument("--window", type=float, default=DEFAULT_WINDOW_S,
+                        help="window length in s (paper: 0.1, 0.2, 0.3; default %(default)s)")
+    parser.add_argument("--hop", type=float, default=DEFAULT_HOP_S,
+                        help="hop between window starts in s (default %(default)s)")
+    parser.add_argument("--epsilon", type=float, default=DEFAULT_EPSILON_M_S,
+                        help="slip threshold on the window's mean speed in m/s "
+                             "(default %(default)s)")
+    parser.add_argument("--labels", choices=LABEL_SOURCES, default="auto",
+                        help="label source: robot state for induced=robot, else motion "
+                             "capture (auto), or forced")
+    parser.add_argument("--max-gap", type=float, default=DEFAULT_MAX_GAP_S,
+                        help="longest pose dropout bridged by interpolation in s "
+                             "(default %(default)s)")
+    for name in ("audio", "finger", "object", "tcp", "metadata"):
+        parser.add_argument(f"--{name}-topic", default=getattr(DEFAULT_TOPICS, name),
+                            help=f"{name} topic (default %(default)s)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
+    parser.add_argument("--skip-bad", action="store_true",
+                        help="skip unreadable or inconsistent bags instead of failing")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--summary-json", type=Path, help="also write the summary as JSON")
+    parser.add_argument("--bench", type=float, metavar="SECONDS", nargs="?", const=60.0,
+                        help="measure export speed and peak memory on a synthetic bag of "
+                             "this many seconds (48 kHz x 4 ch) and print JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of ``aslip export``."""
+    if args.bench is not None:
+        print(json.dumps(measure_export_speed(args.bench), indent=2))
+        return 0
+    if not args.bags or args.out is None:
+        print("aslip export: give bags and -o/--out", file=sys.stderr)
+        return 2
+    cfg = ExportConfig(
+        window_s=args.window, hop_s=args.hop, epsilon_m_s=args.epsilon,
+        label_source=args.labels, max_gap_s=args.max_gap,
+        topics=Topics(audio=args.audio_topic, finger=args.finger_topic,
+                      object=args.object_topic, tcp=args.tcp_topic,
+                      metadata=args.metadata_topic),
+        overwrite=args.overwrite, skip_bad=args.skip_bad, progress=not args.no_progress)
+    try:
+        summary = export(args.bags, args.out, cfg)
+    except (ValueError, FileExistsError) as exc:
+        print(f"aslip export: error: {exc}", file=sys.stderr)
+        return 1
+    print(summary)
+    if args.summary_json:
+        from aslip_ros.util import write_json
+        write_json(args.summary_json, summary.to_dict())
+    return 0
+
+
+def measure_export_speed(duration_s: float = 60.0, sample_rate: float = 48000.0,
+                         n_channels: int = 4, workdir: str | os.PathLike | None = None
+                         ) -> dict:
+    """Export a synthetic bag in a child process; report speed against real time and peak RSS.
+
+    The child is a fresh ``aslip export`` process, so ``peak_rss_mib`` is the export's own
+    peak resident memory (interpreter and imports included), not this process's.
+    """
+    from aslip_ros.data.synthetic import write_synthetic_bag
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        bag = Path(tmp) / "bench_bag"
+        names = [f"ch{k}" for k in range(n_channels)]
+        write_synthetic_bag(bag, duration_s=duration_s, sample_rate=sample_rate,
+                            channel_names=names, slip_velocity=(0.01, 0.0, 0.005))
+        summary_path = Path(tmp) / "summary.json"
+        cmd = [sys.executable, "-m", "aslip_ros.cli", "export", str(bag), "-o",
+               str(Path(tmp) / "ds"), "--no-progress", "--summary-json", str(summary_path)]
+        t = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t
+        if proc.returncode:
+            raise RuntimeError(f"benchmark export failed: {proc.stderr.strip()}")
+        summary = json.loads(summary_path.read_text())
+        peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        bag_mib = sum(f.stat().st_size for f in bag.iterdir()) / 2**20
+    return {
+        "audio_s": summary["audio_s"], "sample_rate": sample_rate, "n_channels": n_channels,
+        "bag_mib": round(bag_mib, 1),
+        "export_s": round(summary["elapsed_s"], 3),
+        "realtime_factor": round(summary["realtime_factor"], 1),
+        "process_wall_s": round(wall, 3),
+        "realtime_factor_with_startup": round(summary["audio_s"] / wall, 1),
+        "peak_rss_mib": round(peak_kib / 1024, 1),
+        "windows": summary["kept"],
+        "command": " ".join(cmd[:4] + ["<bag>", "-o", "<dataset>"]),
+    }
+
+
+if __name__ == "__main__":
+    p = argparse.ArgumentParser(prog="aslip export")
+    add_arguments(p)
+    sys.exit(run(p.parse_args()))
