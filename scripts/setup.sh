@@ -46,12 +46,15 @@ if [ "$pyver" != "3.11" ]; then
   echo "[setup] run with PYTHON=/path/to/python3.11 make setup" >&2
   exit 1
 fi
-want="$( (cat "$LOCK"; "$PYTHON" -VV) | sha256sum | cut -d' ' -f1)"
-if [ "$(cat "$VENV/.aslip-lock" 2>/dev/null)" != "$want" ]; then
-  say "creating $VENV from requirements/venv.lock (about 2 minutes the first time)"
+if ! "$VENV/bin/python" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
+  say "creating $VENV (about 2 minutes the first time)"
   rm -rf "$VENV"
   "$PYTHON" -m venv "$VENV"
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check 'setuptools==79.0.1' wheel
+fi
+want="$(sha256sum "$LOCK" | cut -d' ' -f1)"
+if [ "$(cat "$VENV/.aslip-lock" 2>/dev/null)" != "$want" ]; then
+  say "installing requirements/venv.lock into $VENV"
   # torch==2.13.0+cpu comes from a local wheel or the PyTorch CPU index (TORCH_INDEX_URL).
   extra=()
   [ -n "${TORCH_INDEX_URL:-}" ] && extra+=(--extra-index-url "$TORCH_INDEX_URL")
@@ -67,7 +70,8 @@ fi
 if [ ! -f "$VENV/.aslip-cmake-fixed" ]; then
   py_inc="$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
   np_inc="$("$VENV/bin/python" -c 'import numpy; print(numpy.get_include())')"
-  grep -l '/opt/python/cp311-cp311' "$VENV"/share/*/cmake/*Export.cmake 2>/dev/null | while read -r f; do
+  { grep -l '/opt/python/cp311-cp311' "$VENV"/share/*/cmake/*Export.cmake 2>/dev/null || true; } \
+  | while read -r f; do
     sed -i -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#${np_inc}#g" \
            -e "s#/opt/python/cp311-cp311/include/python3.11#${py_inc}#g" "$f"
   done
