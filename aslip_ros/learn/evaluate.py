@@ -1,0 +1,168 @@
+"""The paper's metrics, for any checkpoint on any dataset split: ``aslip evaluate``.
+
+Definitions (inputs in SI; the report converts to the paper's degrees and millimetres):
+
+- ``detection_accuracy``: fraction of windows where (p >= threshold) equals the label
+  (speed > epsilon, as stored in the dataset).
+- ``direction_mae_deg`` / ``direction_std_deg``: over windows labelled slip with a
+  non-zero true velocity, the absolute angle between the *ungated* predicted direction and
+  the true one, in [0, 180]; mean and population standard deviation of that per-window
+  error. Ungated, so direction quality is measured apart from detection (the gated vector
+  has no direction when p < threshold).
+- ``magnitude_rmse_mm`` / ``magnitude_std_mm``: per-window displacement error
+  e = |s_hat - s*| * window_s over the same slip windows (s = speed, ungated), RMSE
+  sqrt(mean(e^2)) and the population std of |e|. ``magnitude_rmse_gated_mm`` repeats it
+  over all windows with the gated speed (zero below threshold), i.e. what a controller sees.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from aslip_ros.util import write_json
+
+from .checkpoint import CheckpointMismatch
+from .data_io import open_dataset, select_windows
+
+
+def compute_metrics(prob: np.ndarray, raw_velocity: np.ndarray, true_velocity: np.ndarray,
+                    slip: np.ndarray, window_s: float, threshold: float = 0.5) -> dict[str, Any]:
+    """The paper's metrics from arrays; see the module docstring for the definitions."""
+    prob = np.asarray(prob, dtype=np.float64).reshape(-1)
+    raw = np.asarray(raw_velocity, dtype=np.float64).reshape(-1, 2)
+    true = np.asarray(true_velocity, dtype=np.float64).reshape(-1, 2)
+    slip = np.asarray(slip, dtype=bool).reshape(-1)
+    n = prob.shape[0]
+    if not (raw.shape[0] == true.shape[0] == slip.shape[0] == n):
+        raise ValueError("prob, velocities and slip labels must have the same length")
+    out: dict[str, Any] = {"n_windows": int(n), "n_slip": int(slip.sum()),
+                           "threshold": float(threshold), "window_s": float(window_s)}
+    if n == 0:
+        return out
+    pred = prob >= threshold
+    tp = int((pred & slip).sum())
+    out.update(detection_accuracy=float((pred == slip).mean()),
+               precision=float(tp / max(pred.sum(), 1)), recall=float(tp / max(slip.sum(), 1)))
+    s_true = np.linalg.norm(true, axis=1)
+    s_raw = np.linalg.norm(raw, axis=1)
+    m = slip & (s_true > 0)
+    if m.any():
+        cos = (raw[m] * true[m]).sum(1) / (np.maximum(s_raw[m], 1e-12) * s_true[m])
+        ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        ang[s_raw[m] == 0] = 90.0  # no direction at all: count as orthogonal, not as right
+        e_mm = np.abs(s_raw[m] - s_true[m]) * window_s * 1e3
+        out.update(direction_mae_deg=float(ang.mean()), direction_std_deg=float(ang.std()),
+                   magnitude_rmse_mm=float(np.sqrt((e_mm ** 2).mean())),
+                   magnitude_std_mm=float(e_mm.std()))
+    s_gated = np.where(pred, s_raw, 0.0)
+    e_all = np.abs(s_gated - s_true) * window_s * 1e3
+    out["magnitude_rmse_gated_mm"] = float(np.sqrt((e_all ** 2).mean()))
+    return out
+
+
+def grouped_metrics(groups: np.ndarray, prob, raw_velocity, true_velocity, slip, window_s,
+                    threshold=0.5) -> dict[str, dict[str, Any]]:
+    """``compute_metrics`` per distinct value of ``groups`` (e.g. object per window)."""
+    groups = np.asarray(groups)
+    return {str(g): compute_metrics(prob[groups == g], raw_velocity[groups == g],
+                                    true_velocity[groups == g], slip[groups == g], window_s,
+                                    threshold)
+            for g in sorted(set(groups.tolist()))}
+
+
+def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str = "test", *,
+                        induced: str | None = None, objects: Sequence[str] | None = None,
+                        conditions: Sequence[str] | None = None, split_seed: int = 0,
+                        threshold: float | None = None, batch_size: int = 256,
+                        predictor=None) -> dict[str, Any]:
+    """Run a checkpoint over a dataset split; returns overall, per-object, per-condition metrics.
+
+    Dataset channels are picked by the checkpoint's channel names, so a single-microphone
+    model evaluates on a 4-microphone dataset; rate and window length must match exactly.
+    """
+    from .predictor import Predictor
+
+    pred = predictor or Predictor.from_checkpoint(checkpoint, threshold=threshold)
+    ds = open_dataset(dataset)
+    cols = ds.channel_indices(pred.channel_names)
+    check = pred.checkpoint
+    check.check_compatible(ds.sample_rate, [ds.channel_names[c] for c in cols])
+    if ds.window_samples != pred.window_samples:
+        raise CheckpointMismatch(
+            f"dataset windows are {ds.window_s * 1e3:g} ms ({ds.window_samples} samples), the "
+            f"checkpoint expects {pred.window_s * 1e3:g} ms ({pred.window_samples} samples)")
+    idx = select_windows(ds, split, induced=induced, objects=objects, conditions=conditions,
+                         seed=split_seed)
+    if idx.size == 0:
+        raise ValueError(f"no windows in split {split!r} of {dataset} with these filters")
+    probs, raws = [], []
+    for s in range(0, idx.size, 2048):
+        b = pred.predict_batch(ds.window_audio(idx[s:s + 2048], cols), batch_size=batch_size)
+        probs.append(b.probability)
+        raws.append(b.raw_velocity)
+    prob, raw = np.concatenate(probs), np.concatenate(raws)
+    true, slip = ds.velocity(idx), ds.slip(idx)
+    args = (prob, raw, true, slip, pred.window_s, pred.threshold)
+    return {
+        "checkpoint": str(checkpoint), "dataset": str(dataset), "split": split,
+        "model_type": pred.model_type, "layout": pred.layout,
+        "channel_names": pred.channel_names,
+        "overall": compute_metrics(*args),
+        "per_object": grouped_metrics(ds.trial_field("object", idx), *args),
+        "per_condition": grouped_metrics(ds.trial_field("condition", idx), *args),
+    }
+
+
+def format_report(res: dict[str, Any]) -> str:
+    """A short human-readable summary in the paper's units."""
+    def row(name: str, m: dict[str, Any]) -> str:
+        acc = m.get("detection_accuracy", float("nan")) * 100
+        return (f"{name:<24} n={m['n_windows']:>6}  det {acc:5.1f} %  "
+                f"dir {m.get('direction_mae_deg', float('nan')):5.1f} ± "
+                f"{m.get('direction_std_deg', float('nan')):4.1f} deg  "
+                f"mag {m.get('magnitude_rmse_mm', float('nan')):5.2f} ± "
+                f"{m.get('magnitude_std_mm', float('nan')):4.2f} mm")
+    lines = [f"{res['model_type']} {res['checkpoint']} on {res['dataset']} [{res['split']}]",
+             row("overall", res["overall"])]
+    lines += [row(f"  {k}", v) for k, v in res["per_object"].items()]
+    return "\n".join(lines)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--checkpoint", required=True, help="checkpoint file (aslip train --out)")
+    p.add_argument("--dataset", required=True, help="dataset directory (aslip export)")
+    p.add_argument("--split", default="test", choices=["train", "val", "test", "all"])
+    p.add_argument("--split-seed", type=int, default=0, help="seed of the trial split")
+    p.add_argument("--induced", default=None, help="only trials with this 'induced' value")
+    p.add_argument("--objects", default=None, help="comma-separated objects to keep")
+    p.add_argument("--conditions", default=None, help="comma-separated conditions to keep")
+    p.add_argument("--threshold", type=float, default=None, help="p(slip) threshold (0.5)")
+    p.add_argument("--json", default=None, help="write the metrics here as JSON")
+    p.add_argument("--threads", type=int, default=2, help="torch threads")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    torch.set_num_threads(max(1, args.threads))
+    split_list = (lambda s: [x for x in s.split(",") if x] if s else None)
+    try:
+        res = evaluate_checkpoint(args.checkpoint, args.dataset, args.split,
+                                  induced=args.induced, objects=split_list(args.objects),
+                                  conditions=split_list(args.conditions),
+                                  split_seed=args.split_seed, threshold=args.threshold)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"aslip evaluate: {exc}", file=sys.stderr)
+        return 2
+    print(format_report(res))
+    if args.json:
+        write_json(args.json, res)
+    else:
+        print(json.dumps(res["overall"], indent=2))
+    return 0

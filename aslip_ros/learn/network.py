@@ -1,0 +1,251 @@
+"""The A-SLIP slip network: channel attention, 2D conv blocks, temporal convs, attention pooling.
+
+Input: raw log-mel features ``(B, C, M, T)`` from ``features.LogMel``; the model normalises
+them with the dataset statistics it holds as buffers. Output: ``SlipOutput`` with the slip
+logit ``(B,)``, the non-negative slip speed in m/s ``(B,)`` and the unnormalised direction
+``(B, 2)`` in the grasp plane (x along the fingers, z vertical).
+
+How "a learnable channel attention mechanism fuses the multi-microphone streams" is read
+here (docs/model.md): the gate produces one weight per microphone and scales that
+microphone's spectrogram; the weighted spectrograms then enter the first 2D convolution as
+its input channels, whose learned mixing is the fusion. Summing the weighted channels into
+one map instead would throw away the cross-microphone differences that carry direction.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture hyper-parameters; stored in the checkpoint and enough to rebuild the net.
+
+    ``width`` is the channel count of the first 2D block, doubling per block up to
+    ``4 * width``; ``depth`` is the number of 2D blocks (each halves the mel axis).
+    ``speed_scale`` (m/s) sets the unit of the magnitude head so that its raw output is
+    order one; training sets it to the median training slip speed.
+    """
+
+    n_channels: int = 4
+    n_mels: int = 40
+    width: int = 16
+    depth: int = 3
+    temporal_layers: int = 2
+    temporal_channels: int = 64
+    temporal_kernel: int = 3
+    gate_hidden: int = 8
+    gate: str = "softmax"
+    dropout: float = 0.1
+    head_hidden: int = 32
+    speed_scale: float = 0.02
+
+    def __post_init__(self) -> None:
+        if self.n_channels < 1 or self.n_mels < 1:
+            raise ValueError("n_channels and n_mels must be >= 1")
+        if self.width < 1 or self.depth < 1 or self.temporal_channels < 1:
+            raise ValueError("width, depth and temporal_channels must be >= 1")
+        if self.temporal_layers < 0 or self.temporal_kernel < 1 or self.temporal_kernel % 2 == 0:
+            raise ValueError("temporal_layers >= 0 and an odd temporal_kernel are required")
+        if self.gate not in ("softmax", "sigmoid"):
+            raise ValueError(f"gate must be 'softmax' or 'sigmoid', got {self.gate!r}")
+        if not (0.0 <= self.dropout < 1.0) or self.speed_scale <= 0:
+            raise ValueError("dropout in [0, 1) and speed_scale > 0 are required")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ModelConfig":
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ValueError(f"unknown model parameters: {sorted(unknown)}")
+        return cls(**d)
+
+
+class SlipOutput(NamedTuple):
+    logit: torch.Tensor       # (B,) slip logit; p(slip) = sigmoid(logit)
+    magnitude: torch.Tensor   # (B,) slip speed, m/s, >= 0
+    direction: torch.Tensor   # (B, 2) unnormalised (x, z) direction
+
+
+class ChannelAttention(nn.Module):
+    """Per-microphone weights from frequency-averaged spectrograms via a small temporal conv."""
+
+    def __init__(self, n_channels: int, hidden: int, mode: str) -> None:
+        super().__init__()
+        self.mode = mode
+        self.net = nn.Sequential(
+            nn.Conv1d(n_channels, hidden, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv1d(hidden, n_channels, 3, padding=1),
+        )
+
+    def weights(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, C) weights; softmax weights are scaled by C so their mean is one."""
+        score = self.net(x.mean(dim=2)).mean(dim=2)  # (B, C, T) -> (B, C)
+        if self.mode == "softmax":
+            return torch.softmax(score, dim=1) * x.shape[1]
+        return 2.0 * torch.sigmoid(score)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * self.weights(x)[:, :, None, None]
+
+
+class FreqMaxPool(nn.Module):
+    """Max over pairs of adjacent mel bins, every frame kept (an odd last bin is dropped).
+
+    Same result as ``nn.MaxPool2d((2, 1))``; a reshape and ``amax`` is several times faster
+    on CPU for these small maps, which matters for the 3 ms inference budget.
+    """
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, c, m, t = x.shape
+        return x[:, :, : m - m % 2].reshape(b, c, m // 2, 2, t).amax(dim=3)
+
+
+class TemporalAttentionPool(nn.Module):
+    """Softmax-weighted average over time with learned per-frame scores."""
+
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.score = nn.Conv1d(channels, 1, 1)
+
+    def forward(self, h: torch.Tensor) -> torch.Tensor:
+        a = torch.softmax(self.score(h), dim=2)  # (B, 1, T)
+        return (h * a).sum(dim=2)
+
+
+class Encoder(nn.Module):
+    """Normalised log-mel ``(B, C, M, T)`` -> latent ``(B, temporal_channels)``."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.attention = ChannelAttention(cfg.n_channels, cfg.gate_hidden, cfg.gate)
+        blocks: list[nn.Module] = []
+        c_in, m = cfg.n_channels, cfg.n_mels
+        for i in range(cfg.depth):
+            c_out = cfg.width * 2 ** min(i, 2)
+            blocks += [nn.Conv2d(c_in, c_out, 3, padding=1, bias=False),
+                       nn.BatchNorm2d(c_out), nn.ReLU(inplace=True), nn.Dropout(cfg.dropout)]
+            if m >= 2:
+                # Pool frequency only: every frame survives to the temporal layers.
+                blocks.append(FreqMaxPool())
+                m //= 2
+            c_in = c_out
+        self.conv2d = nn.Sequential(*blocks)
+        layers: list[nn.Module] = []
+        c = c_in * m
+        for _ in range(cfg.temporal_layers):
+            layers += [nn.Conv1d(c, cfg.temporal_channels, cfg.temporal_kernel,
+                                 padding=cfg.temporal_kernel // 2, bias=False),
+                       nn.BatchNorm1d(cfg.temporal_channels), nn.ReLU(inplace=True),
+                       nn.Dropout(cfg.dropout)]
+            c = cfg.temporal_channels
+        if cfg.temporal_layers == 0:
+            layers.append(nn.Conv1d(c, cfg.temporal_channels, 1))
+        self.conv1d = nn.Sequential(*layers)
+        self.pool = TemporalAttentionPool(cfg.temporal_channels)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = self.conv2d(self.attention(x))        # (B, W, M', T)
+        h = h.flatten(1, 2)                       # (B, W * M', T)
+        return self.pool(self.conv1d(h))
+
+
+def _head(c_in: int, hidden: int, c_out: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(c_in, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, c_out))
+
+
+class SlipNet(nn.Module):
+    """The A-SLIP network. ``freeze_encoder()`` prepares head-only finetuning."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.register_buffer("feat_mean", torch.zeros(cfg.n_mels))
+        self.register_buffer("feat_std", torch.ones(cfg.n_mels))
+        self.encoder = Encoder(cfg)
+        h = cfg.temporal_channels
+        self.heads = nn.ModuleDict({
+            "slip": _head(h, cfg.head_hidden, 1),
+            "magnitude": _head(h, cfg.head_hidden, 1),
+            "direction": _head(h, cfg.head_hidden, 2),
+        })
+        self._encoder_frozen = False
+
+    def set_normalization(self, mean, std) -> None:
+        """Install per-mel-bin statistics of the raw log-mel features."""
+        mean = torch.as_tensor(mean, dtype=torch.float32).reshape(-1)
+        std = torch.as_tensor(std, dtype=torch.float32).reshape(-1)
+        if mean.numel() != self.cfg.n_mels or std.numel() != self.cfg.n_mels:
+            raise ValueError(f"normalisation stats must have {self.cfg.n_mels} entries")
+        if not (torch.isfinite(mean).all() and torch.isfinite(std).all() and (std > 0).all()):
+            raise ValueError("normalisation stats must be finite with std > 0")
+        self.feat_mean.copy_(mean)
+        self.feat_std.copy_(std)
+
+    def normalize(self, x: torch.Tensor) -> torch.Tensor:
+        return (x - self.feat_mean[:, None]) / self.feat_std[:, None]
+
+    def forward(self, x: torch.Tensor) -> SlipOutput:
+        if x.ndim != 4 or x.shape[1] != self.cfg.n_channels or x.shape[2] != self.cfg.n_mels:
+            raise ValueError(f"expected (B, {self.cfg.n_channels}, {self.cfg.n_mels}, T) "
+                             f"features, got {tuple(x.shape)}")
+        z = self.encoder(self.normalize(x))
+        logit = self.heads["slip"](z).squeeze(1)
+        # softplus keeps speed >= 0 with gradient everywhere (ReLU would die at zero speed).
+        magnitude = F.softplus(self.heads["magnitude"](z).squeeze(1)) * self.cfg.speed_scale
+        return SlipOutput(logit, magnitude, self.heads["direction"](z))
+
+    def freeze_encoder(self) -> None:
+        """Stop every encoder update: no gradients and batch-norm statistics fixed."""
+        self._encoder_frozen = True
+        for p in self.encoder.parameters():
+            p.requires_grad_(False)
+        self.encoder.eval()
+
+    def train(self, mode: bool = True) -> "SlipNet":
+        super().train(mode)
+        if self._encoder_frozen:
+            # BN running statistics are buffers, not parameters: requires_grad alone would
+            # let them drift during finetuning, so the encoder stays in eval mode.
+            self.encoder.eval()
+        return self
+
+    def head_parameters(self) -> list[nn.Parameter]:
+        return list(self.heads.parameters())
+
+
+def fuse_for_inference(model: SlipNet) -> SlipNet:
+    """An eval-mode copy with batch norm folded into the preceding convolutions.
+
+    Numerically the same function (to float rounding) with fewer operators: at batch size
+    one the per-operator overhead, not arithmetic, dominates CPU latency.
+    """
+    import copy
+
+    from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+    fused = copy.deepcopy(model).eval()
+    for seq in (fused.encoder.conv2d, fused.encoder.conv1d):
+        mods = list(seq)
+        for i, mod in enumerate(mods):
+            if isinstance(mod, (nn.BatchNorm1d, nn.BatchNorm2d)) and i > 0 and isinstance(
+                    mods[i - 1], (nn.Conv1d, nn.Conv2d)):
+                mods[i - 1] = fuse_conv_bn_eval(mods[i - 1], mod)
+                mods[i] = nn.Identity()
+            elif isinstance(mod, nn.Dropout):
+                mods[i] = nn.Identity()
+        for i, mod in enumerate(mods):
+            seq[i] = mod
+    for p in fused.parameters():
+        p.requires_grad_(False)
+    return fused

@@ -1,0 +1,212 @@
+"""One inference interface over the CNN and the SVM baseline, built from a checkpoint alone.
+
+    p = Predictor.from_checkpoint("model.pt")
+    p.check_stream(sample_rate, channel_names)     # CheckpointMismatch (a ValueError)
+    pred = p.predict(window)                        # window: (window_samples, C) float32
+
+Below the threshold (default 0.5, the paper's) the reported slip vector is zero; the
+ungated estimate stays available in ``BatchPrediction.raw_velocity`` for evaluation.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from .checkpoint import Checkpoint, check_compatible, load_checkpoint
+from .features import FeatureConfig, LogMel
+from .network import ModelConfig, SlipNet, fuse_for_inference
+from .svm import SvmArrays, SvmFeaturizer
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """One window's estimate. Velocities in m/s in the grasp plane; window_length in s."""
+
+    probability: float
+    slipping: bool
+    vx: float
+    vz: float
+    speed: float
+    direction: tuple[float, float]   # unit (x, z) when slipping, else (0, 0)
+    window_length: float
+
+
+@dataclass(frozen=True)
+class BatchPrediction:
+    probability: np.ndarray    # (B,)
+    slipping: np.ndarray       # (B,) bool
+    velocity: np.ndarray       # (B, 2) gated: zero where not slipping
+    raw_velocity: np.ndarray   # (B, 2) ungated estimate
+    window_length: float
+
+    def __len__(self) -> int:
+        return int(self.probability.shape[0])
+
+    def __getitem__(self, i: int) -> Prediction:
+        v = self.velocity[i]
+        speed = float(np.hypot(v[0], v[1]))
+        d = (float(v[0] / speed), float(v[1] / speed)) if speed > 0 else (0.0, 0.0)
+        return Prediction(float(self.probability[i]), bool(self.slipping[i]), float(v[0]),
+                          float(v[1]), speed, d, self.window_length)
+
+
+class _CnnBackend:
+    def __init__(self, ckpt: Checkpoint) -> None:
+        self.cfg = ModelConfig.from_dict(ckpt.meta["model_config"])
+        self.model = SlipNet(self.cfg)
+        try:
+            self.model.load_state_dict(ckpt.tensors)
+        except RuntimeError as exc:
+            raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
+        self.model = fuse_for_inference(self.model)
+
+    def infer_features(self, feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        with torch.inference_mode():
+            out = self.model(torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)))
+            prob = torch.sigmoid(out.logit)
+            d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
+            v = d * out.magnitude[:, None]
+        return prob.numpy(), v.numpy()
+
+
+class _SvmBackend:
+    def __init__(self, ckpt: Checkpoint, feature_cfg: FeatureConfig) -> None:
+        self.arrays = SvmArrays.from_tensors(ckpt.tensors)
+        n_bands = int(ckpt.meta["model_config"]["n_bands"])
+        self.featurizer = SvmFeaturizer(feature_cfg, float(ckpt.meta["sample_rate"]), n_bands)
+
+
+class Predictor:
+    """Slip estimation for fixed-length multi-channel windows at the checkpoint's rate."""
+
+    def __init__(self, ckpt: Checkpoint, threshold: float | None = None) -> None:
+        self.checkpoint = ckpt
+        meta = ckpt.meta
+        self.feature_config = FeatureConfig.from_dict(meta["feature_config"])
+        self.threshold = float(meta.get("threshold", 0.5) if threshold is None else threshold)
+        if not (0.0 <= self.threshold <= 1.0):
+            raise ValueError(f"threshold must be in [0, 1], got {self.threshold}")
+        self.window_samples = int(meta["window_samples"])
+        self.window_s = float(meta["window_s"])
+        self.logmel = LogMel(self.feature_config, ckpt.sample_rate)
+        if ckpt.model_type == "aslip_cnn":
+            self._cnn: _CnnBackend | None = _CnnBackend(ckpt)
+            self._svm: _SvmBackend | None = None
+            if self._cnn.cfg.n_channels != len(ckpt.channel_names):
+                raise ValueError("checkpoint model channel count disagrees with channel_names")
+        elif ckpt.model_type == "svm":
+            self._cnn, self._svm = None, _SvmBackend(ckpt, self.feature_config)
+        else:
+            raise ValueError(f"unsupported model type {ckpt.model_type!r}")
+
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike,
+                        threshold: float | None = None) -> "Predictor":
+        return cls(load_checkpoint(path), threshold=threshold)
+
+    # --- what the checkpoint expects ------------------------------------------------------
+    @property
+    def meta(self) -> dict[str, Any]:
+        return self.checkpoint.meta
+
+    @property
+    def model_type(self) -> str:
+        return self.checkpoint.model_type
+
+    @property
+    def sample_rate(self) -> float:
+        return self.checkpoint.sample_rate
+
+    @property
+    def channel_names(self) -> list[str]:
+        return self.checkpoint.channel_names
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.channel_names)
+
+    @property
+    def layout(self) -> str | None:
+        return self.meta.get("layout")
+
+    def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
+        """Raise CheckpointMismatch (a ValueError) unless the stream matches the training."""
+        check_compatible(self.meta, sample_rate, channel_names)
+
+    # --- inference ------------------------------------------------------------------------
+    def _validate(self, windows: np.ndarray) -> np.ndarray:
+        x = np.asarray(windows)
+        want = (self.window_samples, self.n_channels)
+        if x.ndim != 3 or x.shape[1:] != want:
+            raise ValueError(f"expected windows shaped (B, {want[0]}, {want[1]}), got {x.shape}")
+        if not np.issubdtype(x.dtype, np.number) or np.iscomplexobj(x):
+            raise ValueError(f"audio must be real numbers, got dtype {x.dtype}")
+        x = x.astype(np.float32, copy=False)
+        if not np.isfinite(x).all():
+            raise ValueError("audio window contains NaN or Inf")
+        return x
+
+    def predict(self, window: np.ndarray) -> Prediction:
+        """One window, shaped (window_samples, n_channels)."""
+        w = np.asarray(window)
+        if w.ndim != 2:
+            raise ValueError(f"expected a window shaped ({self.window_samples}, "
+                             f"{self.n_channels}), got {w.shape}")
+        return self.predict_batch(w[None])[0]
+
+    def predict_batch(self, windows: np.ndarray, batch_size: int = 256) -> BatchPrediction:
+        """Windows shaped (B, window_samples, n_channels)."""
+        x = self._validate(windows)
+        probs, vels = [], []
+        for s in range(0, max(x.shape[0], 1), batch_size):
+            chunk = x[s:s + batch_size]
+            if chunk.shape[0] == 0:
+                break
+            if self._cnn is not None:
+                p, v = self._cnn.infer_features(self.logmel(chunk))
+            else:
+                p, v = self._svm.arrays.predict(self._svm.featurizer(chunk))
+            probs.append(p)
+            vels.append(v)
+        prob = np.concatenate(probs) if probs else np.zeros(0, np.float32)
+        raw = np.concatenate(vels) if vels else np.zeros((0, 2), np.float32)
+        return self._gate(prob, raw)
+
+    def predict_features(self, feats: np.ndarray) -> BatchPrediction:
+        """CNN only: log-mel features (B, C, M, T) from ``LogMel`` (e.g. a training cache)."""
+        if self._cnn is None:
+            raise ValueError("predict_features needs a CNN checkpoint")
+        p, v = self._cnn.infer_features(np.asarray(feats, dtype=np.float32))
+        return self._gate(p, v)
+
+    def _gate(self, prob: np.ndarray, raw: np.ndarray) -> BatchPrediction:
+        slipping = prob >= self.threshold
+        vel = np.where(slipping[:, None], raw, 0.0).astype(np.float32)
+        return BatchPrediction(prob.astype(np.float32), slipping, vel, raw.astype(np.float32),
+                               self.window_s)
+
+
+def benchmark_latency(predictor: Predictor, n_iter: int = 300, n_warmup: int = 30,
+                      seed: int = 0) -> dict[str, float]:
+    """Seconds per single-window ``predict`` (features + model), after warm-up.
+
+    Uses whatever torch thread count is set; benchmarks call ``torch.set_num_threads(1)``.
+    """
+    rng = np.random.default_rng(seed)
+    w = (0.01 * rng.standard_normal((predictor.window_samples, predictor.n_channels))).astype(
+        np.float32)
+    for _ in range(n_warmup):
+        predictor.predict(w)
+    t = np.empty(n_iter)
+    for i in range(n_iter):
+        t0 = time.perf_counter()
+        predictor.predict(w)
+        t[i] = time.perf_counter() - t0
+    return {"p50_s": float(np.percentile(t, 50)), "p99_s": float(np.percentile(t, 99)),
+            "mean_s": float(t.mean()), "n_iter": n_iter}

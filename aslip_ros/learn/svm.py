@@ -1,0 +1,201 @@
+"""The paper's SVM baseline: RBF SVC for slip, RBF SVRs for (vx, vz), on handcrafted features.
+
+Features are computed per channel from the same resampled power spectrogram as the CNN's
+(``features.LogMel.power_spectrogram``), then concatenated and standardised:
+log energies in ``n_bands`` log-spaced bands, log RMS, spectral centroid, bandwidth,
+85 % roll-off, flatness, zero-crossing rate and the frame-to-frame spread of log energy.
+
+scikit-learn fits the estimators; the fitted model is then reduced to arrays (support
+vectors, dual coefficients, intercepts, gamma) and evaluated by ``SvmArrays`` in numpy, so
+checkpoints need no pickle and inference does not depend on the sklearn version.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from .features import FeatureConfig, LogMel
+
+_FLOOR = 1e-12
+
+
+@dataclass(frozen=True)
+class SvmConfig:
+    """SVM hyper-parameters. ``svr_epsilon`` is in units of ``target_scale`` (m/s)."""
+
+    n_bands: int = 8
+    C: float = 10.0
+    svr_C: float = 10.0
+    gamma: str | float = "scale"
+    svr_epsilon: float = 0.1
+    max_train: int = 4000
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+class SvmFeaturizer:
+    """Audio windows ``(B, N, C)`` -> handcrafted features ``(B, C * (n_bands + 7))``."""
+
+    def __init__(self, feature_cfg: FeatureConfig, input_rate: float, n_bands: int) -> None:
+        if n_bands < 1:
+            raise ValueError("n_bands must be >= 1")
+        self.logmel = LogMel(feature_cfg, input_rate)
+        cfg = feature_cfg
+        self.freqs = (np.arange(cfg.n_fft // 2 + 1) * cfg.sample_rate / cfg.n_fft).astype(
+            np.float32)
+        edges = np.geomspace(max(cfg.fmin, 50.0), cfg.f_max, n_bands + 1)
+        self.band = np.stack([(self.freqs >= lo) & (self.freqs < hi)
+                              for lo, hi in zip(edges[:-1], edges[1:])], axis=1).astype(
+                                  np.float32)  # (n_bins, n_bands)
+        self.n_bands = n_bands
+
+    @property
+    def n_per_channel(self) -> int:
+        return self.n_bands + 7
+
+    def __call__(self, audio: np.ndarray) -> np.ndarray:
+        x = np.asarray(audio, dtype=np.float32)
+        if x.ndim == 2:
+            x = x[None]
+        spec = self.logmel.power_spectrogram(x)  # (B, C, T, K)
+        p = spec.mean(axis=2)                    # (B, C, K)
+        total = p.sum(axis=-1) + _FLOOR
+        nyq = self.freqs[-1]
+        bands = np.log(p @ self.band + _FLOOR)
+        centroid = (p * self.freqs).sum(-1) / total
+        bandwidth = np.sqrt((p * (self.freqs - centroid[..., None]) ** 2).sum(-1) / total)
+        cum = np.cumsum(p, axis=-1)
+        rolloff = self.freqs[np.minimum((cum < 0.85 * total[..., None]).sum(-1),
+                                        len(self.freqs) - 1)]
+        flatness = np.exp(np.log(p + _FLOOR).mean(-1)) / (p.mean(-1) + _FLOOR)
+        xs = self.logmel.resample(x)             # (B, N', C)
+        rms = np.log(np.sqrt((xs ** 2).mean(axis=1)) + 1e-9)
+        zcr = (np.diff(np.signbit(xs), axis=1) != 0).mean(axis=1)
+        frame_e = np.log(spec.sum(-1) + _FLOOR)  # (B, C, T)
+        spread = frame_e.std(axis=-1)
+        scalars = np.stack([rms, centroid / nyq, bandwidth / nyq, rolloff / nyq, flatness,
+                            zcr, spread], axis=-1)
+        feats = np.concatenate([bands, scalars], axis=-1)  # (B, C, F)
+        return feats.reshape(feats.shape[0], -1).astype(np.float32)
+
+
+@dataclass
+class KernelMachine:
+    """An RBF kernel expansion: f(x) = sum_i a_i exp(-gamma |x - s_i|^2) + b."""
+
+    support: np.ndarray   # (n_sv, F)
+    dual: np.ndarray      # (n_sv,)
+    intercept: float
+    gamma: float
+
+    @classmethod
+    def from_sklearn(cls, est) -> "KernelMachine":
+        if est.kernel != "rbf":
+            raise ValueError("only RBF kernels are supported")
+        return cls(support=np.asarray(est.support_vectors_, dtype=np.float64),
+                   dual=np.asarray(est.dual_coef_, dtype=np.float64).reshape(-1),
+                   intercept=float(np.asarray(est.intercept_).reshape(-1)[0]),
+                   gamma=float(est._gamma))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        d2 = ((x ** 2).sum(1)[:, None] + (self.support ** 2).sum(1)[None, :]
+              - 2.0 * x @ self.support.T)
+        return np.exp(-self.gamma * np.maximum(d2, 0.0)) @ self.dual + self.intercept
+
+    def to_tensors(self, prefix: str) -> dict[str, torch.Tensor]:
+        return {f"{prefix}.support": torch.from_numpy(self.support),
+                f"{prefix}.dual": torch.from_numpy(self.dual),
+                f"{prefix}.intercept": torch.tensor([self.intercept], dtype=torch.float64),
+                f"{prefix}.gamma": torch.tensor([self.gamma], dtype=torch.float64)}
+
+    @classmethod
+    def from_tensors(cls, t: dict[str, torch.Tensor], prefix: str) -> "KernelMachine":
+        try:
+            return cls(support=t[f"{prefix}.support"].double().numpy(),
+                       dual=t[f"{prefix}.dual"].double().numpy(),
+                       intercept=float(t[f"{prefix}.intercept"][0]),
+                       gamma=float(t[f"{prefix}.gamma"][0]))
+        except KeyError as exc:
+            raise ValueError(f"SVM checkpoint lacks {exc}") from exc
+
+
+@dataclass
+class SvmArrays:
+    """The fitted baseline as arrays: standardisation, slip classifier, vx/vz regressors.
+
+    ``probability`` is sigmoid(decision value): not Platt-calibrated, but p >= 0.5 exactly
+    where the SVC predicts slip, which is all the threshold needs.
+    """
+
+    mean: np.ndarray
+    std: np.ndarray
+    slip: KernelMachine
+    vx: KernelMachine
+    vz: KernelMachine
+    target_scale: float   # m/s; regressors predict velocity / target_scale
+
+    def predict(self, feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(probability (B,), ungated velocity (B, 2) m/s) from handcrafted features."""
+        z = (np.asarray(feats, dtype=np.float64) - self.mean) / self.std
+        prob = 1.0 / (1.0 + np.exp(-np.clip(self.slip(z), -50, 50)))
+        v = np.stack([self.vx(z), self.vz(z)], axis=1) * self.target_scale
+        return prob.astype(np.float32), v.astype(np.float32)
+
+    def to_tensors(self) -> dict[str, torch.Tensor]:
+        out = {"scaler.mean": torch.from_numpy(np.asarray(self.mean, dtype=np.float64)),
+               "scaler.std": torch.from_numpy(np.asarray(self.std, dtype=np.float64)),
+               "target_scale": torch.tensor([self.target_scale], dtype=torch.float64)}
+        for name in ("slip", "vx", "vz"):
+            out.update(getattr(self, name).to_tensors(name))
+        return out
+
+    @classmethod
+    def from_tensors(cls, t: dict[str, torch.Tensor]) -> "SvmArrays":
+        try:
+            mean, std = t["scaler.mean"].numpy(), t["scaler.std"].numpy()
+            scale = float(t["target_scale"][0])
+        except KeyError as exc:
+            raise ValueError(f"SVM checkpoint lacks {exc}") from exc
+        return cls(mean=mean, std=std, slip=KernelMachine.from_tensors(t, "slip"),
+                   vx=KernelMachine.from_tensors(t, "vx"), vz=KernelMachine.from_tensors(t, "vz"),
+                   target_scale=scale)
+
+
+def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
+            cfg: SvmConfig = SvmConfig()) -> tuple[SvmArrays, dict[str, Any]]:
+    """Fit on handcrafted features; returns the array model and the sklearn estimators.
+
+    The regressors see slip windows only: they estimate the velocity given slip, and the
+    classifier decides whether it is reported.
+    """
+    from sklearn.svm import SVC, SVR
+
+    feats = np.asarray(feats, dtype=np.float64)
+    slip = np.asarray(slip, dtype=bool)
+    if feats.ndim != 2 or feats.shape[0] != slip.shape[0] or velocity.shape != (len(slip), 2):
+        raise ValueError("feats (n, F), slip (n,) and velocity (n, 2) must agree")
+    if slip.all() or not slip.any():
+        raise ValueError("the SVM needs both slip and no-slip training windows")
+    mean = feats.mean(axis=0)
+    std = np.maximum(feats.std(axis=0), 1e-6)
+    z = (feats - mean) / std
+    svc = SVC(kernel="rbf", C=cfg.C, gamma=cfg.gamma).fit(z, slip.astype(int))
+    v = np.asarray(velocity, dtype=np.float64)[slip]
+    scale = float(max(np.median(np.linalg.norm(v, axis=1)), 1e-4))
+    svr = {}
+    for j, name in enumerate(("vx", "vz")):
+        svr[name] = SVR(kernel="rbf", C=cfg.svr_C, gamma=cfg.gamma,
+                        epsilon=cfg.svr_epsilon).fit(z[slip], v[:, j] / scale)
+    arrays = SvmArrays(mean=mean, std=std, slip=KernelMachine.from_sklearn(svc),
+                       vx=KernelMachine.from_sklearn(svr["vx"]),
+                       vz=KernelMachine.from_sklearn(svr["vz"]), target_scale=scale)
+    if list(svc.classes_) != [0, 1]:
+        raise ValueError(f"unexpected SVC classes {svc.classes_}")
+    return arrays, {"svc": svc, "svr_vx": svr["vx"], "svr_vz": svr["vz"]}

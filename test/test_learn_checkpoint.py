@@ -1,0 +1,104 @@
+"""Checkpoints: round trip, weights_only loading, refusal on mismatch; SVM without pickle."""
+
+import numpy as np
+import pytest
+import torch
+
+from aslip_ros.learn.checkpoint import (CheckpointMismatch, check_compatible, load_checkpoint,
+                                        save_checkpoint)
+from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.network import ModelConfig, SlipNet
+from aslip_ros.learn.predictor import Predictor
+from aslip_ros.learn.svm import SvmArrays, SvmConfig, SvmFeaturizer, fit_svm
+
+NAMES = ["left_front", "left_back", "right_back", "right_front"]
+
+
+def cnn_meta(cfg, fcfg, names=NAMES, sr=48000.0):
+    return {"model_type": "aslip_cnn", "model_config": cfg.to_dict(),
+            "feature_config": fcfg.to_dict(), "channel_names": list(names), "layout": "4mic",
+            "sample_rate": sr, "window_s": 0.2, "window_samples": int(0.2 * sr),
+            "epsilon_m_s": 0.005, "threshold": 0.5,
+            "provenance": {"dataset": "/x", "seed": 3, "metrics": {"val": {"acc": 0.9}}}}
+
+
+@pytest.fixture
+def cnn_ckpt(tmp_path):
+    torch.manual_seed(0)
+    cfg = ModelConfig(width=4, n_mels=40)
+    net = SlipNet(cfg)
+    net.set_normalization(torch.linspace(-5, 0, 40), torch.full((40,), 2.0))
+    path = save_checkpoint(tmp_path / "m.pt", cnn_meta(cfg, FeatureConfig()), net.state_dict())
+    return path, net
+
+
+def test_round_trip_and_weights_only(cnn_ckpt):
+    path, net = cnn_ckpt
+    raw = torch.load(path, weights_only=True)             # no arbitrary unpickling needed
+    assert raw["format"] == "aslip-checkpoint" and isinstance(raw["meta"], str)
+    ck = load_checkpoint(path)
+    assert ck.meta["provenance"]["seed"] == 3
+    assert ck.channel_names == NAMES and ck.sample_rate == 48000.0
+    for k, v in net.state_dict().items():
+        assert torch.equal(ck.tensors[k], v)
+    p = Predictor(ck)
+    x = (0.01 * np.random.default_rng(0).standard_normal((9600, 4))).astype(np.float32)
+    feats = torch.from_numpy(p.logmel(x[None]))
+    net.eval()
+    with torch.no_grad():
+        ref = torch.sigmoid(net(feats).logit).item()
+    assert abs(p.predict(x).probability - ref) < 1e-5
+
+
+def test_refuses_mismatch(cnn_ckpt):
+    path, _ = cnn_ckpt
+    ck = load_checkpoint(path)
+    ck.check_compatible(48000.0, NAMES)
+    with pytest.raises(CheckpointMismatch, match="sample rate"):
+        ck.check_compatible(44100.0, NAMES)
+    with pytest.raises(CheckpointMismatch, match="channels"):
+        ck.check_compatible(48000.0, NAMES[:2])
+    with pytest.raises(CheckpointMismatch, match="channel names"):
+        check_compatible(ck.meta, 48000.0, NAMES[::-1])
+    with pytest.raises(ValueError):                        # CheckpointMismatch is a ValueError
+        Predictor(ck).check_stream(16000.0, NAMES)
+
+
+def test_rejects_foreign_files(tmp_path):
+    torch.save({"hello": torch.zeros(1)}, tmp_path / "other.pt")
+    with pytest.raises(ValueError):
+        load_checkpoint(tmp_path / "other.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a zip")
+    with pytest.raises(ValueError):
+        load_checkpoint(tmp_path / "junk.pt")
+    with pytest.raises(FileNotFoundError):
+        load_checkpoint(tmp_path / "missing.pt")
+    with pytest.raises(ValueError):
+        save_checkpoint(tmp_path / "bad.pt", {"model_type": "aslip_cnn"}, {})
+
+
+def test_svm_arrays_match_sklearn_and_survive_checkpoint(tmp_path):
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((120, 6))
+    slip = x[:, 0] + 0.3 * x[:, 1] > 0
+    v = np.where(slip[:, None], np.stack([x[:, 2], x[:, 3]], 1) * 0.01, 0.0)
+    arrays, est = fit_svm(x, slip, v, SvmConfig())
+    z = (x - arrays.mean) / arrays.std
+    np.testing.assert_allclose(arrays.slip(z), est["svc"].decision_function(z), atol=1e-6)
+    np.testing.assert_allclose(arrays.vx(z), est["svr_vx"].predict(z), atol=1e-6)
+    prob, vel = arrays.predict(x)
+    np.testing.assert_array_equal(prob >= 0.5, est["svc"].predict(z) == 1)
+    save_checkpoint(tmp_path / "svm.pt", {**cnn_meta(ModelConfig(), FeatureConfig()),
+                                          "model_type": "svm"}, arrays.to_tensors())
+    back = SvmArrays.from_tensors(torch.load(tmp_path / "svm.pt", weights_only=True)["tensors"])
+    p2, v2 = back.predict(x)
+    np.testing.assert_allclose(p2, prob)
+    np.testing.assert_allclose(v2, vel)
+
+
+def test_svm_featurizer_shape_and_finite():
+    f = SvmFeaturizer(FeatureConfig(), 48000.0, n_bands=8)
+    x = np.zeros((3, 9600, 2), np.float32)                # silence must not give NaN
+    out = f(x)
+    assert out.shape == (3, 2 * f.n_per_channel)
+    assert np.isfinite(out).all()
