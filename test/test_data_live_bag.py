@@ -52,7 +52,11 @@ def test_live_recorded_bag_exports(tmp_path, ros_env):
     # Windows entirely inside the slip phase carry +x at 20 mm/s in the grasp plane, even
     # though the motion is along world +y; windows entirely outside carry zero.
     rate = ds.manifest["sample_rate"]
-    t_start = w["start"] / rate  # relative to the first audio sample
+    # Stream time of each window: blocks published before the recorder subscribed are not
+    # in the bag, so file positions are offset by the trial's first stream sample.
+    (trial,) = ds.manifest["trials"]
+    assert trial["audio_gaps"] == 0, str(summary)
+    t_start = (trial["first_sample_index"] + w["start"]) / rate
     inside = (t_start >= 0.85) & (t_start + 0.2 <= 2.15)
     outside = (t_start + 0.2 <= 0.75) | (t_start >= 2.25)
     assert inside.sum() >= 5 and outside.sum() >= 2, str(summary)
