@@ -1,0 +1,360 @@
+"""Scenarios: the paper's data-collection protocols and the two closed-loop tasks.
+
+A :class:`Scenario` is a frozen description (seed, object, layout, pad, condition, sensor
+settings); :class:`aslip_ros.scene.World` turns it into a stream. The motion programs in this
+module generate the random pushes and sweeps lazily from the trial's own RNG, so a scenario of
+any length needs bounded memory and the same seed always gives the same motion.
+
+- ``robot_induced``: the arm sweeps the gripper across a stationary probe held lightly between
+  the pads; every arm motion is slip (labels from robot state). Only ``robot_moving``.
+- ``external_induced``: the gripper holds an object still (or moves it with the arm for
+  ``robot_moving``) while an agent's hand touches it and pushes it, impulsively or steadily,
+  in random directions; some touches push without making it slip (labels from mocap).
+- ``wall_push``: closed loop; the arm pushes the held object against a wall.
+- ``external_drag``: closed loop; an agent drags the object along a random path.
+- ``scripted``: a still gripper and a known, piecewise-constant slip velocity (tests, demos).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .layouts import get_layout, get_object, get_pad
+from .physics import Acoustics
+
+KINDS = ("robot_induced", "external_induced", "wall_push", "external_drag", "scripted")
+CONDITIONS = ("robot_off", "robot_stationary", "robot_moving")
+#: Planned object excursion from the grasp centre beyond which pushes turn back [m].
+_EXCURSION_M = 0.02
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything that defines one simulated trial. Build with the functions below."""
+
+    kind: str
+    seed: int
+    object: str = "chips_can"
+    layout: str = "4mic"
+    pad: str = "textured"
+    condition: str = "robot_stationary"
+    duration_s: float | None = 30.0
+    sample_rate: float = 48000.0
+    mocap_rate_hz: float = 120.0
+    mocap_latency_s: float = 0.0083
+    mocap_noise_m: float = 1.5e-4
+    mocap_drop_prob: float = 0.005
+    tcp_rate_hz: float = 100.0
+    arm_lag_s: float = 0.02
+    max_slip_speed_m_s: float = 0.1
+    slow_fraction: float = 0.3
+    push_dir_xz: tuple[float, float] = (1.0, 0.0)
+    wall_distance_m: float = 0.1
+    grip_force_n: float = 15.0
+    wall_stiffness_n_m: float = 3000.0
+    drag_speed_m_s: float = 0.04
+    script: tuple[tuple[float, float, float, float], ...] = ()
+    trial_id: str = ""
+    acoustics: Acoustics = field(default_factory=Acoustics)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"unknown scenario kind {self.kind!r}; choose one of {KINDS}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) \
+                or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+        get_object(self.object)
+        get_layout(self.layout)
+        get_pad(self.pad)
+        if self.condition not in CONDITIONS:
+            raise ValueError(f"unknown condition {self.condition!r}; choose one of "
+                             f"{CONDITIONS}")
+        if self.kind == "robot_induced" and self.condition != "robot_moving":
+            raise ValueError("robot_induced slip needs condition 'robot_moving': the arm's "
+                             "motion is what makes the probe slip")
+        if self.kind in ("wall_push", "external_drag") and self.condition != "robot_moving":
+            raise ValueError(f"{self.kind} is closed loop: condition must be 'robot_moving'")
+        if self.duration_s is not None and not (np.isfinite(self.duration_s)
+                                                and self.duration_s > 0):
+            raise ValueError(f"duration_s must be positive (or None), got {self.duration_s!r}")
+        for name in ("sample_rate", "mocap_rate_hz", "tcp_rate_hz", "max_slip_speed_m_s",
+                     "grip_force_n", "wall_stiffness_n_m", "drag_speed_m_s", "arm_lag_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive, got {value!r}")
+        if self.sample_rate < 8000.0:
+            raise ValueError(f"sample_rate must be at least 8000 Hz, got {self.sample_rate}")
+        if self.mocap_rate_hz > self.sample_rate or self.tcp_rate_hz > self.sample_rate:
+            raise ValueError("mocap_rate_hz and tcp_rate_hz must not exceed sample_rate")
+        for name in ("mocap_latency_s", "mocap_noise_m", "wall_distance_m"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be >= 0, got {value!r}")
+        if not 0.0 <= self.mocap_drop_prob < 1.0:
+            raise ValueError(f"mocap_drop_prob must lie in [0, 1), got {self.mocap_drop_prob}")
+        if not 0.0 <= self.slow_fraction <= 1.0:
+            raise ValueError(f"slow_fraction must lie in [0, 1], got {self.slow_fraction}")
+        d = np.asarray(self.push_dir_xz, dtype=float)
+        if d.shape != (2,) or not np.all(np.isfinite(d)) or np.hypot(*d) < 1e-9:
+            raise ValueError(f"push_dir_xz must be a nonzero 2-vector, got {self.push_dir_xz}")
+        for seg in self.script:
+            if len(seg) != 4 or not all(np.isfinite(seg)) or not 0.0 <= seg[0] < seg[1]:
+                raise ValueError(f"script segments are (t_start, t_end, vx, vz) with "
+                                 f"0 <= t_start < t_end, got {seg!r}")
+        if not isinstance(self.acoustics, Acoustics):
+            raise ValueError("acoustics must be an Acoustics instance")
+        self.acoustics.validate()
+
+    @property
+    def induced(self) -> str:
+        """``"robot"`` when labels come from robot state, else ``"external"``."""
+        return "robot" if self.kind == "robot_induced" else "external"
+
+    @property
+    def closed_loop(self) -> bool:
+        """True for the tasks driven by arm commands."""
+        return self.kind in ("wall_push", "external_drag")
+
+    @property
+    def yaw_rad(self) -> float:
+        """Heading of the level gripper about world z, drawn from the seed."""
+        return float(np.random.default_rng([self.seed, 0x9A3]).uniform(-np.pi, np.pi))
+
+    def with_(self, **changes) -> "Scenario":
+        """A copy with some fields changed (validated again)."""
+        return replace(self, **changes)
+
+
+def _trial_id(prefix: str, obj: str, seed: int) -> str:
+    # Formatted leniently: a bad seed must reach Scenario's own check and its clear message.
+    tag = f"{seed:04d}" if isinstance(seed, (int, np.integer)) else str(seed)
+    return f"{prefix}-{obj}-{tag}"
+
+
+def robot_induced(seed: int, object: str = "pla_rod", layout: str = "4mic",
+                  pad: str = "textured", condition: str = "robot_moving",
+                  duration_s: float = 30.0, **kw) -> Scenario:
+    """Randomized arm sweeps across a stationary probe; labels from robot state."""
+    return Scenario("robot_induced", seed, object, layout, pad, condition, duration_s,
+                    trial_id=kw.pop("trial_id", _trial_id("rob", object, seed)), **kw)
+
+
+def external_induced(seed: int, object: str = "chips_can", layout: str = "4mic",
+                     pad: str = "textured", condition: str = "robot_stationary",
+                     duration_s: float = 30.0, **kw) -> Scenario:
+    """Stationary (or moving) gripper, an agent pushes the object; labels from mocap."""
+    return Scenario("external_induced", seed, object, layout, pad, condition, duration_s,
+                    trial_id=kw.pop("trial_id", _trial_id("ext", object, seed)), **kw)
+
+
+def wall_push(seed: int, object: str = "chips_can", layout: str = "4mic",
+              pad: str = "textured", push_dir_xz: tuple[float, float] = (1.0, 0.0),
+              wall_distance_m: float = 0.1, duration_s: float | None = None,
+              **kw) -> Scenario:
+    """Closed loop: push the held object along ``push_dir_xz`` (grasp plane) into a wall.
+
+    The wall is a plane normal to the push direction, ``wall_distance_m`` ahead of the
+    object's leading point. Contact is compliant (``wall_stiffness_n_m``); once the wall force
+    exceeds the grip friction ``2 * friction * grip_force_n`` the object slips back.
+    """
+    return Scenario("wall_push", seed, object, layout, pad, "robot_moving", duration_s,
+                    push_dir_xz=tuple(float(v) for v in push_dir_xz),
+                    wall_distance_m=wall_distance_m,
+                    trial_id=kw.pop("trial_id", _trial_id("wall", object, seed)), **kw)
+
+
+def external_drag(seed: int, object: str = "chips_can", layout: str = "4mic",
+                  pad: str = "textured", drag_speed_m_s: float = 0.04,
+                  duration_s: float | None = None, **kw) -> Scenario:
+    """Closed loop: an agent drags the object along a random in-plane path."""
+    return Scenario("external_drag", seed, object, layout, pad, "robot_moving", duration_s,
+                    drag_speed_m_s=drag_speed_m_s,
+                    trial_id=kw.pop("trial_id", _trial_id("drag", object, seed)), **kw)
+
+
+def scripted(seed: int, segments: list[tuple[float, float, float, float]],
+             object: str = "chips_can", layout: str = "4mic", pad: str = "textured",
+             condition: str = "robot_off", duration_s: float = 5.0, **kw) -> Scenario:
+    """A still gripper; the object slips at ``(vx, vz)`` [m/s, grasp plane] between
+    ``t_start`` and ``t_end`` [s] of each segment (overlapping segments add). Labels from
+    mocap. For tests with analytically known motion."""
+    if condition == "robot_moving":
+        raise ValueError("scripted scenarios keep the arm still: use robot_off or "
+                         "robot_stationary")
+    script = tuple(tuple(float(x) for x in seg) for seg in segments)
+    return Scenario("scripted", seed, object, layout, pad, condition, duration_s,
+                    script=script,
+                    trial_id=kw.pop("trial_id", _trial_id("script", object, seed)), **kw)
+
+
+# --------------------------------------------------------------------------- motion programs
+
+class PulseTrain:
+    """A lazily generated sum of smooth velocity pulses (raised-cosine trapezoids).
+
+    Each pulse: start, end, ramp time, peak vector, turn rate [rad/s] (2-D pulses only: the
+    direction rotates during the pulse, so long windows blur direction as in the paper).
+    """
+
+    def __init__(self, dim: int, generate) -> None:
+        self.dim = dim
+        self._generate = generate          # callable(t_from) -> (list of pulses, t_next)
+        self._pulses: list[tuple] = []
+        self._t_next = 0.0
+
+    def evaluate(self, t: np.ndarray) -> np.ndarray:
+        """Velocity at times ``t`` (ascending), shape ``(len(t), dim)``."""
+        while self._t_next <= t[-1]:
+            pulses, self._t_next = self._generate(self._t_next)
+            self._pulses.extend(pulses)
+        self._pulses = [p for p in self._pulses if p[1] >= t[0]]
+        out = np.zeros((t.shape[0], self.dim))
+        for t0, t1, ramp, vec, turn in self._pulses:
+            if t0 > t[-1]:
+                continue
+            lo, hi = np.searchsorted(t, [t0, t1])
+            if hi <= lo:
+                continue
+            u = t[lo:hi] - t0
+            dur = t1 - t0
+            s = np.ones_like(u)
+            m = u < ramp
+            s[m] = 0.5 * (1.0 - np.cos(np.pi * u[m] / ramp))
+            m = u > dur - ramp
+            s[m] = 0.5 * (1.0 - np.cos(np.pi * (dur - u[m]) / ramp))
+            if turn != 0.0:
+                a = turn * (u - 0.5 * dur)
+                c, sn = np.cos(a), np.sin(a)
+                v = np.column_stack([c * vec[0] - sn * vec[1], sn * vec[0] + c * vec[1]])
+                out[lo:hi] += v * s[:, None]
+            else:
+                out[lo:hi] += s[:, None] * vec[None, :]
+        return out
+
+
+def _direction_back(rng: np.random.Generator, planned: np.ndarray) -> np.ndarray:
+    """A random unit direction, turned back towards the centre once the excursion is large."""
+    if np.hypot(*planned) > _EXCURSION_M:
+        phi = np.arctan2(-planned[1], -planned[0]) + rng.uniform(-0.8, 0.8)
+    else:
+        phi = rng.uniform(-np.pi, np.pi)
+    return np.array([np.cos(phi), np.sin(phi)])
+
+
+def _slip_speed(rng: np.random.Generator, scn: Scenario, fast_max: float) -> float:
+    """Slip speed: a share of slow slip near a few mm/s, the rest up to ``fast_max``."""
+    if rng.random() < scn.slow_fraction:
+        return float(rng.uniform(1e-3, 8e-3))
+    return float(rng.uniform(8e-3, min(fast_max, scn.max_slip_speed_m_s)))
+
+
+def robot_sweeps(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
+    """Arm sweeps in the grasp plane, in grasp-plane coordinates (x, z) of the TCP."""
+    planned = np.zeros(2)          # planned probe offset relative to the grasp centre
+
+    def gen(t: float):
+        nonlocal planned
+        rest = rng.uniform(0.3, 1.6)
+        speed = _slip_speed(rng, scn, 0.1)
+        e = _direction_back(rng, -planned)            # probe moves opposite to the arm
+        dur = rng.uniform(0.25, 2.0)
+        ramp = min(rng.uniform(0.04, 0.2), dur / 3.0)
+        dur = min(dur, 0.025 / speed + ramp)
+        planned = planned - e * speed * (dur - ramp)
+        t0 = t + rest
+        return [(t0, t0 + dur, ramp, e * speed, 0.0)], t0 + dur
+    return PulseTrain(2, gen)
+
+
+def arm_wander(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
+    """Random arm motions (world frame) that carry the grasped object with them."""
+    planned = np.zeros(3)
+
+    def gen(t: float):
+        nonlocal planned
+        rest = rng.uniform(0.2, 1.5)
+        d = rng.standard_normal(3)
+        d /= np.linalg.norm(d)
+        if np.linalg.norm(planned) > 0.1:
+            d = -planned / np.linalg.norm(planned)
+        speed = rng.uniform(0.02, 0.15)
+        dur = rng.uniform(0.3, 1.5)
+        ramp = min(0.15, dur / 3.0)
+        planned = planned + d * speed * (dur - ramp)
+        t0 = t + rest
+        return [(t0, t0 + dur, ramp, d * speed, 0.0)], t0 + dur
+    return PulseTrain(3, gen)
+
+
+def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, PulseTrain]:
+    """An agent's touches and pushes: (slip velocity x, z; touch level 0..1)."""
+    planned = np.zeros(2)
+    touches: list[tuple] = []
+
+    def gen(t: float):
+        nonlocal planned
+        t_touch = t + rng.uniform(0.4, 2.0)
+        preload = rng.uniform(0.05, 0.3)
+        t0 = t_touch + preload
+        kind = rng.random()
+        pulses = []
+        if kind < 0.35:                                   # impulsive push
+            dur = rng.uniform(0.04, 0.15)
+            speed = float(rng.uniform(0.02, scn.max_slip_speed_m_s))
+            e = _direction_back(rng, planned)
+            pulses.append((t0, t0 + dur, 0.5 * dur, e * speed, 0.0))
+            planned = planned + e * speed * 0.5 * dur
+        elif kind < 0.8:                                  # sustained push, may curve
+            speed = _slip_speed(rng, scn, 0.06)
+            dur = rng.uniform(0.3, 2.0)
+            ramp = min(rng.uniform(0.05, 0.2), dur / 3.0)
+            dur = min(dur, 0.025 / speed + ramp)
+            e = _direction_back(rng, planned)
+            turn = rng.uniform(-1.0, 1.0) if rng.random() < 0.5 else 0.0
+            pulses.append((t0, t0 + dur, ramp, e * speed, turn))
+            planned = planned + e * speed * (dur - ramp)
+        else:                                             # a touch that does not slip
+            dur = rng.uniform(0.2, 1.0)
+        t_end = t0 + dur + rng.uniform(0.05, 0.3)
+        touches.append((t_touch, t_end, 0.02, np.array([rng.uniform(0.4, 1.0)]), 0.0))
+        return pulses, t_end
+
+    slip = PulseTrain(2, gen)
+
+    def touch_gen(t: float):
+        # Touches are produced by the slip generator; make sure it has run far enough.
+        while slip._t_next <= t + 1e-9:
+            pulses, slip._t_next = gen(slip._t_next)
+            slip._pulses.extend(pulses)
+        out = list(touches)
+        touches.clear()
+        return out, slip._t_next
+    return slip, PulseTrain(1, touch_gen)
+
+
+def drag_path(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
+    """The dragging agent's object velocity in grasp-plane (x, z) coordinates."""
+    planned = np.zeros(2)
+
+    def gen(t: float):
+        nonlocal planned
+        rest = rng.uniform(0.2, 1.0)
+        speed = rng.uniform(0.3, 1.0) * scn.drag_speed_m_s
+        e = _direction_back(rng, planned * 0.5)
+        dur = rng.uniform(0.5, 2.0)
+        ramp = min(0.2, dur / 3.0)
+        planned = planned + e * speed * (dur - ramp)
+        t0 = t + rest
+        return [(t0, t0 + dur, ramp, e * speed, 0.0)], t0 + dur
+    return PulseTrain(2, gen)
+
+
+def script_train(scn: Scenario) -> PulseTrain:
+    """The scripted slip velocity: rectangular segments, no ramps."""
+    pulses = [(a, b, 0.0, np.array([vx, vz]), 0.0) for a, b, vx, vz in scn.script]
+
+    def gen(t: float):
+        return pulses, np.inf
+    return PulseTrain(2, gen)
