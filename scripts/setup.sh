@@ -103,7 +103,7 @@ if [ "$(cat install/.aslip-build 2>/dev/null)" != "$build_key" ] || [ ! -f insta
     # venv (numpy's headers) lives inside this repository: build through a symlinked
     # source path so the venv is not "inside" the package's source directory.
     mkdir -p .colcon/src && ln -sfn ../.. .colcon/src/aslip_ros
-    "$VENV/bin/colcon" build --base-paths .colcon/src --symlink-install \
+    "$VENV/bin/colcon" build --base-paths .colcon/src --symlink-install --merge-install \
       --event-handlers console_cohesion- \
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$VENV/bin/python" \
       -DPYTHON_EXECUTABLE="$VENV/bin/python" >log/aslip-build.log 2>&1 \

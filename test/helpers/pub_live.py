@@ -41,9 +41,16 @@ def main() -> int:
     object_pub = node.create_publisher(PoseStamped, "/aslip/mocap/object",
                                        qos_profile_sensor_data)
     rng = np.random.default_rng(0)
-    # Give the recorder time to discover the publishers before data flows.
     print("publisher ready", flush=True)
-    time.sleep(float(sys.argv[1]) if len(sys.argv) > 1 else 1.5)
+    # Data flows only once the recorder has matched every topic (discovery is slow on a
+    # loaded machine), so the bag holds the whole motion.
+    deadline = time.monotonic() + (float(sys.argv[1]) if len(sys.argv) > 1 else 30.0)
+    while any(p.get_subscription_count() == 0 for p in (audio_pub, finger_pub, object_pub)):
+        if time.monotonic() > deadline:
+            print("no recorder matched", flush=True)
+            return 1
+        time.sleep(0.05)
+    time.sleep(0.2)
     t0 = time.monotonic()
     start_ns = node.get_clock().now().nanoseconds
     sent_frames = 0

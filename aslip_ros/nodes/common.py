@@ -1,0 +1,324 @@
+"""What every aslip node shares: QoS profiles, validated parameters, diagnostics, main().
+
+Parameters are declared from a list of :class:`Param` specs. Each spec carries its own
+validator, applied once at start (an invalid value stops the node with a clear message and
+exit code 2) and again whenever the parameter is set at run time (the set is refused with
+``SetParametersResult(successful=False, reason=...)``).
+
+Diagnostics: ``diagnostic_updater`` is not available everywhere, so nodes publish
+``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` directly when ``diagnostic_msgs``
+is importable, and always mirror the same status as JSON (``std_msgs/String``) on
+``/aslip/diagnostics`` so tools and tests without ``diagnostic_msgs`` can read it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Optional, Sequence
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
+
+# --------------------------------------------------------------------------------- QoS
+#: High-rate sensor streams: a late sample is worth less than the next one.
+SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                        reliability=ReliabilityPolicy.BEST_EFFORT,
+                        durability=DurabilityPolicy.VOLATILE)
+#: Results and commands: every message matters.
+RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+#: Latched configuration (metadata, results): late joiners get the last message.
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: rviz markers: only the newest matters.
+MARKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+
+# --------------------------------------------------------------------------------- topics
+AUDIO_TOPIC = "/aslip/audio"
+FINGER_TOPIC = "/aslip/mocap/finger"
+OBJECT_TOPIC = "/aslip/mocap/object"
+TCP_TOPIC = "/aslip/robot/tcp_pose"
+METADATA_TOPIC = "/aslip/metadata"
+SLIP_TOPIC = "/aslip/slip"
+SLIP_TRUTH_TOPIC = "/aslip/slip_truth"
+MARKER_TOPIC = "/aslip/slip_marker"
+CMD_VEL_TOPIC = "/aslip/arm/cmd_vel"
+DIAG_TOPIC = "/diagnostics"
+DIAG_JSON_TOPIC = "/aslip/diagnostics"
+
+#: Exit code of a node refused at start (invalid parameters, unusable configuration).
+EXIT_CONFIG = 2
+
+
+class ConfigError(ValueError):
+    """The node's parameters or configuration are unusable; the message says why."""
+
+
+# --------------------------------------------------------------------------------- params
+
+Validator = Callable[[Any], Optional[str]]
+
+
+@dataclass(frozen=True)
+class Param:
+    """A parameter spec: name, default (its type is the parameter's type), validator."""
+
+    name: str
+    default: Any
+    description: str
+    check: Optional[Validator] = None
+    read_only: bool = False
+
+
+def positive(v) -> Optional[str]:
+    """Finite and > 0."""
+    return None if _finite(v) and v > 0 else f"must be finite and > 0, got {v!r}"
+
+
+def non_negative(v) -> Optional[str]:
+    """Finite and >= 0."""
+    return None if _finite(v) and v >= 0 else f"must be finite and >= 0, got {v!r}"
+
+
+def in_range(lo: float, hi: float) -> Validator:
+    """Finite and within [lo, hi]."""
+    def check(v):
+        return None if _finite(v) and lo <= v <= hi else f"must lie in [{lo}, {hi}], got {v!r}"
+    return check
+
+
+def one_of(*choices) -> Validator:
+    """One of the given values."""
+    def check(v):
+        return None if v in choices else f"must be one of {list(choices)}, got {v!r}"
+    return check
+
+
+def non_empty(v) -> Optional[str]:
+    """A non-blank string."""
+    return None if isinstance(v, str) and v.strip() else "must be a non-empty string"
+
+
+def pose7(v) -> Optional[str]:
+    """Seven finite numbers with a non-zero quaternion."""
+    try:
+        vals = [float(x) for x in v]
+    except (TypeError, ValueError):
+        return f"must be 7 numbers, got {v!r}"
+    if len(vals) != 7 or not all(math.isfinite(x) for x in vals):
+        return f"must be 7 finite numbers (x y z qx qy qz qw), got {vals}"
+    if math.sqrt(sum(x * x for x in vals[3:])) < 1e-9:
+        return "has a zero quaternion"
+    return None
+
+
+def vector3(allow_empty: bool = False) -> Validator:
+    """Three finite numbers, not all zero (or empty when allowed)."""
+    def check(v):
+        vals = [float(x) for x in v]
+        if allow_empty and not vals:
+            return None
+        if len(vals) != 3 or not all(math.isfinite(x) for x in vals):
+            return f"must be 3 finite numbers{' or empty' if allow_empty else ''}, got {vals}"
+        if math.sqrt(sum(x * x for x in vals)) < 1e-9:
+            return "must not be the zero vector"
+        return None
+    return check
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def declare_params(node, specs: Sequence[Param],
+                   on_change: Optional[Callable[[dict], None]] = None,
+                   cross_check: Optional[Callable[[dict], Optional[str]]] = None) -> dict:
+    """Declare ``specs`` on ``node``, validate the start values, install the on-set check.
+
+    Returns ``{name: value}``. ``on_change`` is called with the accepted changes after a
+    successful run-time set. ``cross_check(all_values)`` validates combinations (e.g. by
+    building the core's config object) and returns an error text or None. Raises
+    :class:`ConfigError` listing every invalid value.
+    """
+    by_name = {s.name: s for s in specs}
+    for s in specs:
+        node.declare_parameter(s.name, s.default, ParameterDescriptor(
+            description=s.description, read_only=s.read_only))
+    values = {s.name: node.get_parameter(s.name).value for s in specs}
+    checked = ((n, _check(by_name[n], v)) for n, v in values.items())
+    problems = [f"{n}: {err}" for n, err in checked if err]
+    if not problems and cross_check is not None:
+        err = cross_check(dict(values))
+        if err:
+            problems.append(err)
+    if problems:
+        raise ConfigError("invalid parameters: " + "; ".join(problems))
+
+    def on_set(params) -> SetParametersResult:
+        errors = []
+        for p in params:
+            spec = by_name.get(p.name)
+            if spec is None:
+                continue
+            err = _check(spec, p.value)
+            if err:
+                errors.append(f"{p.name}: {err}")
+        if not errors and cross_check is not None:
+            merged = {s.name: node.get_parameter(s.name).value for s in specs}
+            merged.update({p.name: p.value for p in params if p.name in by_name})
+            err = cross_check(merged)
+            if err:
+                errors.append(err)
+        if errors:
+            return SetParametersResult(successful=False, reason="; ".join(errors))
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
+    if on_change is not None:
+        # Post-set callbacks run only after every on-set check accepted the change.
+        node.add_post_set_parameters_callback(
+            lambda params: on_change({p.name: p.value for p in params if p.name in by_name}))
+    return values
+
+
+def _check(spec: Param, value) -> Optional[str]:
+    if spec.check is None:
+        return None
+    try:
+        return spec.check(value)
+    except (TypeError, ValueError) as exc:
+        return f"invalid value {value!r} ({exc})"
+
+
+# --------------------------------------------------------------------------------- diag
+
+class Diagnostics:
+    """Publishes one node's status on ``/diagnostics`` and as JSON on ``/aslip/diagnostics``.
+
+    Levels follow diagnostic_msgs: 0 OK, 1 WARN, 2 ERROR, 3 STALE.
+    """
+
+    OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+    def __init__(self, node, name: str, hardware_id: str = "") -> None:
+        self._node = node
+        self.name = name
+        self.hardware_id = hardware_id
+        self._json_pub = node.create_publisher(String, DIAG_JSON_TOPIC, RELIABLE_QOS)
+        try:
+            from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+        except ImportError:
+            self._types = None
+            self._pub = None
+        else:
+            self._types = (DiagnosticArray, DiagnosticStatus, KeyValue)
+            self._pub = node.create_publisher(DiagnosticArray, DIAG_TOPIC, RELIABLE_QOS)
+
+    def publish(self, level: int, message: str, values: Optional[dict] = None) -> None:
+        """Publish one status (never raises: diagnostics must not take a node down)."""
+        values = {k: _plain(v) for k, v in (values or {}).items()}
+        try:
+            doc = {"name": self.name, "hardware_id": self.hardware_id, "level": int(level),
+                   "message": message, "stamp": time.time(), "values": values}
+            self._json_pub.publish(String(data=json.dumps(doc, allow_nan=False)))
+            if self._pub is not None:
+                arr_t, status_t, kv_t = self._types
+                arr = arr_t()
+                arr.header.stamp = self._node.get_clock().now().to_msg()
+                arr.status = [status_t(level=bytes([int(level)]), name=self.name,
+                                       message=message, hardware_id=self.hardware_id,
+                                       values=[kv_t(key=k, value=str(v))
+                                               for k, v in values.items()])]
+                self._pub.publish(arr)
+        except Exception as exc:  # noqa: BLE001 - e.g. the context is shutting down
+            self._node.get_logger().debug(f"diagnostics not published: {exc}")
+
+
+def _plain(v):
+    """JSON-safe value: non-finite floats become strings, other objects their str()."""
+    if isinstance(v, bool) or v is None or isinstance(v, (int, str)):
+        return v
+    if isinstance(v, float):
+        return v if math.isfinite(v) else str(v)
+    try:
+        f = float(v)
+        return f if math.isfinite(f) else str(f)
+    except (TypeError, ValueError):
+        return str(v)
+
+
+# --------------------------------------------------------------------------------- main
+
+def run_node(factory: Callable[[], Any], args: Optional[list] = None,
+             threads: int = 2) -> int:
+    """Init, build the node, spin it on a MultiThreadedExecutor, shut down cleanly.
+
+    SIGINT and SIGTERM are handled here rather than by rclpy: rclpy's own handler shuts the
+    context down at once, after which a controller could no longer publish its final stop
+    command. Here a signal only ends the spin loop; the node's ``before_shutdown()`` (if
+    any) runs while the context still works, then the node is destroyed.
+    Returns the process exit code (``EXIT_CONFIG`` when the node refused its configuration).
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+
+    def on_signal(signum, _frame) -> None:
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    node = None
+    executor = None
+    code = 0
+    try:
+        node = factory()
+        executor = MultiThreadedExecutor(num_threads=threads)
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok() and not getattr(node, "done", False):
+            executor.spin_once(timeout_sec=0.05)
+        code = int(getattr(node, "exit_code", 0) or 0)
+    except (ConfigError, ParameterException) as exc:
+        print(f"[{_name(factory)}] refused to start: {exc}", file=sys.stderr, flush=True)
+        code = EXIT_CONFIG
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            hook = getattr(node, "before_shutdown", None)
+            if hook is not None and rclpy.ok():
+                try:
+                    hook()
+                except Exception as exc:  # noqa: BLE001 - shutdown must go on
+                    print(f"[{_name(factory)}] error while shutting down: {exc}",
+                          file=sys.stderr, flush=True)
+        if executor is not None:
+            # Before destroying the node, so no callback runs on a destroyed entity.
+            executor.shutdown(timeout_sec=2.0)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+def _name(factory) -> str:
+    return getattr(factory, "__name__", "aslip node")
+
+
+def ready(node, detail: str = "") -> None:
+    """Log the readiness line tests and launch files wait for."""
+    node.get_logger().info(f"ready{': ' + detail if detail else ''}")

@@ -1,0 +1,248 @@
+"""``mocap_bridge``: finger and object poses -> ground-truth slip on ``/aslip/slip_truth``.
+
+Subscribes to two ``geometry_msgs/PoseStamped`` topics from any motion-capture driver
+(mocap4r2, vrpn_mocap, the natnet client) or the scene, keeps the last ``buffer_s`` of each,
+and publishes the mean slip velocity over the window ``[t - window_s, t]`` ending at the
+newest instant both streams cover, computed by :func:`aslip_ros.data.labels.
+mocap_window_velocity` -- the same function the training export labels windows with.
+
+The grasp plane's pose in the finger's rigid body comes from ``calibration``:
+``param`` (``grasp_plane_in_finger``), ``metadata`` (the key of the same name on
+``/aslip/metadata``, identity until it arrives) or ``measure`` (the object's mean position
+relative to the finger over the first ``calibration_s``, with the parameter's orientation:
+the object is held centred between the pads at start).
+
+Stale poses (no new pose on either topic for ``stale_timeout_s``) or a pose gap inside the
+window give no output, a diagnostic and a throttled warning.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import threading
+import time
+from typing import Optional
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from std_msgs.msg import String
+from visualization_msgs.msg import MarkerArray
+
+from aslip_ros.msg import SlipVector
+from aslip_ros.nodes import common as c
+from aslip_ros.nodes import convert
+
+IDENTITY = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+
+
+class MocapBridge(Node):
+    """Ground-truth slip from motion capture."""
+
+    def __init__(self) -> None:
+        super().__init__("mocap_bridge")
+        from aslip_ros.data.export import DEFAULT_EPSILON_M_S, DEFAULT_WINDOW_S
+        from aslip_ros.data.labels import DEFAULT_MAX_GAP_S
+        specs = [
+            c.Param("finger_topic", c.FINGER_TOPIC, "finger rigid-body PoseStamped topic",
+                    c.non_empty, read_only=True),
+            c.Param("object_topic", c.OBJECT_TOPIC, "object rigid-body PoseStamped topic",
+                    c.non_empty, read_only=True),
+            c.Param("window_s", DEFAULT_WINDOW_S, "slip is averaged over this window [s]",
+                    c.in_range(0.005, 2.0)),
+            c.Param("rate_hz", 100.0, "evaluation rate [Hz]", c.in_range(1.0, 1000.0),
+                    read_only=True),
+            c.Param("epsilon_m_s", DEFAULT_EPSILON_M_S,
+                    "speeds above this count as slipping [m/s]", c.non_negative),
+            c.Param("max_gap_s", DEFAULT_MAX_GAP_S,
+                    "longest pose dropout bridged by interpolation [s]", c.positive),
+            c.Param("stale_timeout_s", 0.1, "no pose for this long = stale [s]", c.positive),
+            c.Param("calibration", "param", "grasp-plane calibration: param, metadata, measure",
+                    c.one_of("param", "metadata", "measure"), read_only=True),
+            c.Param("grasp_plane_in_finger", list(IDENTITY),
+                    "grasp-plane pose in the finger body (x y z qx qy qz qw) [m]", c.pose7,
+                    read_only=True),
+            c.Param("calibration_s", 0.5, "measure: averaging time at start [s]", c.positive,
+                    read_only=True),
+            c.Param("frame_id", convert.GRASP_FRAME, "frame of the published slip",
+                    c.non_empty, read_only=True),
+            c.Param("marker", True, "also publish a ground-truth rviz marker", read_only=True),
+        ]
+        self.p = c.declare_params(self, specs, self.p_update)
+        from aslip_ros.data import labels
+        self._labels = labels
+        self._lock = threading.Lock()
+        keep = 1024
+        self.finger = collections.deque(maxlen=keep)
+        self.obj = collections.deque(maxlen=keep)
+        self._arrival = {"finger": None, "object": None}
+        self.calib: Optional[np.ndarray] = None
+        if self.p["calibration"] == "param":
+            self.calib = labels.as_pose(self.p["grasp_plane_in_finger"])
+        elif self.p["calibration"] == "metadata":
+            self.calib = labels.as_pose(IDENTITY)
+        self._measure: list = []
+        self._measure_t0: Optional[float] = None
+        self._last_end: Optional[int] = None
+        self.published = 0
+        self.rejected = 0
+        self.stale_events = 0
+        self.gap_windows = 0
+        self.state = "waiting for poses"
+
+        self.pub = self.create_publisher(SlipVector, c.SLIP_TRUTH_TOPIC, c.RELIABLE_QOS)
+        self.pub_marker = (self.create_publisher(MarkerArray, c.MARKER_TOPIC + "_truth",
+                                                 c.MARKER_QOS) if self.p["marker"] else None)
+        self.diag = c.Diagnostics(self, "aslip: mocap_bridge", "motion capture")
+        group = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(PoseStamped, self.p["finger_topic"],
+                                 lambda m: self._on_pose("finger", m), c.SENSOR_QOS,
+                                 callback_group=group)
+        self.create_subscription(PoseStamped, self.p["object_topic"],
+                                 lambda m: self._on_pose("object", m), c.SENSOR_QOS,
+                                 callback_group=group)
+        if self.p["calibration"] == "metadata":
+            self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata,
+                                     c.LATCHED_QOS)
+        self.create_timer(1.0 / self.p["rate_hz"], self._evaluate,
+                          callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(1.0, self._diagnose, callback_group=MutuallyExclusiveCallbackGroup())
+        c.ready(self, f"finger {self.p['finger_topic']}, object {self.p['object_topic']}, "
+                      f"calibration {self.p['calibration']}")
+
+    def p_update(self, changed: dict) -> None:
+        """Apply accepted run-time parameter changes."""
+        with self._lock:
+            self.p.update(changed)
+
+    # -- input --------------------------------------------------------------------------------
+
+    def _on_metadata(self, msg: String) -> None:
+        try:
+            meta = json.loads(msg.data)
+            calib = self._labels.as_pose(meta.get("grasp_plane_in_finger", IDENTITY))
+        except (ValueError, TypeError, AttributeError) as exc:
+            self.get_logger().error(f"metadata has no usable grasp_plane_in_finger: {exc}")
+            return
+        with self._lock:
+            self.calib = calib
+        self.get_logger().info(f"grasp-plane calibration from metadata: {calib.tolist()}")
+
+    def _on_pose(self, which: str, msg: PoseStamped) -> None:
+        try:
+            stamp_ns, _, pose = convert.pose_from_msg(msg)
+        except ValueError as exc:
+            self.rejected += 1
+            self.get_logger().warning(f"{which} pose rejected: {exc}", throttle_duration_sec=1.0)
+            return
+        with self._lock:
+            buf = self.finger if which == "finger" else self.obj
+            if buf and stamp_ns <= buf[-1][0]:
+                self.rejected += 1
+                return
+            buf.append((stamp_ns, pose))
+            self._arrival[which] = time.monotonic()
+            if self.calib is None:
+                self._collect_calibration()
+
+    def _collect_calibration(self) -> None:
+        if not self.finger or not self.obj:
+            return
+        f, o = self.finger[-1][1], self.obj[-1][1]
+        rel = self._labels.compose(_invert(f), o)
+        now = time.monotonic()
+        if self._measure_t0 is None:
+            self._measure_t0 = now
+        self._measure.append(rel[:3])
+        if now - self._measure_t0 >= self.p["calibration_s"] and len(self._measure) >= 3:
+            q = self._labels.as_pose(self.p["grasp_plane_in_finger"])[3:]
+            self.calib = np.concatenate([np.mean(self._measure, axis=0), q])
+            self.get_logger().info(f"grasp-plane calibration measured: {self.calib.tolist()}")
+
+    # -- output -------------------------------------------------------------------------------
+
+    def _evaluate(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            arrivals = list(self._arrival.values())
+            if any(a is None for a in arrivals):
+                self.state = "waiting for poses"
+                return
+            age = now - min(arrivals)
+            if age > self.p["stale_timeout_s"]:
+                if self.state != "stale":
+                    self.stale_events += 1
+                    self.state = "stale"
+                self.get_logger().warning(f"motion capture stale: no pose for {age:.3f} s",
+                                          throttle_duration_sec=1.0)
+                return
+            if self.calib is None:
+                self.state = "calibrating"
+                return
+            t_end_ns = min(self.finger[-1][0], self.obj[-1][0])
+            if t_end_ns == self._last_end:
+                return
+            f = np.array([p for _, p in self.finger])
+            tf = np.array([t for t, _ in self.finger])
+            o = np.array([p for _, p in self.obj])
+            to = np.array([t for t, _ in self.obj])
+            calib = self.calib.copy()
+            window, eps, gap = self.p["window_s"], self.p["epsilon_m_s"], self.p["max_gap_s"]
+        # Only the tail that covers the window (plus one earlier sample) is interpolated.
+        span_ns = int((window + gap + 0.05) * 1e9)
+        kf = max(0, int(np.searchsorted(tf, t_end_ns - span_ns)) - 1)
+        ko = max(0, int(np.searchsorted(to, t_end_ns - span_ns)) - 1)
+        f, tf, o, to = f[kf:], tf[kf:], o[ko:], to[ko:]
+        # Times relative to the window end keep float64 resolution far below 1 us.
+        L = self._labels
+        ref = t_end_ns
+        ft = L.PoseTrack((tf - ref) * 1e-9, f, "finger")
+        ot = L.PoseTrack((to - ref) * 1e-9, o, "object")
+        lab = L.mocap_window_velocity(ft, ot, [-window], [0.0], calib, gap)
+        self._last_end = t_end_ns
+        if not lab.valid[0]:
+            self.gap_windows += 1
+            self.state = L.REASONS.get(int(lab.reason[0]), "invalid")
+            return
+        vx, vz = float(lab.vx[0]), float(lab.vz[0])
+        slipping = float(lab.speed[0]) > eps
+        try:
+            msg = convert.slip_to_msg(vx, vz, 1.0 if slipping else 0.0, slipping, 0.5,
+                                      t_end_ns, window, "mocap_truth", self.p["frame_id"])
+        except ValueError as exc:
+            self.get_logger().warning(f"truth not published: {exc}", throttle_duration_sec=1.0)
+            return
+        self.state = "running"
+        self.pub.publish(msg)
+        self.published += 1
+        if self.pub_marker is not None:
+            self.pub_marker.publish(convert.slip_markers(msg, ns="aslip_slip_truth",
+                                                         alpha=0.6))
+
+    def _diagnose(self) -> None:
+        values = {"published": self.published, "rejected_poses": self.rejected,
+                  "stale_events": self.stale_events, "gap_windows": self.gap_windows,
+                  "finger_poses": len(self.finger), "object_poses": len(self.obj),
+                  "state": self.state}
+        if self.calib is not None:
+            values["grasp_plane_in_finger"] = json.dumps([round(x, 6) for x in self.calib])
+        level = {"running": c.Diagnostics.OK, "stale": c.Diagnostics.STALE}.get(
+            self.state, c.Diagnostics.WARN)
+        self.diag.publish(level, self.state, values)
+
+
+def _invert(pose: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+    r = Rotation.from_quat(pose[3:]).inv()
+    return np.concatenate([-r.apply(pose[:3]), r.as_quat()])
+
+
+def main(args: Optional[list] = None) -> int:
+    """Entry point of ``ros2 run aslip_ros mocap_bridge``."""
+    return c.run_node(MocapBridge, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,291 @@
+"""``scene_sim``: the simulated scene as a node, so closed loops run through real topics.
+
+Steps :class:`aslip_ros.scene.World` in real time (one block per ``block_s``) and publishes
+what the real cell would: ``/aslip/audio``, ``/aslip/mocap/finger``, ``/aslip/mocap/object``,
+``/aslip/robot/tcp_pose`` and the latched ``/aslip/metadata``. It executes the controllers'
+``/aslip/arm/cmd_vel`` (TwistStamped, ``link_base``) on the scene's simulated arm: each
+command holds for ``command_timeout_s`` and the arm stops by itself when no newer one comes,
+like the xArm's ``duration``.
+
+For evaluation (the closed-loop demo) it can write the world's true trajectory, the wall
+contact and the slip onset to ``trajectory_out`` (``.npz``) when the run ends.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, TwistStamped
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from std_msgs.msg import String
+
+from aslip_ros.msg import AudioFrame
+from aslip_ros.nodes import common as c
+from aslip_ros.nodes import convert
+
+#: Task names accepted by the ``scenario`` parameter -> scene scenario builders.
+SCENARIOS = ("external_induced", "robot_induced", "wall_push", "drag")
+CONDITIONS = ("robot_off", "robot_stationary", "robot_moving")
+
+
+def scene_params(prefix: str = "") -> list:
+    """Parameter specs describing a scene (shared with audio_capture's ``sim`` source)."""
+    from aslip_ros.scene import LAYOUTS, OBJECTS, PADS
+    return [
+        c.Param(prefix + "scenario", "external_induced",
+                f"scene task: {', '.join(SCENARIOS)}", c.one_of(*SCENARIOS), read_only=True),
+        c.Param(prefix + "seed", 0, "scenario seed (deterministic)",
+                lambda v: None if v >= 0 else "must be >= 0", read_only=True),
+        c.Param(prefix + "object", "chips_can", "grasped object",
+                c.one_of(*OBJECTS), read_only=True),
+        c.Param(prefix + "layout", "4mic", "microphone layout", c.one_of(*LAYOUTS),
+                read_only=True),
+        c.Param(prefix + "pad", "textured", "finger pad", c.one_of(*PADS), read_only=True),
+        c.Param(prefix + "condition", "robot_stationary",
+                "robot condition (external_induced only; the others imply robot_moving)",
+                c.one_of(*CONDITIONS), read_only=True),
+        c.Param(prefix + "sample_rate", 48000.0, "audio sample rate [Hz]",
+                c.in_range(8000.0, 192000.0), read_only=True),
+        c.Param(prefix + "wall_distance_m", 0.0,
+                "wall_push: wall distance ahead of the object [m] (0 = start in contact)",
+                c.non_negative, read_only=True),
+        c.Param(prefix + "drag_speed_m_s", 0.04, "drag: agent drag speed [m/s]", c.positive,
+                read_only=True),
+    ]
+
+
+def build_world(values: dict, prefix: str = ""):
+    """A :class:`aslip_ros.scene.World` from scene parameter values (open-ended duration)."""
+    from aslip_ros.scene import World, scenarios
+    g = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
+    common = dict(seed=int(g["seed"]), object=g["object"], layout=g["layout"], pad=g["pad"],
+                  sample_rate=float(g["sample_rate"]))
+    kind = g["scenario"]
+    try:
+        if kind == "external_induced":
+            scn = scenarios.external_induced(condition=g["condition"], duration_s=None,
+                                             **common)
+        elif kind == "robot_induced":
+            scn = scenarios.robot_induced(duration_s=None, **common)
+        elif kind == "wall_push":
+            scn = scenarios.wall_push(wall_distance_m=float(g["wall_distance_m"]), **common)
+        else:
+            scn = scenarios.external_drag(drag_speed_m_s=float(g["drag_speed_m_s"]), **common)
+    except ValueError as exc:
+        raise c.ConfigError(f"cannot build the {kind} scenario: {exc}") from exc
+    return World(scn)
+
+
+def world_metadata(world) -> dict:
+    """The scene's metadata plus the task geometry a controller may need (``task``)."""
+    meta = world.metadata()
+    task = {"kind": world.scenario.kind}
+    if world.scenario.kind == "wall_push":
+        task.update(push_direction=world.wall_normal().tolist(),
+                    wall_point=world.wall_position().tolist(),
+                    object_length_m=float(world.object.length_m))
+    meta["task"] = task
+    return meta
+
+
+class PacedScene:
+    """Steps a world block by block against the wall clock; ROS stamps from a start time.
+
+    ``due_blocks(now)`` says how many blocks the wall clock asks for; callers step them.
+    Falling further behind than ``max_catch_up`` blocks skips time instead of bursting
+    (counted in ``skipped_blocks``), so a stalled machine does not flood subscribers.
+    """
+
+    def __init__(self, world, block_frames: int, start_ns: int, max_catch_up: int = 10,
+                 clock=time.monotonic) -> None:
+        self.world = world
+        self.block_frames = int(block_frames)
+        self.start_ns = int(start_ns)
+        self._clock = clock
+        self._t0 = clock()
+        self._blocks = 0
+        self._skip = 0
+        self.max_catch_up = int(max_catch_up)
+        self.skipped_blocks = 0
+
+    @property
+    def block_s(self) -> float:
+        """Block length [s]."""
+        return self.block_frames / self.world.fs
+
+    def due_blocks(self) -> int:
+        """Blocks to step now to keep up with the wall clock."""
+        due = int((self._clock() - self._t0) / self.block_s) - self._blocks - self._skip
+        if due > self.max_catch_up:
+            self.skipped_blocks += due - self.max_catch_up
+            self._skip += due - self.max_catch_up
+            due = self.max_catch_up
+        return max(0, due)
+
+    def step(self):
+        """Advance one block; returns the scene chunk."""
+        self._blocks += 1
+        return self.world.step(self.block_frames)
+
+    def stamp_ns(self, t_s: float) -> int:
+        """ROS stamp of scene time ``t_s``."""
+        return self.start_ns + int(round(t_s * 1e9))
+
+
+class SceneSim(Node):
+    """The simulated world, its sensors and its arm, on topics."""
+
+    def __init__(self) -> None:
+        super().__init__("scene_sim")
+        specs = scene_params() + [
+            c.Param("block_s", 0.01, "audio block length [s]", c.in_range(0.001, 0.1),
+                    read_only=True),
+            c.Param("duration_s", 0.0, "stop stepping after this much scene time [s]; 0 = "
+                    "run until shut down", c.non_negative, read_only=True),
+            c.Param("exit_when_done", False, "exit once duration_s is reached",
+                    read_only=True),
+            c.Param("command_timeout_s", 0.1,
+                    "each arm command holds this long [s] unless renewed",
+                    c.in_range(0.005, 1.0)),
+            c.Param("trajectory_out", "", "write the true trajectory (.npz) here at the end",
+                    read_only=True),
+            c.Param("frame_id", convert.SENSOR_FRAME, "audio frame id", c.non_empty,
+                    read_only=True),
+        ]
+        self.p = c.declare_params(self, specs, self._on_change)
+        self.world = build_world(self.p)
+        self.world.arm.connect()
+        if self.world.scenario.kind != "robot_induced":
+            self.world.arm.enable_velocity_mode()
+        fs = self.world.fs
+        self.block_frames = max(1, int(round(self.p["block_s"] * fs)))
+        self.meta = world_metadata(self.world)
+        self.names = list(self.meta["channel_names"])
+        self.cmd_timeout = float(self.p["command_timeout_s"])
+        self.done = False
+        self.exit_code = 0
+        self._lock = threading.Lock()
+        self._written = False
+        self._finished = False
+        self.n_commands = 0
+        self.n_rejected = 0
+
+        self.pub_audio = self.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+        self.pub_finger = self.create_publisher(PoseStamped, c.FINGER_TOPIC, c.SENSOR_QOS)
+        self.pub_object = self.create_publisher(PoseStamped, c.OBJECT_TOPIC, c.SENSOR_QOS)
+        self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
+        self.pub_meta = self.create_publisher(String, c.METADATA_TOPIC, c.LATCHED_QOS)
+        self.diag = c.Diagnostics(self, "aslip: scene_sim", "scene")
+        self.create_subscription(TwistStamped, c.CMD_VEL_TOPIC, self._on_cmd, c.RELIABLE_QOS,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
+        self.pub_meta.publish(String(data=json.dumps(self.meta)))
+        self.scene = PacedScene(self.world, self.block_frames,
+                                self.get_clock().now().nanoseconds)
+        # The stepping timer and the diagnostics timer never block each other.
+        self.create_timer(self.scene.block_s / 2.0, self._tick,
+                          callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(1.0, self._diagnose, callback_group=MutuallyExclusiveCallbackGroup())
+        c.ready(self, f"scenario {self.world.scenario.kind}, {len(self.names)} channels at "
+                      f"{fs:g} Hz, {self.block_frames}-frame blocks")
+
+    def _on_change(self, changed: dict) -> None:
+        if "command_timeout_s" in changed:
+            self.cmd_timeout = float(changed["command_timeout_s"])
+
+    def _on_cmd(self, msg: TwistStamped) -> None:
+        from aslip_ros.control.arm import ArmError
+        try:
+            v = convert.twist_from_msg(msg)
+            with self._lock:
+                if float(np.linalg.norm(v)) == 0.0:
+                    self.world.arm.stop()
+                else:
+                    self.world.arm.send_velocity(v, self.cmd_timeout)
+            self.n_commands += 1
+        except (ArmError, ValueError) as exc:
+            self.n_rejected += 1
+            self.get_logger().warning(f"arm command refused: {exc}", throttle_duration_sec=1.0)
+
+    def _tick(self) -> None:
+        if self._finished:
+            return
+        limit = self.p["duration_s"]
+        for _ in range(self.scene.due_blocks()):
+            if limit > 0.0 and self.world.t >= limit:
+                self._finish()
+                return
+            with self._lock:
+                chunk = self.scene.step()
+            self._publish(chunk)
+
+    def _publish(self, chunk) -> None:
+        st = self.scene.stamp_ns
+        self.pub_audio.publish(convert.audio_to_msg(
+            chunk.first_sample_index, st(chunk.t0), self.world.fs, self.names, chunk.audio,
+            self.meta.get("layout", ""), self.p["frame_id"]))
+        for m in chunk.mocap:
+            self.pub_finger.publish(convert.pose_to_msg(m.finger_pose, st(m.t), "world"))
+            self.pub_object.publish(convert.pose_to_msg(m.object_pose, st(m.t), "world"))
+        for t, pose in chunk.tcp:
+            self.pub_tcp.publish(convert.pose_to_msg(pose, st(t), "link_base"))
+
+    def _diagnose(self) -> None:
+        w = self.world
+        values = {"scene_time_s": w.t, "arm_commands": self.n_commands,
+                  "arm_commands_refused": self.n_rejected,
+                  "skipped_blocks": self.scene.skipped_blocks,
+                  "tcp_x": w.tcp_pose()[0], "tcp_y": w.tcp_pose()[1], "tcp_z": w.tcp_pose()[2]}
+        if w.wall_contact_time is not None:
+            values["wall_contact_time_s"] = w.wall_contact_time
+        level = c.Diagnostics.WARN if self.scene.skipped_blocks else c.Diagnostics.OK
+        msg = "done" if self._finished else "running"
+        if self.scene.skipped_blocks:
+            msg += f"; fell behind real time ({self.scene.skipped_blocks} blocks skipped)"
+        self.diag.publish(level, msg, values)
+
+    def _finish(self) -> None:
+        self._finished = True
+        self.get_logger().info(f"scene time {self.world.t:.2f} s reached; world stopped")
+        self._write_trajectory()
+        # Without exit_when_done the node stays up (metadata, diagnostics), world frozen.
+        self.done = bool(self.p["exit_when_done"])
+
+    def _write_trajectory(self) -> None:
+        out = self.p["trajectory_out"]
+        if not out or self._written or not self.world.record:
+            return
+        self._written = True
+        w = self.world
+        traj = w.trajectory()
+        extra = {"wall_contact_time": np.nan if w.wall_contact_time is None
+                 else w.wall_contact_time,
+                 "slip_onset_time": np.nan if w.slip_onset_time is None else w.slip_onset_time,
+                 "wall_contact_tcp_position": (np.full(3, np.nan)
+                                               if w.wall_contact_tcp_position is None
+                                               else w.wall_contact_tcp_position),
+                 "start_ns": self.scene.start_ns}
+        path = Path(out)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez(tmp, metadata=json.dumps(self.meta), **traj, **extra)
+        tmp.replace(path)
+        self.get_logger().info(f"trajectory written to {path}")
+
+    def before_shutdown(self) -> None:
+        """Write the trajectory when stopped before ``duration_s``."""
+        self._write_trajectory()
+
+
+def main(args: Optional[list] = None) -> int:
+    """Entry point of ``ros2 run aslip_ros scene_sim``."""
+    return c.run_node(SceneSim, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

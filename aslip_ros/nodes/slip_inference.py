@@ -1,0 +1,313 @@
+"""``slip_inference``: AudioFrame stream -> model -> SlipVector at the hop rate.
+
+A ring buffer per channel holds the newest ``window_samples`` of the stream. Every
+``hop_s`` of new audio the checkpoint's model (CNN or SVM, from the checkpoint) runs on the
+latest full window; the estimate goes out on ``/aslip/slip`` stamped with the END of the
+window, plus an rviz marker.
+
+Every incoming frame passes a gate first. A frame is dropped (counted per reason in the
+diagnostics, with a throttled warning) when it is empty or ragged, holds NaN/Inf, does not
+match the checkpoint (channel count or names, sample rate: the node refuses such a stream
+with a clear error), repeats or goes back in sample index, or jumps in time against its
+sample index. A forward gap in the sample index (blocks lost upstream) is counted and
+restarts the window: a window spliced across a gap is not what the model was trained on.
+Nothing that arrives can crash the node or put NaN on ``/aslip/slip``.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from typing import Optional
+
+import numpy as np
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from std_msgs.msg import String
+from visualization_msgs.msg import MarkerArray
+
+from aslip_ros.msg import AudioFrame, SlipVector
+from aslip_ros.nodes import common as c
+from aslip_ros.nodes import convert
+
+DROP_REASONS = ("no_channels", "bad_rate", "empty", "ragged", "non_finite", "channels",
+                "sample_rate", "repeated", "out_of_order", "time_jump")
+
+
+class RingBuffer:
+    """Fixed-length multi-channel history; ``window()`` returns the newest samples in order."""
+
+    def __init__(self, length: int, channels: int) -> None:
+        self._buf = np.zeros((2 * length, channels), dtype=np.float32)
+        self.length = int(length)
+        self._pos = 0
+        self.filled = 0
+
+    def reset(self) -> None:
+        """Forget the history (after a gap)."""
+        self._pos = 0
+        self.filled = 0
+
+    def push(self, block: np.ndarray) -> None:
+        """Append ``(frames, channels)`` samples."""
+        n = block.shape[0]
+        if n >= self.length:
+            self._buf[:self.length] = block[-self.length:]
+            self._buf[self.length:] = block[-self.length:]
+            self._pos = 0
+        else:
+            # Written twice (at pos and pos + length) so the newest window is always one
+            # contiguous slice: no copy-and-concatenate per inference.
+            end = self._pos + n
+            if end <= self.length:
+                self._buf[self._pos:end] = block
+                self._buf[self._pos + self.length:end + self.length] = block
+            else:
+                k = self.length - self._pos
+                self._buf[self._pos:self.length] = block[:k]
+                self._buf[self._pos + self.length:] = block[:k]
+                self._buf[:n - k] = block[k:]
+                self._buf[self.length:self.length + n - k] = block[k:]
+            self._pos = end % self.length
+        self.filled = min(self.length, self.filled + n)
+
+    def window(self) -> np.ndarray:
+        """The newest ``length`` samples, oldest first (a view; valid until the next push)."""
+        return self._buf[self._pos:self._pos + self.length]
+
+
+class StreamGate:
+    """Continuity checks on a single audio stream (sample index and stamp)."""
+
+    def __init__(self, max_time_jump_s: float) -> None:
+        self.max_time_jump_ns = int(max_time_jump_s * 1e9)
+        self.next_index: Optional[int] = None
+        self.next_stamp_ns: Optional[int] = None
+
+    def check(self, a: convert.AudioData) -> tuple:
+        """``(verdict, detail)``; verdict one of ok, gap, repeated, out_of_order, time_jump."""
+        if self.next_index is None:
+            return "ok", ""
+        if a.first_sample_index < self.next_index:
+            expected_prev = self.next_index - a.frames
+            kind = "repeated" if a.first_sample_index == expected_prev else "out_of_order"
+            return kind, (f"sample index {a.first_sample_index} < expected {self.next_index}")
+        if a.first_sample_index == self.next_index:
+            jump = a.stamp_ns - self.next_stamp_ns
+            if abs(jump) > self.max_time_jump_ns:
+                return "time_jump", f"stamp off by {jump * 1e-9:+.3f} s at a contiguous index"
+            return "ok", ""
+        return "gap", f"{a.first_sample_index - self.next_index} frames missing"
+
+    def accept(self, a: convert.AudioData) -> None:
+        """Take ``a`` as the newest block (also re-anchors after a time jump)."""
+        self.next_index = a.first_sample_index + a.frames
+        self.next_stamp_ns = a.end_stamp_ns
+
+
+class SlipInference(Node):
+    """Runs the slip model on the live audio stream."""
+
+    def __init__(self) -> None:
+        super().__init__("slip_inference")
+        specs = [
+            c.Param("checkpoint", "", "model checkpoint (.pt) from `aslip train`", c.non_empty,
+                    read_only=True),
+            c.Param("hop_s", 0.01, "run the model every hop_s of new audio [s]",
+                    c.in_range(0.001, 1.0)),
+            c.Param("threshold", -1.0, "slip probability threshold; -1 = the checkpoint's",
+                    lambda v: None if v == -1.0 or 0.0 <= v <= 1.0 else
+                    f"must be -1 or in [0, 1], got {v}"),
+            c.Param("max_time_jump_s", 0.05,
+                    "a stamp this far off its sample index is a time jump [s]", c.positive),
+            c.Param("frame_id", convert.GRASP_FRAME, "frame of the published slip",
+                    c.non_empty, read_only=True),
+            c.Param("marker_scale_s", 2.0, "rviz arrow length per slip speed [m per m/s]",
+                    c.positive),
+            c.Param("torch_threads", 1, "CPU threads for the model",
+                    lambda v: None if 1 <= v <= 64 else "must be in [1, 64]", read_only=True),
+            c.Param("diagnostics_period_s", 1.0, "diagnostics period [s]",
+                    c.in_range(0.05, 60.0), read_only=True),
+        ]
+        self.p = c.declare_params(self, specs, self._on_change)
+        import torch
+
+        from aslip_ros.learn.predictor import Predictor
+        torch.set_num_threads(int(self.p["torch_threads"]))
+        try:
+            self.predictor = Predictor.from_checkpoint(self.p["checkpoint"])
+        except (OSError, ValueError) as exc:
+            raise c.ConfigError(f"cannot load checkpoint {self.p['checkpoint']!r}: {exc}") \
+                from exc
+        pr = self.predictor
+        self.threshold = pr.threshold if self.p["threshold"] < 0 else self.p["threshold"]
+        self.source = pr.model_type
+        self.ring = RingBuffer(pr.window_samples, pr.n_channels)
+        self.gate = StreamGate(self.p["max_time_jump_s"])
+        self.hop_frames = max(1, int(round(self.p["hop_s"] * pr.sample_rate)))
+        self._since_hop = 0
+        self._lock = threading.Lock()
+        self.drops = collections.Counter()
+        self.blocks_in = 0
+        self.blocks_ok = 0
+        self.frames_lost = 0
+        self.gaps = 0
+        self.published = 0
+        self.latency = collections.deque(maxlen=2000)
+        self.arrivals = collections.deque(maxlen=500)
+        self.last_error = ""
+        self.refusal = ""
+
+        self.pub_slip = self.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
+        self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
+        self.diag = c.Diagnostics(self, "aslip: slip_inference", self.source)
+        # Inference runs inside the audio callback (lowest latency, no queueing); its group
+        # keeps it exclusive while diagnostics run beside it.
+        self.create_subscription(AudioFrame, c.AUDIO_TOPIC, self._on_audio, c.SENSOR_QOS,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS)
+        self.create_timer(self.p["diagnostics_period_s"], self._diagnose,
+                          callback_group=MutuallyExclusiveCallbackGroup())
+        # Warm-up: the first torch call is slow; keep that out of the measured latency.
+        pr.predict(np.zeros((pr.window_samples, pr.n_channels), np.float32))
+        c.ready(self, f"{self.source} model, {pr.n_channels} channels "
+                      f"{pr.channel_names} at {pr.sample_rate:g} Hz, window "
+                      f"{pr.window_s * 1e3:.0f} ms, hop {self.hop_frames} frames")
+
+    # -- parameters -------------------------------------------------------------------------
+
+    def _on_change(self, changed: dict) -> None:
+        with self._lock:
+            if "hop_s" in changed:
+                self.hop_frames = max(1, int(round(changed["hop_s"] *
+                                                   self.predictor.sample_rate)))
+            if "threshold" in changed:
+                t = changed["threshold"]
+                self.threshold = self.predictor.threshold if t < 0 else t
+            if "max_time_jump_s" in changed:
+                self.gate.max_time_jump_ns = int(changed["max_time_jump_s"] * 1e9)
+            if "marker_scale_s" in changed:
+                self.p["marker_scale_s"] = changed["marker_scale_s"]
+
+    # -- input --------------------------------------------------------------------------------
+
+    def _on_metadata(self, msg: String) -> None:
+        self.get_logger().debug(f"metadata: {msg.data[:200]}")
+
+    def _drop(self, reason: str, detail: str) -> None:
+        self.drops[reason] += 1
+        self.get_logger().warning(f"dropped AudioFrame ({reason}): {detail}",
+                                  throttle_duration_sec=1.0)
+
+    def _on_audio(self, msg: AudioFrame) -> None:
+        t_in = time.perf_counter()
+        self.blocks_in += 1
+        self.arrivals.append(time.monotonic())
+        try:
+            with self._lock:
+                self._handle(msg, t_in)
+        except Exception as exc:  # noqa: BLE001 - a bad frame must never take the node down
+            self.last_error = f"{type(exc).__name__}: {exc}"
+            self.drops["internal_error"] += 1
+            self.get_logger().error(f"inference failed: {self.last_error}",
+                                    throttle_duration_sec=1.0)
+
+    def _handle(self, msg: AudioFrame, t_in: float) -> None:
+        pr = self.predictor
+        try:
+            a = convert.audio_from_msg(msg)
+        except convert.AudioFrameError as exc:
+            self._drop(exc.reason, str(exc))
+            return
+        if a.channel_names != pr.channel_names:
+            self._refuse("channels", f"stream channels {a.channel_names} do not match the "
+                                     f"checkpoint's {pr.channel_names}")
+            return
+        try:
+            pr.check_stream(a.sample_rate, a.channel_names)
+        except ValueError as exc:
+            self._refuse("sample_rate", str(exc))
+            return
+        verdict, detail = self.gate.check(a)
+        if verdict in ("repeated", "out_of_order"):
+            self._drop(verdict, detail)
+            return
+        if verdict == "time_jump":
+            # Re-anchor on this frame so a real clock step costs one window, not the stream.
+            self._drop(verdict, detail)
+            self.gate.accept(a)
+            self.ring.reset()
+            self._since_hop = 0
+            return
+        if verdict == "gap":
+            self.gaps += 1
+            self.frames_lost += a.first_sample_index - self.gate.next_index
+            self.get_logger().warning(f"audio gap: {detail}; window restarts",
+                                      throttle_duration_sec=1.0)
+            self.ring.reset()
+            self._since_hop = 0
+        self.gate.accept(a)
+        self.blocks_ok += 1
+        self.refusal = ""
+        self.ring.push(a.block)
+        self._since_hop += a.frames
+        if self.ring.filled < self.ring.length or self._since_hop < self.hop_frames:
+            return
+        # Several hops inside one block: one estimate on the newest window is what matters.
+        self._since_hop %= self.hop_frames
+        pred = pr.predict(self.ring.window())
+        try:
+            out = convert.prediction_to_slip(pred, self.threshold, a.end_stamp_ns, self.source,
+                                             self.p["frame_id"])
+        except ValueError as exc:
+            self._drop("bad_estimate", str(exc))
+            return
+        self.pub_slip.publish(out)
+        self.latency.append(time.perf_counter() - t_in)
+        self.published += 1
+        self.pub_marker.publish(convert.slip_markers(out, scale_s=self.p["marker_scale_s"]))
+
+    def _refuse(self, reason: str, detail: str) -> None:
+        self.refusal = detail
+        self.drops[reason] += 1
+        self.get_logger().error(f"refusing the audio stream: {detail}",
+                                throttle_duration_sec=2.0)
+
+    # -- diagnostics --------------------------------------------------------------------------
+
+    def _diagnose(self) -> None:
+        with self._lock:
+            lat = np.array(self.latency) * 1e3
+            arr = list(self.arrivals)
+            values = {"blocks_received": self.blocks_in, "blocks_accepted": self.blocks_ok,
+                      "blocks_dropped": sum(self.drops.values()), "gaps": self.gaps,
+                      "frames_lost": self.frames_lost, "estimates_published": self.published,
+                      "threshold": self.threshold, "model": self.source}
+            values.update({f"dropped_{k}": v for k, v in sorted(self.drops.items())})
+        recent = [t for t in arr if t > time.monotonic() - 2.0]
+        values["input_rate_hz"] = (len(recent) - 1) / (recent[-1] - recent[0]) \
+            if len(recent) > 2 and recent[-1] > recent[0] else 0.0
+        if lat.size:
+            values.update(latency_p50_ms=float(np.percentile(lat, 50)),
+                          latency_p99_ms=float(np.percentile(lat, 99)),
+                          latency_max_ms=float(lat.max()))
+        level, message = c.Diagnostics.OK, "running"
+        if self.refusal:
+            level, message = c.Diagnostics.ERROR, f"stream refused: {self.refusal}"
+        elif self.drops:
+            level, message = c.Diagnostics.WARN, f"{sum(self.drops.values())} frames dropped"
+        elif not recent:
+            level, message = c.Diagnostics.WARN, "no audio"
+        if self.last_error:
+            values["last_error"] = self.last_error
+        self.diag.publish(level, message, values)
+
+
+def main(args: Optional[list] = None) -> int:
+    """Entry point of ``ros2 run aslip_ros slip_inference``."""
+    return c.run_node(SlipInference, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,165 @@
+"""``slip_stop``: the paper's wall-push task, stopping the arm when slip is detected.
+
+The task logic is :class:`aslip_ros.control.slip_stop.SlipStop`: start with the object in
+contact with the wall, retract ``retract_distance_m``, settle, re-approach at
+``approach_speed_m_s`` along ``direction`` (``link_base``), stop after ``debounce_count``
+consecutive slipping estimates. The result (stop reason, success, stopping distance past the
+contact pose) is published latched as JSON on ``/aslip/slip_stop/result`` when the arm stops
+and again, final, once it has come to rest (``settle_result_s`` later).
+
+``direction`` ``[0, 0, 0]`` (default) takes the push direction from the scene's metadata
+(``task.push_direction`` on ``/aslip/metadata``); on hardware give it explicitly.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Optional
+
+import numpy as np
+from std_msgs.msg import String
+
+from aslip_ros.nodes import common as c
+from aslip_ros.nodes.controller import ControllerNode
+
+RESULT_TOPIC = "/aslip/slip_stop/result"
+
+
+def _direction_check(v) -> Optional[str]:
+    vals = [float(x) for x in v]
+    if len(vals) != 3 or not all(math.isfinite(x) for x in vals):
+        return f"must be 3 finite numbers, got {vals}"
+    return None
+
+
+class SlipStopNode(ControllerNode):
+    """Wall-push slip-stop controller."""
+
+    task_name = "slip_stop"
+
+    def __init__(self) -> None:
+        self._result_pub = None
+        self._stopped_at: Optional[float] = None
+        self._final_sent = False
+        super().__init__("slip_stop")
+        self._result_pub = self.create_publisher(String, RESULT_TOPIC, c.LATCHED_QOS)
+
+    def task_params(self) -> list:
+        """Wall-push parameters (SI, ``link_base``)."""
+        return [
+            c.Param("direction", [0.0, 0.0, 0.0],
+                    "approach direction towards the wall in link_base; 0 0 0 = from the "
+                    "scene metadata", _direction_check, read_only=True),
+            c.Param("approach_speed_m_s", 0.01, "re-approach speed [m/s]", c.positive),
+            c.Param("retract_distance_m", 0.10, "back-off distance [m] (paper: 0.1)",
+                    c.positive),
+            c.Param("retract_speed_m_s", 0.02, "back-off speed [m/s]", c.positive),
+            c.Param("settle_s", 0.5, "pause between retract and approach [s]",
+                    c.non_negative),
+            c.Param("max_approach_distance_m", 0.15, "approach travel limit [m]",
+                    c.positive),
+            c.Param("debounce_count", 3, "consecutive slip estimates needed to stop",
+                    lambda v: None if 1 <= v <= 100 else "must be in [1, 100]"),
+            c.Param("time_margin", 2.0, "phase time limit factor (>= 1)",
+                    lambda v: None if v >= 1.0 else "must be >= 1"),
+            c.Param("settle_result_s", 0.5, "final result this long after the stop [s]",
+                    c.non_negative, read_only=True),
+        ]
+
+    def _config(self, values: dict, direction=None):
+        from aslip_ros.control.slip_stop import SlipStopConfig
+        return SlipStopConfig(
+            direction=tuple(direction if direction is not None else (1.0, 0.0, 0.0)),
+            approach_speed_m_s=values["approach_speed_m_s"],
+            retract_distance_m=values["retract_distance_m"],
+            retract_speed_m_s=values["retract_speed_m_s"], settle_s=values["settle_s"],
+            max_approach_distance_m=values["max_approach_distance_m"],
+            debounce_count=int(values["debounce_count"]),
+            slip_timeout_s=values["slip_timeout_s"], pose_timeout_s=values["pose_timeout_s"],
+            command_duration_s=values["command_duration_s"],
+            time_margin=values["time_margin"])
+
+    def cross_check(self, values: dict) -> Optional[str]:
+        """The core's own validation of the combination (e.g. approach > retract)."""
+        try:
+            self._config(values)
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def _direction(self):
+        d = np.asarray(self.p["direction"], dtype=float)
+        if np.linalg.norm(d) > 0:
+            return d
+        task = (self.meta or {}).get("task", {})
+        if "push_direction" in task:
+            return np.asarray(task["push_direction"], dtype=float)
+        return None
+
+    def make_task(self):
+        """The SlipStop core once the direction is known."""
+        from aslip_ros.control.slip_stop import SlipStop
+        d = self._direction()
+        if d is None:
+            self.get_logger().info("waiting for the push direction on /aslip/metadata",
+                                   throttle_duration_sec=2.0)
+            return None
+        self._stopped_at = None
+        self._final_sent = False
+        self.get_logger().info(f"wall push along {np.round(d, 4).tolist()} (link_base)")
+        return SlipStop(self._config(self.p, d))
+
+    def start_task(self, now: float) -> bool:
+        """Start from the current (contact) TCP pose."""
+        self.task.start(now=now)
+        self.get_logger().info("slip-stop trial started: retracting")
+        return True
+
+    def feed_slip(self, slip, now: float) -> None:
+        """The slip decision is what the wall-push task uses."""
+        self.task.on_slip(slip.slipping, now)
+
+    def after_step(self, now: float) -> None:
+        """Publish the result at the stop and, final, once the arm has settled."""
+        result = self.task.result()
+        if result is None:
+            return
+        if self._stopped_at is None:
+            self._stopped_at = now
+            self._publish_result(result, final=False)
+            self.get_logger().info(f"stopped: {result.reason.value}, stopping distance "
+                                   f"{result.stopping_distance_m * 1e3:.1f} mm")
+        elif not self._final_sent and now - self._stopped_at >= self.p["settle_result_s"]:
+            self._final_sent = True
+            self._publish_result(result, final=True)
+            if self.p["exit_when_done"]:
+                self.done = True
+
+    def _publish_result(self, result, final: bool) -> None:
+        doc = {"reason": result.reason.value, "success": result.success,
+               "stopping_distance_m": result.stopping_distance_m,
+               "command_distance_m": result.command_distance_m,
+               "approach_travel_m": result.approach_travel_m,
+               "approach_time_s": result.approach_time_s, "detail": result.detail,
+               "final": final}
+        doc = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+               for k, v in doc.items()}
+        if self._result_pub is not None:
+            self._result_pub.publish(String(data=json.dumps(doc)))
+
+    def status(self) -> dict:
+        """Travel past the contact pose for the diagnostics."""
+        if self.task is None:
+            return {}
+        travel = self.task.travel()
+        return {"travel_m": travel} if math.isfinite(travel) else {}
+
+
+def main(args: Optional[list] = None) -> int:
+    """Entry point of ``ros2 run aslip_ros slip_stop``."""
+    return c.run_node(SlipStopNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

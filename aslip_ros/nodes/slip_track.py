@@ -1,0 +1,114 @@
+"""``slip_track``: move the gripper with the object while it slips in the grasp.
+
+The control law is :class:`aslip_ros.control.slip_track.SlipTrack`: the commanded gripper
+velocity is ``gain`` times the predicted slip vector (deadband, magnitude saturation,
+optional low-pass), rotated from the grasp plane into ``link_base`` with the newest TCP
+pose and the ``grasp_plane_in_tcp`` calibration. When slip ends it holds still for
+``hold_s`` and waits for the next slip (or, with ``stop_on_slip_end``, ends the task).
+``duration_s`` > 0 ends the task after that long (with ``exit_when_done`` the node exits).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Optional
+
+from aslip_ros.nodes import common as c
+from aslip_ros.nodes.controller import ControllerNode
+
+
+class SlipTrackNode(ControllerNode):
+    """Slip-tracking controller."""
+
+    task_name = "slip_track"
+
+    def __init__(self) -> None:
+        self._t_start: Optional[float] = None
+        super().__init__("slip_track")
+
+    def task_params(self) -> list:
+        """Control-law parameters (SI)."""
+        return [
+            c.Param("gain", 1.0, "gripper velocity per unit slip velocity", c.positive),
+            c.Param("deadband_m_s", 0.002, "slip speeds below this are ignored [m/s]",
+                    c.non_negative),
+            c.Param("max_speed_m_s", 0.05, "commanded speed limit [m/s]", c.positive),
+            c.Param("lowpass_tau_s", 0.0, "command low-pass time constant [s]; 0 = off",
+                    c.non_negative),
+            c.Param("hold_s", 0.2, "hold still this long after slip ends [s]",
+                    c.non_negative),
+            c.Param("stop_on_slip_end", False, "end the task when slip ends"),
+            c.Param("duration_s", 0.0, "end the task after this long [s]; 0 = never",
+                    c.non_negative, read_only=True),
+        ]
+
+    def _config(self, values: dict):
+        from aslip_ros.control.slip_track import SlipTrackConfig
+        return SlipTrackConfig(
+            gain=values["gain"], deadband_m_s=values["deadband_m_s"],
+            max_speed_m_s=values["max_speed_m_s"], lowpass_tau_s=values["lowpass_tau_s"],
+            hold_s=values["hold_s"], stop_on_slip_end=bool(values["stop_on_slip_end"]),
+            grasp_plane_in_tcp=tuple(values["grasp_plane_in_tcp"]),
+            slip_timeout_s=values["slip_timeout_s"], pose_timeout_s=values["pose_timeout_s"],
+            command_duration_s=values["command_duration_s"])
+
+    def cross_check(self, values: dict) -> Optional[str]:
+        """The core's own validation of the combination."""
+        try:
+            self._config(values)
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def make_task(self):
+        """A fresh SlipTrack controller."""
+        from aslip_ros.control.slip_track import SlipTrack
+        self._t_start = None
+        return SlipTrack(self._config(self.p))
+
+    def start_task(self, now: float) -> bool:
+        """Start tracking."""
+        self.task.start(now=now)
+        self._t_start = now
+        self.get_logger().info("slip tracking started")
+        return True
+
+    def feed_slip(self, slip, now: float) -> None:
+        """Grasp-plane slip vector and decision."""
+        self.task.on_slip((slip.vx, slip.vz), slip.slipping, now)
+
+    def after_step(self, now: float) -> None:
+        """End the task after ``duration_s``; exit when asked to once stopped."""
+        from aslip_ros.control.command import apply_command
+        from aslip_ros.control.slip_track import TrackState
+        if self._t_start is None:
+            return
+        limit = self.p["duration_s"]
+        if limit > 0.0 and now - self._t_start >= limit and \
+                self.task.state is not TrackState.STOPPED:
+            self.get_logger().info(f"tracking ran {limit:g} s; stopping")
+            self.task.shutdown(now)
+            apply_command(self.arm, self.task.step(now))
+        if self.task.state is TrackState.STOPPED and self.p["exit_when_done"]:
+            self.done = True
+
+    def status(self) -> dict:
+        """Commanded velocity and stop reason."""
+        if self.task is None:
+            return {}
+        v = self.task.last_velocity
+        out = {"cmd_vx": v[0], "cmd_vy": v[1], "cmd_vz": v[2]}
+        if self.task.reason:
+            out["stop_reason"] = self.task.reason
+        if self._t_start is not None:
+            out["tracking_s"] = time.monotonic() - self._t_start
+        return out
+
+
+def main(args: Optional[list] = None) -> int:
+    """Entry point of ``ros2 run aslip_ros slip_track``."""
+    return c.run_node(SlipTrackNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,215 @@
+"""slip_track / slip_stop as separate processes: SlipVector -> controller -> arm -> scene.
+
+The SlipVector stream comes from this test process (a source whose answer the test
+chooses), so the controllers' behaviour is checked independently of any model.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from test_nodes_support import Bus, NodeProcess
+
+pytestmark = pytest.mark.ros
+
+CMD = "/aslip/arm/cmd_vel"
+TCP = "/aslip/robot/tcp_pose"
+
+
+class SlipSource:
+    """Publishes SlipVector at 100 Hz with a velocity the test sets (None = silence)."""
+
+    def __init__(self, bus, velocity=(0.02, 0.0)) -> None:
+        from aslip_ros.msg import SlipVector
+        from aslip_ros.nodes import common as c
+        self.pub = bus.node.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
+        self.velocity = velocity
+        self.last_sent = None
+        self.alive = True
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        from aslip_ros.nodes import convert
+        while self.alive:
+            v = self.velocity
+            if v is not None:
+                slipping = bool(np.hypot(*v) > 0)
+                self.pub.publish(convert.slip_to_msg(v[0], v[1], 0.9 if slipping else 0.1,
+                                                     slipping, 0.5, time.time_ns(), 0.1,
+                                                     "test"))
+                self.last_sent = time.monotonic()
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        self.alive = False
+        self.thread.join(2)
+
+
+def _listen(bus):
+    from geometry_msgs.msg import PoseStamped, TwistStamped
+    from std_msgs.msg import String
+
+    from aslip_ros.nodes import common as c
+    bus.listen(TwistStamped, CMD, c.RELIABLE_QOS)
+    bus.listen(PoseStamped, TCP, c.SENSOR_QOS)
+    bus.listen(String, "/aslip/diagnostics", c.RELIABLE_QOS)
+
+
+def _v(m):
+    return np.array([m.twist.linear.x, m.twist.linear.y, m.twist.linear.z])
+
+
+def _p(m):
+    return np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+
+
+def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros_env):
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    src = SlipSource(bus, velocity=(0.02, 0.0))
+    with NodeProcess("scene_sim", ros_env, {"scenario": "drag", "seed": 3}) as sim, \
+            NodeProcess("slip_track", ros_env, {"max_speed_m_s": 0.05}) as ctl:
+        sim.wait_ready()
+        ctl.wait_ready()
+        moving = lambda: [m for m in bus.messages(CMD) if np.linalg.norm(_v(m)) > 0]  # noqa
+        assert bus.wait(lambda: len(moving()) > 50, 20), ctl.output
+        v = _v(moving()[-1])
+        assert np.linalg.norm(v) == pytest.approx(0.02, rel=1e-3)
+        assert abs(v[2]) < 1e-9                 # grasp-plane x is horizontal (level gripper)
+        p0 = _p(bus.messages(TCP)[-1])
+        time.sleep(1.0)
+        p1 = _p(bus.messages(TCP)[-1])
+        moved = p1 - p0
+        # The scene's arm follows the commands: ~2 cm in 1 s along the commanded direction.
+        assert np.dot(moved, v / np.linalg.norm(v)) == pytest.approx(0.02, abs=0.006)
+        ctl.proc.send_signal(signal.SIGINT)
+        assert ctl.proc.wait(10) == 0, ctl.output
+        last = bus.messages(CMD)[-1]
+        assert np.linalg.norm(_v(last)) == 0.0, "no stop command at shutdown"
+    src.close()
+    bus.close()
+
+
+def test_watchdog_stops_the_arm_when_slip_goes_stale(rclpy_context, ros_env):
+    """No scene: the test plays the arm (TCP poses) and the slip source."""
+    from geometry_msgs.msg import PoseStamped
+
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes import convert
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    pub_tcp = bus.node.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
+    stop = threading.Event()
+
+    def tcp_loop():
+        while not stop.is_set():
+            pub_tcp.publish(convert.pose_to_msg([0.4, 0, 0.3, 0, 0, 0, 1], time.time_ns(),
+                                                "link_base"))
+            time.sleep(0.01)
+
+    t = threading.Thread(target=tcp_loop, daemon=True)
+    t.start()
+    src = SlipSource(bus, velocity=(0.0, -0.03))
+    with NodeProcess("slip_track", ros_env) as ctl:
+        ctl.wait_ready()
+        assert bus.wait(lambda: any(np.linalg.norm(_v(m)) > 0 for m in bus.messages(CMD)),
+                        20), ctl.output
+        v = _v(bus.messages(CMD)[-1])
+        assert v == pytest.approx([0.0, 0.0, -0.03])          # identity grasp plane
+        src.velocity = None                                   # inference dies
+        silent_at = src.last_sent
+        assert bus.wait(lambda: np.linalg.norm(_v(bus.stamped(CMD)[-1][1])) == 0.0, 5)
+        stop_at = next(t for t, m in bus.stamped(CMD)
+                       if t > silent_at and np.linalg.norm(_v(m)) == 0.0)
+        # Watchdog 100 ms + one control period + transport; generous for a loaded CI box.
+        assert stop_at - silent_at < 0.35
+        assert bus.wait(lambda: any("stale slip" in json.dumps(d)
+                                    for d in bus.diagnostics("slip_track")), 5)
+        # Latched: slip coming back does not restart motion on its own.
+        src.velocity = (0.02, 0.0)
+        time.sleep(0.5)
+        assert np.linalg.norm(_v(bus.messages(CMD)[-1])) == 0.0
+    stop.set()
+    t.join(2)
+    src.close()
+    bus.close()
+
+
+def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env):
+    """Retract, settle, approach (direction from the scene metadata), stop on slip."""
+    from std_msgs.msg import String
+
+    from aslip_ros.nodes import common as c
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    bus.listen(String, "/aslip/slip_stop/result", c.LATCHED_QOS)
+    src = SlipSource(bus, velocity=(0.0, 0.0))
+    params = {"retract_distance_m": 0.01, "retract_speed_m_s": 0.05, "settle_s": 0.1,
+              "approach_speed_m_s": 0.05, "max_approach_distance_m": 0.03,
+              "debounce_count": 2, "settle_result_s": 0.2}
+    with NodeProcess("scene_sim", ros_env, {"scenario": "wall_push", "seed": 1}) as sim, \
+            NodeProcess("slip_stop", ros_env, params) as ctl:
+        sim.wait_ready()
+        ctl.wait_ready()
+        assert ctl.wait_for("wall push along", 20), ctl.output
+        meta = None
+        assert ctl.wait_for("retracting", 20), ctl.output
+        assert bus.wait(lambda: any(d["values"].get("task_state") == "approaching"
+                                    for d in bus.diagnostics("slip_stop")), 20), ctl.output
+        src.velocity = (-0.02, 0.0)            # slip detected
+        assert bus.wait(lambda: any(json.loads(m.data)["final"]
+                                    for m in bus.messages("/aslip/slip_stop/result")), 10)
+        meta = [json.loads(m.data) for m in bus.messages("/aslip/slip_stop/result")][-1]
+    src.close()
+    bus.close()
+    assert meta["reason"] == "slip" and meta["success"] is True, meta
+    assert meta["stopping_distance_m"] is not None
+
+
+def test_unreachable_xarm_is_reported_and_the_node_stays_safe(rclpy_context, ros_env):
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    src = SlipSource(bus, velocity=(0.02, 0.0))
+    params = {"arm": "xarm", "xarm_ip": "192.0.2.1", "xarm_connect_timeout_s": 1.0}
+    with NodeProcess("slip_track", ros_env, params) as ctl:
+        ctl.wait_ready(30)
+
+        def reported():
+            return [d for d in bus.diagnostics("slip_track") if d["level"] == 2 and
+                    "arm error" in d["message"] and d["values"]["lifecycle"] == "unconfigured"]
+        assert bus.wait(reported, 10), ctl.output
+        assert "192.0.2.1" in reported()[-1]["message"]
+        time.sleep(1.0)
+        assert ctl.proc.poll() is None                     # still running, commanding nothing
+        assert bus.messages(CMD) == []
+        ctl.proc.send_signal(signal.SIGINT)
+        assert ctl.proc.wait(10) == 0
+    src.close()
+    bus.close()
+
+
+def test_controller_parameters_validated_at_start_and_at_run_time(rclpy_context, ros_env):
+    proc = NodeProcess("slip_stop", ros_env, {"retract_distance_m": 0.2,
+                                              "max_approach_distance_m": 0.15})
+    assert proc.proc.wait(30) == 2
+    assert "must exceed retract_distance_m" in proc.stop()
+    proc = NodeProcess("slip_track", ros_env, {"slip_timeout_s": 0.5})
+    assert proc.proc.wait(30) == 2
+    assert "slip_timeout_s" in proc.stop()
+    bus = Bus(rclpy_context)
+    with NodeProcess("slip_track", ros_env) as ctl:
+        ctl.wait_ready()
+        for bad in ({"gain": -1.0}, {"slip_timeout_s": 0.5}, {"grasp_plane_in_tcp": [0.0] * 7},
+                    {"arm": "xarm"}):
+            res = bus.set_params("slip_track", bad)
+            assert not res[0].successful, bad
+        ok = bus.set_params("slip_track", {"gain": 0.5})
+        assert ok[0].successful
+    bus.close()

@@ -1,0 +1,226 @@
+"""slip_inference as a separate process: scene audio -> SlipVector, bad input, parameters."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+
+from test_nodes_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint
+
+pytestmark = pytest.mark.ros
+
+SLIP = "/aslip/slip"
+DIAG = "/aslip/diagnostics"
+
+
+@pytest.fixture(scope="module")
+def known_ckpt(tmp_path_factory):
+    """A model that always answers p = sigmoid(4) with velocity (0.02, -0.01) m/s."""
+    return make_checkpoint(tmp_path_factory.mktemp("ckpt") / "known.pt", slip_logit=4.0,
+                           velocity=(0.02, -0.01))
+
+
+def _listen(bus):
+    from std_msgs.msg import String
+    from visualization_msgs.msg import MarkerArray
+
+    from aslip_ros.msg import SlipVector
+    from aslip_ros.nodes import common as c
+    bus.listen(SlipVector, SLIP, c.RELIABLE_QOS)
+    bus.listen(String, DIAG, c.RELIABLE_QOS)
+    bus.listen(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
+
+
+def test_scene_audio_to_slip_vector(rclpy_context, ros_env, known_ckpt):
+    """scene_sim audio -> slip_inference -> SlipVector at the hop rate, stamped, finite."""
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    with NodeProcess("scene_sim", ros_env) as sim, \
+            NodeProcess("slip_inference", ros_env, {"checkpoint": str(known_ckpt)}) as inf:
+        sim.wait_ready()
+        inf.wait_ready()
+        assert bus.wait(lambda: len(bus.messages(SLIP)) >= 60, 30), inf.output
+        got = bus.messages(SLIP)
+        assert bus.wait(lambda: bus.diagnostics("slip_inference"), 5)
+        assert bus.wait(lambda: bus.messages("/aslip/slip_marker"), 5)
+    bus.close()
+    for m in got:
+        assert all(math.isfinite(v) for v in (m.probability, m.velocity.x, m.velocity.z))
+    last = got[-1]
+    assert last.slipping and last.source == "aslip_cnn"
+    assert last.probability == pytest.approx(1 / (1 + math.exp(-4.0)), abs=1e-4)
+    assert (last.velocity.x, last.velocity.z) == pytest.approx((0.02, -0.01), abs=1e-5)
+    assert last.header.frame_id == "aslip_grasp_plane"
+    stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got]
+    steps = np.diff(stamps) * 1e-9
+    assert np.all(steps > 0)
+    assert np.median(steps) == pytest.approx(0.01, abs=1e-4)        # one estimate per hop
+    diag = bus.diagnostics("slip_inference")[-1]["values"]
+    assert diag["latency_p50_ms"] > 0 and diag["input_rate_hz"] > 50
+
+
+# ------------------------------------------------------------------------------ bad input
+
+@pytest.fixture(scope="module")
+def live_inference(known_ckpt):
+    """One slip_inference process for every bad-frame case, on a domain of its own."""
+    import rclpy
+    from domain_coordinator import domain_id
+    from rclpy.context import Context
+
+    from aslip_ros.msg import AudioFrame
+    from aslip_ros.nodes import common as c
+    with domain_id() as did:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                   PYTHONUNBUFFERED="1")
+        ctx = Context()
+        rclpy.init(context=ctx, domain_id=did)
+        bus = Bus(ctx)
+        _listen(bus)
+        pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+        proc = NodeProcess("slip_inference", env, {"checkpoint": str(known_ckpt),
+                                                   "diagnostics_period_s": 0.1})
+        try:
+            proc.wait_ready()
+            feeder = Feeder(bus, pub)
+            assert bus.wait(lambda: pub.get_subscription_count() > 0, 10)
+            feeder.good(8)                  # a healthy stream first: estimates flow
+            assert bus.wait(lambda: bus.messages(SLIP), 10), proc.output
+            yield bus, feeder, proc
+        finally:
+            proc.stop()
+            bus.close()
+            rclpy.try_shutdown(context=ctx)
+
+
+class Feeder:
+    """Publishes a 48 kHz 4-channel stream of 480-frame blocks, good or deliberately bad."""
+
+    def __init__(self, bus, pub) -> None:
+        self.bus, self.pub = bus, pub
+        self.index = 0
+        self.stamp_ns = 1_000_000_000_000
+        self.rng = np.random.default_rng(0)
+
+    def frame(self, index=None, stamp_ns=None, names=SCENE_NAMES, rate=48000.0, frames=480,
+              data=None):
+        from aslip_ros.nodes import convert
+        block = (0.01 * self.rng.standard_normal((frames, len(names)))).astype(np.float32)
+        msg = convert.audio_to_msg(self.index if index is None else index,
+                                   self.stamp_ns if stamp_ns is None else stamp_ns, rate,
+                                   names, block, "4mic")
+        if data is not None:
+            msg.data = data
+        return msg
+
+    def good(self, n: int = 1) -> None:
+        for _ in range(n):
+            self.pub.publish(self.frame())
+            self.index += 480
+            self.stamp_ns += 10_000_000
+            time.sleep(0.005)
+
+
+def _nan_frame(f):
+    m = f.frame()
+    m.data[5] = float("nan")
+    return m
+
+
+def _inf_frame(f):
+    m = f.frame()
+    m.data[0] = float("inf")
+    return m
+
+
+BAD_FRAMES = {
+    "channels": lambda f: f.frame(names=SCENE_NAMES[:3]),
+    "sample_rate": lambda f: f.frame(rate=44100.0),
+    "non_finite": _nan_frame,
+    "non_finite_inf": _inf_frame,
+    "empty": lambda f: f.frame(data=[]),
+    "ragged": lambda f: f.frame(data=[0.0] * 1919),
+    "repeated": lambda f: f.frame(index=f.index - 480, stamp_ns=f.stamp_ns - 10_000_000),
+    "out_of_order": lambda f: f.frame(index=f.index - 4800, stamp_ns=f.stamp_ns - 10**8),
+    "time_jump": lambda f: f.frame(stamp_ns=f.stamp_ns + 5 * 10**9),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FRAMES))
+def test_bad_audio_frame_is_dropped_with_a_diagnostic(live_inference, case):
+    bus, feeder, proc = live_inference
+    reason = case.replace("_inf", "")
+
+    def dropped():
+        docs = bus.diagnostics("slip_inference")
+        return docs[-1]["values"].get(f"dropped_{reason}", 0) if docs else 0
+
+    bus.wait(lambda: bus.diagnostics("slip_inference"), 5)
+    before = dropped()
+    bus.clear(SLIP)
+    msg = BAD_FRAMES[case](feeder)
+    feeder.pub.publish(msg)
+    if case == "time_jump":
+        # The node re-anchors on the jumped frame: the stream continues from there.
+        feeder.index += 480
+        feeder.stamp_ns += 5 * 10**9 + 10_000_000
+    assert bus.wait(lambda: dropped() > before, 10), f"no diagnostic for {case}:\n{proc.output}"
+    refusal = reason in ("channels", "sample_rate")
+    # The warning is throttled (1 s per call site), so a burst of bad frames logs once;
+    # the per-reason diagnostic counter above is the per-frame proof.
+    needle = "refusing the audio stream" if refusal else "dropped AudioFrame ("
+    assert proc.wait_for(needle, 5), proc.output
+    # The node survives and keeps estimating from good frames; nothing non-finite goes out.
+    feeder.good(12)
+    assert bus.wait(lambda: len(bus.messages(SLIP)) > 0, 10), proc.output
+    assert proc.proc.poll() is None
+    for m in bus.messages(SLIP):
+        assert math.isfinite(m.probability) and math.isfinite(m.velocity.x) and \
+            math.isfinite(m.velocity.z)
+    if refusal:
+        assert "match" in proc.output
+
+
+def test_forward_gap_restarts_the_window_and_is_counted(live_inference):
+    bus, feeder, proc = live_inference
+    feeder.index += 4800                     # ten blocks lost upstream
+    feeder.stamp_ns += 100_000_000
+    feeder.good(10)
+    assert bus.wait(lambda: bus.diagnostics("slip_inference")[-1]["values"]["gaps"] >= 1, 10)
+    assert bus.diagnostics("slip_inference")[-1]["values"]["frames_lost"] >= 4800
+
+
+# ------------------------------------------------------------------------------ parameters
+
+@pytest.mark.parametrize("params, needle", [
+    ({"checkpoint": "/nonexistent/model.pt"}, "cannot load checkpoint"),
+    ({"checkpoint": "CKPT", "hop_s": -0.01, "threshold": 1.5}, "hop_s"),
+])
+def test_invalid_parameters_refused_at_start(ros_env, known_ckpt, params, needle):
+    params = {k: (str(known_ckpt) if v == "CKPT" else v) for k, v in params.items()}
+    proc = NodeProcess("slip_inference", ros_env, params)
+    try:
+        code = proc.proc.wait(60)
+    finally:
+        out = proc.stop()
+    assert code == 2, out
+    assert "refused to start" in out and needle in out, out
+
+
+def test_invalid_parameters_refused_at_run_time(rclpy_context, ros_env, known_ckpt):
+    bus = Bus(rclpy_context)
+    with NodeProcess("slip_inference", ros_env, {"checkpoint": str(known_ckpt)}) as inf:
+        inf.wait_ready()
+        bad = bus.set_params("slip_inference", {"hop_s": 0.0})
+        assert not bad[0].successful and "hop_s" in bad[0].reason
+        bad = bus.set_params("slip_inference", {"threshold": -0.5})
+        assert not bad[0].successful
+        ro = bus.set_params("slip_inference", {"checkpoint": "/other.pt"})
+        assert not ro[0].successful                      # read-only at run time
+        ok = bus.set_params("slip_inference", {"threshold": 0.7, "hop_s": 0.02})
+        assert all(r.successful for r in ok)
+    bus.close()

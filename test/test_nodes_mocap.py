@@ -1,0 +1,127 @@
+"""mocap_bridge as a separate process: known motion -> known slip; stale poses -> silence."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from test_nodes_support import Bus, NodeProcess
+
+pytestmark = pytest.mark.ros
+
+TRUTH = "/aslip/slip_truth"
+
+
+class PoseStreamer:
+    """Publishes finger and object poses at 120 Hz from a motion function of time."""
+
+    def __init__(self, bus, motion, rate_hz: float = 120.0) -> None:
+        from geometry_msgs.msg import PoseStamped
+
+        from aslip_ros.nodes import common as c
+        self.motion = motion
+        self.pub_f = bus.node.create_publisher(PoseStamped, c.FINGER_TOPIC, c.SENSOR_QOS)
+        self.pub_o = bus.node.create_publisher(PoseStamped, c.OBJECT_TOPIC, c.SENSOR_QOS)
+        self.period = 1.0 / rate_hz
+        self.running = threading.Event()
+        self.running.set()
+        self.alive = True
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.t0_ns = time.time_ns()
+        self.thread.start()
+
+    def _run(self) -> None:
+        from aslip_ros.nodes import convert
+        k = 0
+        start = time.monotonic()
+        while self.alive:
+            if self.running.is_set():
+                t = k * self.period
+                finger, obj = self.motion(t)
+                stamp = self.t0_ns + int(t * 1e9)
+                self.pub_f.publish(convert.pose_to_msg(finger, stamp, "world"))
+                self.pub_o.publish(convert.pose_to_msg(obj, stamp, "world"))
+            k += 1
+            delay = start + k * self.period - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+
+    def close(self) -> None:
+        """Stop the thread before the publishers go."""
+        self.alive = False
+        self.thread.join(2)
+
+
+def _yawed_grasp(t):
+    """Finger yawed 90 deg about z, moving; object slides 0.02 m/s along the fingers
+    (grasp-plane +x) and 0.01 m/s down (-z) relative to it."""
+    from scipy.spatial.transform import Rotation
+    q = Rotation.from_euler("z", 90, degrees=True)
+    p_f = np.array([0.4 + 0.05 * t, 0.0, 0.3])                   # the arm moves too
+    rel = np.array([0.02 * t, 0.0, -0.01 * t])
+    p_o = p_f + q.apply(rel)
+    quat = q.as_quat()
+    return np.concatenate([p_f, quat]), np.concatenate([p_o, quat])
+
+
+def test_known_motion_gives_known_slip_then_stale_gives_silence(rclpy_context, ros_env):
+    from std_msgs.msg import String
+
+    from aslip_ros.msg import SlipVector
+    from aslip_ros.nodes import common as c
+    bus = Bus(rclpy_context)
+    bus.listen(SlipVector, TRUTH, c.RELIABLE_QOS)
+    bus.listen(String, "/aslip/diagnostics", c.RELIABLE_QOS)
+    with NodeProcess("mocap_bridge", ros_env, {"window_s": 0.1}) as node:
+        node.wait_ready()
+        streamer = PoseStreamer(bus, _yawed_grasp)
+        assert bus.wait(lambda: len(bus.messages(TRUTH)) >= 30, 20), node.output
+        got = bus.messages(TRUTH)[5:]
+        for m in got:
+            assert m.slipping and m.source == "mocap_truth"
+            assert (m.velocity.x, m.velocity.y, m.velocity.z) == pytest.approx(
+                (0.02, 0.0, -0.01), abs=1e-6)
+            assert m.window_length == pytest.approx(0.1)
+        # Stamps are the window ends: the newest motion-capture instants.
+        stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got])
+        assert np.all(np.diff(stamps) > 0)
+        assert stamps[0] >= streamer.t0_ns
+
+        streamer.running.clear()                 # motion capture goes silent
+        time.sleep(0.3)
+        bus.clear(TRUTH)
+        time.sleep(0.5)
+        assert bus.messages(TRUTH) == []
+        assert bus.wait(lambda: any(d["message"] == "stale" and d["level"] == 3
+                                    for d in bus.diagnostics("mocap_bridge")), 5)
+        assert node.wait_for("motion capture stale", 2)
+    streamer.close()
+    bus.close()
+
+
+def test_still_object_is_not_slipping_and_bad_params_refused(rclpy_context, ros_env):
+    from aslip_ros.msg import SlipVector
+    from aslip_ros.nodes import common as c
+    bus = Bus(rclpy_context)
+    bus.listen(SlipVector, TRUTH, c.RELIABLE_QOS)
+
+    def still(t):
+        f = np.array([0.4, 0.1 * t, 0.3, 0, 0, 0, 1.0])
+        return f, f + np.array([0, 0, 0.001, 0, 0, 0, 0])
+
+    with NodeProcess("mocap_bridge", ros_env) as node:
+        node.wait_ready()
+        streamer = PoseStreamer(bus, still)
+        assert bus.wait(lambda: len(bus.messages(TRUTH)) >= 10, 20), node.output
+        m = bus.messages(TRUTH)[-1]
+        assert not m.slipping and m.speed == 0.0 and m.probability == 0.0
+        res = bus.set_params("mocap_bridge", {"window_s": -1.0})
+        assert not res[0].successful and "window_s" in res[0].reason
+    streamer.close()
+    bus.close()
+    proc = NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": [0.0] * 7})
+    assert proc.proc.wait(30) == 2
+    assert "zero quaternion" in proc.stop()

@@ -1,0 +1,247 @@
+"""Helpers for the rclpy-only node tests (no tests here).
+
+Node executables run as separate processes (the installed launchers, found on
+AMENT_PREFIX_PATH), with the full parent environment and the test's isolated
+ROS_DOMAIN_ID; the test process listens and publishes through its own rclpy context.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+SCENE_NAMES = ["left_front_top", "left_rear_bottom", "right_front_bottom", "right_rear_top"]
+
+
+def node_exe(name: str) -> str:
+    """The installed launcher of node ``name`` (install/<pkg>/lib/aslip_ros/<name>)."""
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        path = Path(prefix) / "lib" / "aslip_ros" / name
+        if prefix and path.is_file():
+            return str(path)
+    raise FileNotFoundError(f"no installed executable {name}; run scripts/setup.sh and "
+                            "source install/setup.bash")
+
+
+def ros_args(params: dict) -> list:
+    """``--ros-args -p k:=v ...`` with YAML-style values."""
+    out = ["--ros-args"]
+    for k, v in params.items():
+        out += ["-p", f"{k}:={_yaml(v)}"]
+    return out
+
+
+def _yaml(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v) if (v == "" or any(ch in v for ch in " :,[]{}#")) else v
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_yaml(x) for x in v) + "]"
+    if isinstance(v, float):
+        return repr(float(v))
+    return str(v)
+
+
+class NodeProcess:
+    """A node executable in a child process, its merged output collected by a thread."""
+
+    def __init__(self, name: str, env: dict, params: dict | None = None,
+                 extra_args: list | None = None) -> None:
+        exe = node_exe(name)
+        # A launcher installed without its executable bit still runs through its own
+        # interpreter; test_nodes_fresh_shell checks the bit separately.
+        launcher = [exe] if os.access(exe, os.X_OK) else [sys.executable, exe]
+        cmd = launcher + ros_args(params or {}) + list(extra_args or [])
+        self.name = name
+        self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, bufsize=1)
+        self.lines: list[str] = []
+        self._cv = threading.Condition()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            with self._cv:
+                self.lines.append(line.rstrip("\n"))
+                self._cv.notify_all()
+        with self._cv:
+            self._cv.notify_all()
+
+    @property
+    def output(self) -> str:
+        """Everything the process printed so far."""
+        with self._cv:
+            return "\n".join(self.lines)
+
+    def wait_for(self, text: str, timeout: float = 30.0) -> bool:
+        """True once ``text`` appears in the output (False on timeout or exit)."""
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while True:
+                if any(text in ln for ln in self.lines):
+                    return True
+                if self.proc.poll() is not None and not self._reader.is_alive():
+                    return False
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cv.wait(min(left, 0.2))
+
+    def wait_ready(self, timeout: float = 45.0) -> None:
+        """Wait for the node's readiness line; fail with its output otherwise."""
+        if not self.wait_for("ready", timeout):
+            out = self.stop()
+            raise AssertionError(f"{self.name} did not become ready:\n{out}")
+
+    def stop(self, sig=signal.SIGINT, timeout: float = 10.0) -> str:
+        """Signal, wait, return the output (kill if it does not exit)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self._reader.join(5)
+        return self.output
+
+    def __enter__(self) -> "NodeProcess":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+class Bus:
+    """An in-process node on the test's context: subscriptions that record, publishers."""
+
+    def __init__(self, context, name: str = "aslip_test_bus") -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        self.node = rclpy.create_node(name, context=context)
+        self.got: dict[str, list] = {}
+        self._lock = threading.Lock()
+        self._ex = SingleThreadedExecutor(context=context)
+        self._ex.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self._ex.spin_once(timeout_sec=0.05)
+            except Exception:  # noqa: BLE001 - context shut down under us at the end
+                return
+
+    def listen(self, msg_type, topic: str, qos) -> None:
+        """Record every message on ``topic``."""
+        self.got.setdefault(topic, [])
+
+        def cb(m, t=topic):
+            with self._lock:
+                self.got[t].append((time.monotonic(), m))
+        self.node.create_subscription(msg_type, topic, cb, qos)
+
+    def messages(self, topic: str) -> list:
+        """Messages received on ``topic`` so far."""
+        with self._lock:
+            return [m for _, m in self.got.get(topic, [])]
+
+    def stamped(self, topic: str) -> list:
+        """``(arrival monotonic time, message)`` pairs."""
+        with self._lock:
+            return list(self.got.get(topic, []))
+
+    def clear(self, topic: str) -> None:
+        """Forget what was received on ``topic``."""
+        with self._lock:
+            self.got[topic] = []
+
+    def wait(self, predicate, timeout: float = 20.0) -> bool:
+        """Poll ``predicate()`` until true or timeout."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            time.sleep(0.02)
+        return bool(predicate())
+
+    def diagnostics(self, name_part: str) -> list:
+        """Decoded ``/aslip/diagnostics`` JSON documents whose name contains ``name_part``."""
+        docs = [json.loads(m.data) for m in self.messages("/aslip/diagnostics")]
+        return [d for d in docs if name_part in d["name"]]
+
+    def set_params(self, node_name: str, values: dict, timeout: float = 10.0) -> list:
+        """Set parameters on a remote node; returns the SetParametersResult list."""
+        from rcl_interfaces.msg import Parameter
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter as P
+        cli = self.node.create_client(SetParameters, f"/{node_name}/set_parameters")
+        assert cli.wait_for_service(timeout_sec=timeout), "set_parameters service missing"
+        req = SetParameters.Request()
+        req.parameters = [P(k, value=v).to_parameter_msg() for k, v in values.items()]
+        assert all(isinstance(p, Parameter) for p in req.parameters)
+        fut = cli.call_async(req)
+        deadline = time.monotonic() + timeout
+        while not fut.done() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert fut.done(), "set_parameters did not answer"
+        return list(fut.result().results)
+
+    def close(self) -> None:
+        """Stop spinning and destroy the node."""
+        self._stop.set()
+        self._thread.join(2)
+        self._ex.shutdown()
+        self.node.destroy_node()
+
+
+def make_checkpoint(path, channel_names=SCENE_NAMES, sample_rate: float = 48000.0,
+                    window_s: float = 0.05, slip_logit: float | None = None,
+                    velocity=(0.02, 0.0), seed: int = 0) -> Path:
+    """A tiny untrained CNN checkpoint through the learn package's own save path.
+
+    With ``slip_logit`` the slip head ignores the audio and says ``sigmoid(slip_logit)``, and
+    the speed and direction heads output ``velocity`` (grasp plane x, z): a model whose
+    answer the test knows, running through the real feature and inference code.
+    """
+    import torch
+
+    from aslip_ros.learn.checkpoint import save_checkpoint
+    from aslip_ros.learn.features import FeatureConfig
+    from aslip_ros.learn.network import ModelConfig, SlipNet
+    fc = FeatureConfig(n_mels=16, n_fft=256, hop=160)
+    mc = ModelConfig(n_channels=len(channel_names), n_mels=fc.n_mels, width=4, depth=2,
+                     temporal_layers=1, temporal_channels=8, gate_hidden=4, head_hidden=8,
+                     speed_scale=0.02)
+    torch.manual_seed(seed)
+    net = SlipNet(mc)
+    net.set_normalization(np.full(fc.n_mels, -10.0), np.full(fc.n_mels, 5.0))
+    if slip_logit is not None:
+        with torch.no_grad():
+            speed = float(np.hypot(*velocity))
+            raw = np.log(np.expm1(max(speed, 1e-6) / mc.speed_scale))   # softplus^-1
+            for head, bias in (("slip", [slip_logit]), ("magnitude", [raw]),
+                               ("direction", list(velocity))):
+                last = net.heads[head][-1]
+                last.weight.zero_()
+                last.bias.copy_(torch.tensor(bias, dtype=torch.float32))
+    net.eval()
+    meta = {"model_type": "aslip_cnn", "model_config": mc.to_dict(),
+            "feature_config": fc.to_dict(), "channel_names": list(channel_names),
+            "layout": "4mic", "sample_rate": float(sample_rate), "window_s": window_s,
+            "window_samples": int(round(window_s * sample_rate)), "epsilon_m_s": 0.005,
+            "threshold": 0.5, "provenance": {"stage": "test fixture, untrained"}}
+    return save_checkpoint(path, meta, {k: v.detach().clone()
+                                        for k, v in net.state_dict().items()})
