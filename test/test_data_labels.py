@@ -139,5 +139,5 @@ def test_bad_inputs():
         L.mocap_window_velocity(f, o, [0.5], [0.5])
     # Zero quaternions and duplicate stamps are cleaned, not fatal.
     tr = L.PoseTrack([0.0, 0.1, 0.1, 0.2], [[0, 0, 0, 0, 0, 0, 1], [0, 0, 0, 0, 0, 0, 0],
-                                             [1, 0, 0, 0, 0, 0, 2], [2, 0, 0, 0, 0, 0, 1]])
+                                            [1, 0, 0, 0, 0, 0, 2], [2, 0, 0, 0, 0, 0, 1]])
     assert len(tr) == 3 and np.allclose(tr.quat[1], [0, 0, 0, 1])

@@ -321,8 +321,8 @@ class BagWriter:
         msg = T[SLIP_TYPE](
             header=self._header(ns, frame_id), probability=1.0 if slipping else 0.0,
             slipping=bool(slipping), threshold=0.5,
-            velocity=T["geometry_msgs/msg/Vector3"](x=float(vx) if slipping else 0.0, y=0.0,
-                                                   z=float(vz) if slipping else 0.0),
+            velocity=T["geometry_msgs/msg/Vector3"](
+                x=float(vx) if slipping else 0.0, y=0.0, z=float(vz) if slipping else 0.0),
             speed=speed if slipping else 0.0,
             direction=float(np.arctan2(vz, vx)) if slipping else 0.0,
             direction_sigma=-1.0, window_length=float(window_s), source="mocap_truth")

@@ -116,8 +116,8 @@ class DatasetWriter:
         if self._pending is not None:
             self._pending.discard()
             self._pending = None
-        if exc_type is None and self.root is not None and not (self.root / "manifest.json"
-                                                                ).exists():
+        finished = self.root is not None and (self.root / "manifest.json").exists()
+        if exc_type is None and self.root is not None and not finished:
             exc = RuntimeError("DatasetWriter closed without finish(); dataset discarded")
             self._ctx.__exit__(type(exc), exc, None)
             raise exc

@@ -163,8 +163,8 @@ class LogMel:
         if self.up == self.down:
             return x
         if self.up != 1:
-            return sps.resample_poly(x, self.up, self.down, axis=-1).astype(np.float32,
-                                                                             copy=False)
+            y = sps.resample_poly(x, self.up, self.down, axis=-1)
+            return y.astype(np.float32, copy=False)
         n, d, half = x.shape[-1], self.down, self._half
         n_out = -(-n // d)
         right = max((n_out - 1) * d + 2 * half + 1 - half - n, 0)
