@@ -1,0 +1,314 @@
+"""One closed-loop episode of the demo, with the real nodes composed in this process.
+
+Per episode: a ROS_DOMAIN_ID of its own (``domain_coordinator``, discovery on localhost), a
+fresh rclpy context on it, and the package's real node classes (``scene_sim``,
+``slip_inference``, ``slip_stop`` or ``slip_track``) plus a small recorder on one
+MultiThreadedExecutor. Every message still goes through DDS topics exactly as between the
+separate executables (issue 5 allows composing the nodes in one process); only the process
+start-up (importing torch and rclpy costs seconds) is shared between episodes.
+
+Node parameters go in through a ``--params-file`` keyed by node name, the way ``ros2 run``
+and the launch files give them, so the nodes run unmodified. The scene's true trajectory
+(``World.trajectory()``) and the wall contacts are read from the scene node at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from aslip_ros.experiments import demo_metrics as dm
+
+TASKS = ("slip_stop", "slip_track")
+
+
+@dataclass(frozen=True)
+class StopSettings:
+    """Slip-stop timing: the paper's 10 cm retract and re-approach, at demo speeds."""
+
+    retract_distance_m: float = 0.10
+    retract_speed_m_s: float = 0.08
+    settle_s: float = 0.3
+    approach_speed_m_s: float = 0.03
+    debounce_count: int = 3
+    # A missed slip must be able to push past the object's length (a failure by the
+    # paper's rule) before the controller's own travel limit ends the approach.
+    overshoot_limit_m: float = 0.15
+    settle_result_s: float = 0.3
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """Slip-track: drag duration and the controller's law (aslip_ros.control.slip_track)."""
+
+    duration_s: float = 4.0
+    drag_speed_m_s: float = 0.04
+    gain: float = 1.0
+    deadband_m_s: float = 0.002
+    max_speed_m_s: float = 0.05
+    # The estimated direction flickers while the arm moves; a 150 ms low-pass keeps the
+    # arm from chasing single-window flips (gain 3 without it ran away in trials).
+    lowpass_tau_s: float = 0.15
+    hold_s: float = 0.2
+
+
+@dataclass(frozen=True)
+class Episode:
+    """What to run: task, method label, checkpoint, object, seed."""
+
+    task: str
+    method: str
+    checkpoint: str
+    object: str
+    trial: int
+    seed: int
+    stop: StopSettings = field(default_factory=StopSettings)
+    track: TrackSettings = field(default_factory=TrackSettings)
+    wall_s_limit: float = 30.0     # wall-clock guard per episode [s]
+
+    @property
+    def key(self) -> str:
+        """File-name key of the episode."""
+        return f"{self.task}-{self.method}-{self.object}-{self.trial:02d}"
+
+
+def _yaml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_yaml_value(x) for x in v) + "]"
+    if isinstance(v, float):
+        return repr(float(v))
+    return str(v)
+
+
+def params_yaml(nodes: dict) -> str:
+    """A ROS 2 parameter file for ``{node_name: {param: value}}`` (types preserved)."""
+    lines = []
+    for name, params in nodes.items():
+        lines += [f"{name}:", "  ros__parameters:"]
+        lines += [f"    {k}: {_yaml_value(v)}" for k, v in params.items()]
+    return "\n".join(lines) + "\n"
+
+
+def node_params(ep: Episode, length_m: float) -> dict:
+    """Parameters of every node of the episode (SI units)."""
+    scene = {"seed": int(ep.seed), "object": ep.object, "layout": "4mic"}
+    if ep.task == "slip_stop":
+        s = ep.stop
+        scene.update(scenario="wall_push", wall_distance_m=0.0)
+        ctl = {"approach_speed_m_s": s.approach_speed_m_s,
+               "retract_distance_m": s.retract_distance_m,
+               "retract_speed_m_s": s.retract_speed_m_s, "settle_s": s.settle_s,
+               "max_approach_distance_m": s.retract_distance_m + length_m
+               + s.overshoot_limit_m,
+               "debounce_count": int(s.debounce_count),
+               "settle_result_s": s.settle_result_s}
+    else:
+        k = ep.track
+        scene.update(scenario="drag", drag_speed_m_s=k.drag_speed_m_s)
+        ctl = {"gain": k.gain, "deadband_m_s": k.deadband_m_s,
+               "max_speed_m_s": k.max_speed_m_s, "lowpass_tau_s": k.lowpass_tau_s,
+               "hold_s": k.hold_s}
+    return {"scene_sim": scene, "slip_inference": {"checkpoint": str(ep.checkpoint)},
+            ep.task: ctl}
+
+
+class _Recorder:
+    """Collects the predicted slip and the slip-stop result (a plain rclpy node)."""
+
+    def __init__(self) -> None:
+        from rclpy.node import Node
+        from std_msgs.msg import String
+
+        from aslip_ros.msg import SlipVector
+        from aslip_ros.nodes import common as c
+        from aslip_ros.nodes.slip_stop import RESULT_TOPIC
+        self.node = Node("aslip_demo_recorder")
+        self.slip: list[tuple] = []
+        self.result: Optional[dict] = None
+        self.node.create_subscription(SlipVector, c.SLIP_TOPIC, self._on_slip, 100)
+        self.node.create_subscription(String, RESULT_TOPIC, self._on_result, c.LATCHED_QOS)
+
+    def _on_slip(self, msg) -> None:
+        st = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.slip.append((st, msg.velocity.x, msg.velocity.z, msg.probability,
+                          bool(msg.slipping)))
+
+    def _on_result(self, msg) -> None:
+        try:
+            self.result = json.loads(msg.data)
+        except ValueError:
+            pass
+
+
+_WARM: set = set()
+
+
+def warm_up(checkpoint: str) -> None:
+    """Run the model once outside any episode.
+
+    The first forward pass in a process pays torch's lazy initialisation (a few hundred
+    ms); inside an episode that would stall ``slip_inference`` long enough for the
+    best-effort audio queue to overflow, which no warm node on a real cell would see.
+    """
+    if checkpoint in _WARM:
+        return
+    from aslip_ros.learn.predictor import Predictor
+    pred = Predictor.from_checkpoint(checkpoint)
+    window = np.zeros((int(pred.meta["window_samples"]), len(pred.meta["channel_names"])),
+                      dtype=np.float32)
+    for _ in range(3):
+        pred.predict(window)
+    _WARM.add(checkpoint)
+
+
+def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
+    """Run one episode; returns its metrics (and, with ``keep_trace``, arrays for plots)."""
+    import rclpy
+    from domain_coordinator import domain_id
+    from rclpy.signals import SignalHandlerOptions
+
+    from aslip_ros.nodes.scene_sim import SceneSim
+    from aslip_ros.nodes.slip_inference import SlipInference
+    from aslip_ros.scene.layouts import get_object
+    if ep.task == "slip_stop":
+        from aslip_ros.nodes.slip_stop import SlipStopNode as Controller
+    elif ep.task == "slip_track":
+        from aslip_ros.nodes.slip_track import SlipTrackNode as Controller
+    else:
+        raise ValueError(f"unknown task {ep.task!r}; choose one of {TASKS}")
+
+    warm_up(str(ep.checkpoint))
+    length = get_object(ep.object).length_m
+    t_wall0 = time.monotonic()
+    fd, yaml_path = tempfile.mkstemp(prefix="aslip-demo-", suffix=".yaml")
+    with os.fdopen(fd, "w") as f:
+        f.write(params_yaml(node_params(ep, length)))
+    nodes = []
+    executor = None
+    try:
+        with domain_id() as did:
+            rclpy.init(args=["--ros-args", "--params-file", yaml_path], domain_id=did,
+                       signal_handler_options=SignalHandlerOptions.NO)
+            try:
+                rec = _Recorder()
+                nodes.append(rec.node)
+                infer = SlipInference()
+                nodes.append(infer)
+                ctl = Controller()
+                nodes.append(ctl)
+                # The scene last: its clock starts now, and nothing should miss its start.
+                sim = SceneSim()
+                nodes.append(sim)
+                executor = _make_executor()
+                for n in nodes:
+                    executor.add_node(n)
+                outcome = _spin(ep, executor, sim, ctl, rec, t_wall0)
+                ctl.before_shutdown()
+                out = _score(ep, sim, rec, length, outcome)
+                if ep.task == "slip_track":
+                    out["controller_reason"] = ctl.task.reason if ctl.task else "not started"
+            finally:
+                if executor is not None:
+                    executor.shutdown(timeout_sec=2.0)
+                for n in nodes:
+                    n.destroy_node()
+                rclpy.try_shutdown()
+    finally:
+        os.unlink(yaml_path)
+    out["wall_s"] = round(time.monotonic() - t_wall0, 3)
+    if not keep_trace:
+        out.pop("trace", None)
+    return out
+
+
+def _make_executor():
+    """The executor all nodes of an episode share (``ASLIP_DEMO_EXECUTOR`` picks it)."""
+    kind = os.environ.get("ASLIP_DEMO_EXECUTOR", "events")
+    if kind == "events":
+        from rclpy.experimental.events_executor import EventsExecutor
+        return EventsExecutor()
+    if kind == "single":
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor()
+    from rclpy.executors import MultiThreadedExecutor
+    return MultiThreadedExecutor(num_threads=4)
+
+
+def _spin(ep: Episode, executor, sim, ctl, rec, t_wall0: float) -> str:
+    """Spin until the trial is decided; returns why the episode ended."""
+    world = sim.world
+    length = world.object.length_m
+    n = world.wall_normal()
+    while True:
+        executor.spin_once(timeout_sec=0.02)
+        if time.monotonic() - t_wall0 > ep.wall_s_limit:
+            return "wall_clock_limit"
+        if ep.task == "slip_track":
+            if world.t >= ep.track.duration_s:
+                return "duration"
+            continue
+        if rec.result is not None and rec.result.get("final"):
+            return "controller_result"
+        contact = world.wall_contact_tcp_position
+        if contact is not None and (world.tcp_pose()[:3] - contact) @ n > length + 0.01:
+            # Already past the object's length: the trial has failed whatever follows.
+            return "pushed_past_length"
+
+
+def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:
+    world = sim.world
+    traj = world.trajectory()
+    start_ns = sim.scene.start_ns
+    out = {"task": ep.task, "method": ep.method, "object": ep.object, "trial": ep.trial,
+           "seed": ep.seed, "ended": ended, "scene_s": round(world.t, 3),
+           "skipped_blocks": int(sim.scene.skipped_blocks), "n_slip_msgs": len(rec.slip)}
+    if ep.task == "slip_stop":
+        first = world.wall_contacts[0][1] if world.wall_contacts else None
+        o = dm.stop_outcome(traj["t"], traj["tcp"], world.wall_normal(), world.wall_contacts,
+                            length, initial_contact=first)
+        out.update(o.to_dict())
+        res = rec.result or {}
+        out["controller_reason"] = res.get("reason")
+        out["controller_distance_m"] = res.get("stopping_distance_m")
+    else:
+        out["pose_rmse_m"] = dm.pose_rmse(traj["t"], traj["rel"])
+        rel = traj["rel"]
+        out["max_excursion_m"] = float(np.max(np.linalg.norm(rel - rel[0], axis=1))) \
+            if len(rel) else math.nan
+    slip = np.array(rec.slip, dtype=float).reshape(-1, 5)
+    out["trace"] = {
+        "t": traj["t"].astype(np.float32), "tcp": traj["tcp"].astype(np.float32),
+        "object": traj["object"].astype(np.float32), "rel": traj["rel"].astype(np.float32),
+        "v_rel": traj["v_rel"].astype(np.float32),
+        "pred_t": ((slip[:, 0] - start_ns) / 1e9).astype(np.float32),
+        "pred_v": slip[:, 1:3].astype(np.float32), "pred_p": slip[:, 3].astype(np.float32),
+        "push_dir": world.wall_normal().astype(np.float32)}
+    return out
+
+
+def episode_dict(ep: Episode) -> dict:
+    """The episode's settings as plain JSON."""
+    return asdict(ep)
+
+
+def save_trace(path: Path, result: dict) -> None:
+    """Write an episode's arrays (for the plots) as a compressed ``.npz``."""
+    trace = result.get("trace")
+    if not trace:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, **trace)
+    os.replace(tmp, path)

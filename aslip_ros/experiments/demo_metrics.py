@@ -1,0 +1,230 @@
+"""Table III metrics of the closed-loop demo, ROS-free (trajectories in, numbers out).
+
+Slip-stop (the paper's Task 1): a trial succeeds when the object touched the wall on the
+re-approach and the arm came to rest before it had pushed on past the object's length. The
+stopping error ``Delta x`` is how far the TCP travelled along the push direction past the
+pose of that wall contact.
+
+Slip-track (Task 2): the error is the gripper-object relative position in the grasp plane
+against its reference (the median over the first 0.1 s, as in the paper's draft), and the
+metric is its RMSE over the whole trajectory.
+
+Inputs are the scene's true trajectory (``World.trajectory()`` or the ``trajectory_out``
+``.npz`` of ``scene_sim``): ``t`` (N,), ``tcp`` (N, 3) world positions, ``rel`` (N, 2)
+object position in the grasp plane relative to the grasp centre.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Iterable, Optional, Sequence
+
+import numpy as np
+
+#: The paper's Table III (per object: SVM successes, mean, std; A-SLIP successes, mean,
+#: std; SVM pose RMSE mean, std; A-SLIP pose RMSE mean, std), millimetres, 10 trials each.
+PAPER_TABLE3 = {
+    "pla_rod": ((7, 39.7, 38.7), (10, 16.7, 8.9), (32.4, 20.2), (16.9, 12.4)),
+    "glass_cleaner": ((6, 13.4, 18.7), (10, 10.5, 5.7), (32.4, 18.1), (15.0, 9.5)),
+    "chips_can": ((8, 16.7, 16.4), (10, 19.8, 6.6), (33.8, 21.7), (12.9, 9.4)),
+    "mustard_container": ((5, 17.4, 31.3), (10, 9.7, 6.7), (25.0, 14.4), (20.5, 14.4)),
+    "cracker_box": ((5, 44.3, 27.6), (10, 15.8, 7.1), (35.5, 20.4), (13.0, 9.3)),
+    "overall": ((31, 26.3, 29.6), (50, 14.5, 7.8), (32.0, 19.3), (15.8, 11.3)),
+}
+PAPER_TRIALS = {"pla_rod": 10, "glass_cleaner": 10, "chips_can": 10,
+                "mustard_container": 10, "cracker_box": 10, "overall": 50}
+
+#: A TCP slower than this over the last samples counts as at rest [m/s].
+REST_SPEED_M_S = 2e-3
+#: Reference window of the tracking error [s] (the paper: the first 0.1 s).
+TRACK_REFERENCE_S = 0.1
+
+
+@dataclass(frozen=True)
+class StopOutcome:
+    """One slip-stop trial. Distances in metres, signed along the push direction."""
+
+    success: bool
+    touched: bool
+    at_rest: bool
+    stopping_error_m: float        # final TCP past the contact pose (negative: short of it)
+    contact_time_s: float          # NaN without a re-approach contact
+    final_speed_m_s: float
+
+    def to_dict(self) -> dict:
+        """JSON-friendly dict (NaN becomes None)."""
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in asdict(self).items()}
+
+
+def _final_speed(t: np.ndarray, tcp: np.ndarray, span_s: float = 0.1) -> float:
+    """Mean TCP speed over the last ``span_s`` of the trajectory."""
+    if t.shape[0] < 2:
+        return math.nan
+    k = max(0, int(np.searchsorted(t, t[-1] - span_s)) - 1)
+    dt = float(t[-1] - t[k])
+    if dt <= 0:
+        return math.nan
+    return float(np.linalg.norm(tcp[-1] - tcp[k]) / dt)
+
+
+def reapproach_contact(t: np.ndarray, tcp: np.ndarray, push_dir: Sequence[float],
+                       contacts: Iterable[tuple[float, Sequence[float]]]
+                       ) -> Optional[tuple[float, np.ndarray]]:
+    """The first wall contact after the retract (or the first contact without one).
+
+    The trial starts in contact with the wall, so the contact that counts is the first
+    onset at or after the TCP's farthest point back along the push direction.
+    """
+    n = np.asarray(push_dir, dtype=float)
+    n = n / np.linalg.norm(n)
+    t_back = float(t[int(np.argmin(tcp @ n))]) if t.shape[0] else 0.0
+    for tc, p in contacts:
+        if tc >= t_back:
+            return float(tc), np.asarray(p, dtype=float)
+    return None
+
+
+def contacts_from_trajectory(t, obj, push_dir, wall_point, length_m: float
+                             ) -> list[tuple[float, np.ndarray]]:
+    """Wall-contact onsets ``(t, index)`` recomputed from a recorded trajectory.
+
+    For ``scene_sim``'s ``.npz`` (which stores only the first contact): the object's
+    leading point is ``object . n + length``; contact while it reaches the wall plane.
+    Returns ``(time, k)`` pairs, ``k`` the trajectory index of the onset.
+    """
+    n = np.asarray(push_dir, dtype=float)
+    n = n / np.linalg.norm(n)
+    lead = np.asarray(obj, dtype=float) @ n + float(length_m)
+    # Sub-micrometre tolerance: the scene starts the object exactly at the wall.
+    touching = lead >= float(np.asarray(wall_point, dtype=float) @ n) - 1e-6
+    onsets = np.flatnonzero(touching & ~np.concatenate([[False], touching[:-1]]))
+    return [(float(np.asarray(t)[k]), int(k)) for k in onsets]
+
+
+def stop_outcome(t, tcp, push_dir, contacts, object_length_m: float,
+                 initial_contact: Optional[Sequence[float]] = None) -> StopOutcome:
+    """Score one wall-push trial from the true trajectory and the wall contacts.
+
+    ``initial_contact``: the TCP position of the starting contact, used as the reference
+    when the object never reached the wall again (then the error says how far short the
+    arm stopped).
+    """
+    t = np.asarray(t, dtype=float)
+    tcp = np.asarray(tcp, dtype=float)
+    n = np.asarray(push_dir, dtype=float)
+    n = n / np.linalg.norm(n)
+    hit = reapproach_contact(t, tcp, n, contacts)
+    speed = _final_speed(t, tcp)
+    at_rest = bool(math.isfinite(speed) and speed < REST_SPEED_M_S)
+    if hit is not None:
+        ref, t_c = hit[1], hit[0]
+    elif initial_contact is not None:
+        ref, t_c = np.asarray(initial_contact, dtype=float), math.nan
+    else:
+        ref, t_c = None, math.nan
+    err = float((tcp[-1] - ref) @ n) if ref is not None and tcp.shape[0] else math.nan
+    touched = hit is not None
+    success = bool(touched and at_rest and math.isfinite(err) and err < object_length_m)
+    return StopOutcome(success, touched, at_rest, err, t_c, speed)
+
+
+def pose_rmse(t, rel, t_ref_s: float = TRACK_REFERENCE_S) -> float:
+    """RMSE [m] of the grasp-plane relative position against its initial reference."""
+    t = np.asarray(t, dtype=float)
+    rel = np.asarray(rel, dtype=float)
+    if rel.ndim != 2 or rel.shape[0] == 0:
+        return math.nan
+    k = max(1, int(np.searchsorted(t, t[0] + t_ref_s, side="right")))
+    ref = np.median(rel[:k], axis=0)
+    e = rel - ref
+    return float(np.sqrt(np.mean(np.sum(e * e, axis=1))))
+
+
+def mean_std(values: Iterable[float]) -> tuple[float, float, int]:
+    """Mean, population std and count of the finite values (NaN, NaN, 0 if none)."""
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)
+    if v.size == 0:
+        return math.nan, math.nan, 0
+    return float(v.mean()), float(v.std()), int(v.size)
+
+
+def summarize(results: Sequence[dict]) -> dict:
+    """Table III from episode results.
+
+    Each result: ``task`` (``slip_stop``/``slip_track``), ``method``, ``object`` and, for
+    slip-stop, ``success`` and ``stopping_error_m`` (its absolute value is averaged, over
+    all trials that have one, failures included, as the paper's spread includes them);
+    for slip-track, ``pose_rmse_m``. Values reported in millimetres.
+    """
+    out: dict = {}
+    for task in ("slip_stop", "slip_track"):
+        rows = [r for r in results if r.get("task") == task]
+        methods = sorted({r["method"] for r in rows})
+        out[task] = {}
+        for method in methods:
+            mine = [r for r in rows if r["method"] == method]
+            groups = {}
+            for obj in sorted({r["object"] for r in mine}):
+                groups[obj] = [r for r in mine if r["object"] == obj]
+            groups["overall"] = mine
+            out[task][method] = {g: _cell(task, rs) for g, rs in groups.items()}
+    return out
+
+
+def _cell(task: str, rows: Sequence[dict]) -> dict:
+    if task == "slip_stop":
+        errs = [abs(r["stopping_error_m"]) * 1e3 if r.get("stopping_error_m") is not None
+                else None for r in rows]
+        m, s, n = mean_std(errs)
+        ok = [abs(r["stopping_error_m"]) * 1e3 for r in rows
+              if r.get("success") and r.get("stopping_error_m") is not None]
+        ms, ss, _ = mean_std(ok)
+        return {"successes": int(sum(bool(r.get("success")) for r in rows)),
+                "trials": len(rows), "mean_mm": _num(m), "std_mm": _num(s), "n_mm": n,
+                "mean_success_mm": _num(ms), "std_success_mm": _num(ss)}
+    vals = [r["pose_rmse_m"] * 1e3 if r.get("pose_rmse_m") is not None else None
+            for r in rows]
+    m, s, n = mean_std(vals)
+    return {"successes": sum(1 for v in vals if v is not None), "trials": len(rows),
+            "mean_mm": _num(m), "std_mm": _num(s), "n_mm": n}
+
+
+def _num(x: float) -> Optional[float]:
+    return None if x is None or not math.isfinite(x) else round(float(x), 3)
+
+
+def _fmt(mean, std) -> str:
+    if mean is None:
+        return "n/a"
+    return f"{mean:.1f} ± {std:.1f}"
+
+
+def format_table(summary: dict, methods: Sequence[str] = ("svm", "aslip")) -> str:
+    """Markdown Table III: this run's numbers beside the paper's."""
+    objects = [o for o in PAPER_TABLE3 if o != "overall"]
+    stop = summary.get("slip_stop", {})
+    track = summary.get("slip_track", {})
+    present = [o for o in objects if any(o in stop.get(m, {}) or o in track.get(m, {})
+                                         for m in methods)] + ["overall"]
+    head = ("| object | stop SVM (demo) | stop A-SLIP (demo) | stop SVM (paper) | "
+            "stop A-SLIP (paper) | track SVM (demo) | track A-SLIP (demo) | "
+            "track SVM (paper) | track A-SLIP (paper) |")
+    lines = [head, "|" + "---|" * 9]
+    for o in present:
+        p = PAPER_TABLE3[o]
+        cells = [o.replace("_", " ")]
+        for m in methods:
+            c = stop.get(m, {}).get(o)
+            cells.append("-" if c is None else
+                         f"{c['successes']}/{c['trials']}, {_fmt(c['mean_mm'], c['std_mm'])}")
+        cells.append(f"{p[0][0]}/{PAPER_TRIALS[o]}, {p[0][1]:.1f} ± {p[0][2]:.1f}")
+        cells.append(f"{p[1][0]}/{PAPER_TRIALS[o]}, {p[1][1]:.1f} ± {p[1][2]:.1f}")
+        for m in methods:
+            c = track.get(m, {}).get(o)
+            cells.append("-" if c is None else _fmt(c["mean_mm"], c["std_mm"]))
+        cells.append(f"{p[2][0]:.1f} ± {p[2][1]:.1f}")
+        cells.append(f"{p[3][0]:.1f} ± {p[3][1]:.1f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

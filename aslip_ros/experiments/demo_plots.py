@@ -1,0 +1,130 @@
+"""PNG plots of the demo: arm and object trajectories, predicted against true slip.
+
+Reads the per-episode traces (``<out>/episodes/<key>.npz``) of the first trial of each
+object and method. Every figure is written atomically (temporary file, then rename).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from aslip_ros.util import atomic_path
+
+COLORS = {"aslip": "tab:blue", "svm": "tab:orange"}
+
+
+def _load(out: Path, key: str):
+    p = out / "episodes" / f"{key}.npz"
+    return dict(np.load(p)) if p.is_file() else None
+
+
+def _save(fig, path: Path) -> Path:
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    return path
+
+
+def make_plots(out: Path, results: list[dict]) -> list[Path]:
+    """Write the figures; returns their paths."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    written = []
+    objects = sorted({r["object"] for r in results})
+    methods = [m for m in ("aslip", "svm") if any(r["method"] == m for r in results)]
+
+    def first(task, method, obj):
+        rs = sorted((r for r in results if r["task"] == task and r["method"] == method
+                     and r["object"] == obj), key=lambda r: r["trial"])
+        return rs[0] if rs else None
+
+    # 1. slip-stop: TCP and object along the push direction, relative to the wall contact.
+    stop = [r for r in results if r["task"] == "slip_stop"]
+    if stop:
+        fig, axes = plt.subplots(1, len(methods), figsize=(6 * len(methods), 4),
+                                 squeeze=False, sharey=True)
+        for ax, m in zip(axes[0], methods):
+            for obj in objects:
+                r = first("slip_stop", m, obj)
+                tr = r and _load(out, f"slip_stop-{m}-{obj}-{r['trial']:02d}")
+                if tr is None:
+                    continue
+                n = tr["push_dir"]
+                ref = tr["tcp"][0] @ n
+                line, = ax.plot(tr["t"], (tr["tcp"] @ n - ref) * 1e3, label=f"{obj} arm")
+                ax.plot(tr["t"], (tr["object"] @ n - ref) * 1e3, ls=":",
+                        color=line.get_color())
+            ax.axhline(0.0, color="k", lw=0.8)
+            ax.set_title(f"slip-stop, {m}: TCP (solid), object (dotted)")
+            ax.set_xlabel("time [s]")
+            ax.grid(alpha=0.3)
+        axes[0][0].set_ylabel("along push direction, from the contact pose [mm]")
+        axes[0][0].legend(fontsize=7)
+        written.append(_save(fig, out / "slip_stop_trajectories.png"))
+        plt.close(fig)
+
+    # 2. slip-track: arm and object paths in the world (x, y) and the relative error.
+    track = [r for r in results if r["task"] == "slip_track"]
+    if track:
+        fig, axes = plt.subplots(2, len(methods), figsize=(6 * len(methods), 8),
+                                 squeeze=False)
+        for j, m in enumerate(methods):
+            for obj in objects:
+                r = first("slip_track", m, obj)
+                tr = r and _load(out, f"slip_track-{m}-{obj}-{r['trial']:02d}")
+                if tr is None:
+                    continue
+                t0 = tr["tcp"][0]
+                line, = axes[0][j].plot((tr["object"][:, 0] - t0[0]) * 1e3,
+                                        (tr["object"][:, 1] - t0[1]) * 1e3, ls=":")
+                axes[0][j].plot((tr["tcp"][:, 0] - t0[0]) * 1e3,
+                                (tr["tcp"][:, 1] - t0[1]) * 1e3, color=line.get_color(),
+                                label=obj)
+                rel = tr["rel"] - tr["rel"][0]
+                axes[1][j].plot(tr["t"], np.linalg.norm(rel, axis=1) * 1e3,
+                                color=line.get_color(), label=obj)
+            axes[0][j].set_title(f"slip-track, {m}: arm (solid), object (dotted)")
+            axes[0][j].set_xlabel("world x [mm]")
+            axes[0][j].set_ylabel("world y [mm]")
+            axes[0][j].axis("equal")
+            axes[1][j].set_title("gripper-object offset from its start")
+            axes[1][j].set_xlabel("time [s]")
+            axes[1][j].set_ylabel("|relative position error| [mm]")
+            for ax in axes[:, j]:
+                ax.grid(alpha=0.3)
+        axes[0][0].legend(fontsize=7)
+        written.append(_save(fig, out / "slip_track_trajectories.png"))
+        plt.close(fig)
+
+    # 3. predicted against true slip over time, one episode per task and method.
+    for task in ("slip_stop", "slip_track"):
+        rows = [(m, first(task, m, objects[0])) for m in methods]
+        rows = [(m, r) for m, r in rows if r is not None]
+        if not rows:
+            continue
+        fig, axes = plt.subplots(3, len(rows), figsize=(6 * len(rows), 7), squeeze=False,
+                                 sharex="col")
+        for j, (m, r) in enumerate(rows):
+            tr = _load(out, f"{task}-{m}-{r['object']}-{r['trial']:02d}")
+            if tr is None:
+                continue
+            for i, name in enumerate(("vx", "vz")):
+                axes[i][j].plot(tr["t"], tr["v_rel"][:, i] * 1e3, color="k", lw=1,
+                                label="true (scene)")
+                axes[i][j].plot(tr["pred_t"], tr["pred_v"][:, i] * 1e3, color=COLORS[m],
+                                lw=1, label=f"predicted ({m})")
+                axes[i][j].set_ylabel(f"slip {name} [mm/s]")
+                axes[i][j].grid(alpha=0.3)
+            axes[2][j].plot(tr["pred_t"], tr["pred_p"], color=COLORS[m])
+            axes[2][j].axhline(0.5, color="k", lw=0.8, ls="--")
+            axes[2][j].set_ylabel("p(slip)")
+            axes[2][j].set_xlabel("time [s]")
+            axes[0][j].set_title(f"{task.replace('_', '-')}, {m}, {r['object']}")
+            axes[0][j].legend(fontsize=7)
+        written.append(_save(fig, out / f"{task}_slip_prediction.png"))
+        plt.close(fig)
+    return written

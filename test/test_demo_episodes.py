@@ -1,0 +1,101 @@
+"""The demo's closed loops with the shipped A-SLIP checkpoint, one short episode per task.
+
+- slip-stop through separate node processes (the installed executables), scored from the
+  ``trajectory_out`` file of ``scene_sim``;
+- slip-track through the composed path the demo uses (the node classes in one process,
+  its own context and domain), scored from the scene's trajectory.
+
+Bounds are looser than the demo's targets: one episode on a shared 2-core machine is
+subject to scheduling noise that the 50-trial means average out.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test_nodes_support import Bus, NodeProcess
+
+pytestmark = pytest.mark.ros
+
+ROOT = Path(__file__).resolve().parents[1]
+CNN = ROOT / "models" / "aslip_cnn.pt"
+STOP_ERROR_BOUND_M = 0.015
+# Below the paper's A-SLIP overall pose RMSE (15.8 mm); the demo's aim (8 mm) is not met.
+TRACK_RMSE_BOUND_M = 0.015
+
+
+def _checkpoint() -> str:
+    assert CNN.is_file(), f"shipped checkpoint missing: {CNN} (aslip demo --train-models)"
+    return str(CNN)
+
+
+def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_path):
+    from std_msgs.msg import String
+
+    from aslip_ros.experiments import demo_metrics as dm
+    from aslip_ros.experiments.demo_episode import StopSettings
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.slip_stop import RESULT_TOPIC
+    from aslip_ros.scene.layouts import get_object
+
+    s = StopSettings()
+    obj = "chips_can"
+    length = get_object(obj).length_m
+    bus = Bus(rclpy_context)
+    bus.listen(String, RESULT_TOPIC, c.LATCHED_QOS)
+    traj = tmp_path / "wall_push.npz"
+    ctl_params = {"approach_speed_m_s": s.approach_speed_m_s,
+                  "retract_distance_m": s.retract_distance_m,
+                  "retract_speed_m_s": s.retract_speed_m_s, "settle_s": s.settle_s,
+                  "max_approach_distance_m": s.retract_distance_m + length
+                  + s.overshoot_limit_m, "debounce_count": s.debounce_count,
+                  "settle_result_s": s.settle_result_s}
+
+    def final():
+        return [json.loads(m.data) for m in bus.messages(RESULT_TOPIC)
+                if json.loads(m.data).get("final")]
+
+    with NodeProcess("slip_inference", ros_env, {"checkpoint": _checkpoint()}) as inf, \
+            NodeProcess("slip_stop", ros_env, ctl_params) as ctl:
+        inf.wait_ready()
+        ctl.wait_ready()
+        with NodeProcess("scene_sim", ros_env,
+                         {"scenario": "wall_push", "seed": 1201, "object": obj,
+                          "wall_distance_m": 0.0, "trajectory_out": str(traj)}) as sim:
+            sim.wait_ready()
+            assert bus.wait(lambda: bool(final()), timeout=40.0), \
+                ctl.output[-3000:] + inf.output[-2000:]
+            sim.stop()
+    result = final()[0]
+    assert result["reason"] == "slip", result
+    d = np.load(traj)
+    meta = json.loads(str(d["metadata"]))
+    n = np.asarray(meta["task"]["push_direction"])
+    onsets = dm.contacts_from_trajectory(d["t"], d["object"], n, meta["task"]["wall_point"],
+                                         meta["task"]["object_length_m"])
+    contacts = [(t, d["tcp"][k]) for t, k in onsets]
+    o = dm.stop_outcome(d["t"], d["tcp"], n, contacts, length, initial_contact=d["tcp"][0])
+    assert o.touched and o.at_rest and o.success, o
+    assert 0.0 < o.stopping_error_m <= STOP_ERROR_BOUND_M, o
+    # The controller's own reading (newest TCP pose against its start pose) agrees.
+    assert result["stopping_distance_m"] == pytest.approx(o.stopping_error_m, abs=2e-3)
+
+
+def test_slip_track_episode_composed_in_one_process():
+    from aslip_ros.experiments.demo_episode import Episode, TrackSettings, run_episode
+
+    ep = Episode("slip_track", "aslip", _checkpoint(), "cracker_box", 0, 2401,
+                 track=TrackSettings(duration_s=4.0))
+    r = run_episode(ep)
+    assert r["ended"] == "duration", r
+    tr = r["trace"]
+    assert r["n_slip_msgs"] > 200, r           # the model ran at its 100 Hz hop throughout
+    # The agent really dragged the object (otherwise a small RMSE would mean nothing) ...
+    moved = np.linalg.norm(np.diff(tr["object"], axis=0), axis=1).sum()
+    assert moved > 0.03, moved
+    # ... and the arm followed it.
+    assert r["pose_rmse_m"] <= TRACK_RMSE_BOUND_M, {k: v for k, v in r.items() if k != "trace"}

@@ -1,0 +1,98 @@
+"""Table III metrics of the demo on hand-made trajectories (fast, no ROS)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from aslip_ros.experiments import demo_metrics as dm
+
+N = np.array([1.0, 0.0, 0.0])
+
+
+def _push(stop_at_mm: float, rest: bool = True, retract_mm: float = 100.0):
+    """Start at the wall (x = 0), retract, re-approach and stop ``stop_at_mm`` past it."""
+    t = np.arange(0.0, 10.0, 0.01)
+    x = np.where(t < 1.0, -retract_mm * t, -retract_mm)                 # retract
+    x = np.where(t >= 1.5, -retract_mm + 40.0 * (t - 1.5), x)           # approach 40 mm/s
+    t_stop = 1.5 + (retract_mm + stop_at_mm) / 40.0
+    x = np.where(t >= t_stop, stop_at_mm, x)
+    if not rest:
+        x = np.where(t >= t_stop, stop_at_mm + 40.0 * (t - t_stop), x)
+    tcp = np.zeros((t.size, 3))
+    tcp[:, 0] = x * 1e-3
+    contacts = [(0.0, tcp[0].copy())]
+    k = int(np.argmax((t > 1.5) & (x >= 0.0)))
+    if x.max() >= 0.0 and k > 0:
+        contacts.append((float(t[k]), tcp[k].copy()))
+    return t, tcp, contacts
+
+
+def test_stopping_error_is_travel_past_the_reapproach_contact():
+    t, tcp, contacts = _push(6.0)
+    o = dm.stop_outcome(t, tcp, N, contacts, object_length_m=0.12,
+                        initial_contact=contacts[0][1])
+    assert o.touched and o.at_rest and o.success
+    assert o.stopping_error_m == pytest.approx(0.006, abs=1e-6)
+    assert o.contact_time_s == pytest.approx(1.5 + 100.0 / 40.0, abs=0.011)
+
+
+def test_stopping_short_of_the_wall_fails_with_a_negative_error():
+    t, tcp, contacts = _push(-30.0)
+    o = dm.stop_outcome(t, tcp, N, contacts, 0.12, initial_contact=contacts[0][1])
+    assert not o.touched and not o.success
+    assert o.stopping_error_m == pytest.approx(-0.030, abs=1e-6)
+
+
+def test_pushing_past_the_object_length_fails():
+    t, tcp, contacts = _push(130.0)
+    o = dm.stop_outcome(t, tcp, N, contacts, 0.12, initial_contact=contacts[0][1])
+    assert o.touched and not o.success
+    assert o.stopping_error_m == pytest.approx(0.130, abs=1e-6)
+
+
+def test_an_arm_still_moving_at_the_end_is_no_success():
+    t, tcp, contacts = _push(5.0, rest=False)
+    o = dm.stop_outcome(t, tcp, N, contacts, 0.12, initial_contact=contacts[0][1])
+    assert o.touched and not o.at_rest and not o.success
+
+
+def test_contacts_recomputed_from_the_object_trajectory():
+    t, tcp, _ = _push(6.0)
+    obj = tcp - np.array([0.002, 0.0, 0.0])      # object 2 mm behind the grasp centre
+    wall = np.array([0.12 - 0.002, 0.0, 0.0])    # leading point touches at the start
+    onsets = dm.contacts_from_trajectory(t, obj, N, wall, 0.12)
+    assert [k for _, k in onsets][0] == 0 and len(onsets) == 2
+    assert onsets[1][0] == pytest.approx(1.5 + 100.0 / 40.0, abs=0.011)
+
+
+def test_pose_rmse_against_the_initial_reference():
+    t = np.arange(0.0, 4.0, 0.01)
+    rel = np.zeros((t.size, 2))
+    assert dm.pose_rmse(t, rel) == 0.0
+    rel[:, 0] = 0.05                              # a constant offset is the reference
+    rel[t >= 2.0, 1] = 0.004                      # 4 mm error for half the time
+    assert dm.pose_rmse(t, rel) == pytest.approx(0.004 / math.sqrt(2.0), rel=1e-9)
+
+
+def test_summary_and_table():
+    rows = [{"task": "slip_stop", "method": "aslip", "object": "chips_can", "success": True,
+             "stopping_error_m": e} for e in (0.004, 0.006)]
+    rows += [{"task": "slip_stop", "method": "svm", "object": "chips_can", "success": False,
+              "stopping_error_m": -0.02},
+             {"task": "slip_stop", "method": "svm", "object": "chips_can", "success": True,
+              "stopping_error_m": None}]
+    rows += [{"task": "slip_track", "method": "aslip", "object": "chips_can",
+              "pose_rmse_m": v} for v in (0.003, 0.005)]
+    s = dm.summarize(rows)
+    c = s["slip_stop"]["aslip"]["chips_can"]
+    assert (c["successes"], c["trials"]) == (2, 2)
+    assert c["mean_mm"] == pytest.approx(5.0) and c["std_mm"] == pytest.approx(1.0)
+    svm = s["slip_stop"]["svm"]["overall"]
+    assert (svm["successes"], svm["trials"], svm["n_mm"]) == (1, 2, 1)
+    assert svm["mean_mm"] == pytest.approx(20.0)       # |error| of the failure counts
+    assert s["slip_track"]["aslip"]["overall"]["mean_mm"] == pytest.approx(4.0)
+    table = dm.format_table(s)
+    assert "2/2, 5.0 ± 1.0" in table and "50/50, 14.5 ± 7.8" in table
