@@ -96,3 +96,19 @@ def test_summary_and_table():
     assert s["slip_track"]["aslip"]["overall"]["mean_mm"] == pytest.approx(4.0)
     table = dm.format_table(s)
     assert "2/2, 5.0 ± 1.0" in table and "50/50, 14.5 ± 7.8" in table
+
+
+def test_summary_counts_reruns_per_cell():
+    from aslip_ros.experiments import demo_metrics as dm
+    rows = [dict(task="slip_stop", method="aslip", object="chips_can", success=True,
+                 stopping_error_m=0.006, reruns=["stale slip"], controller_reason="slip"),
+            dict(task="slip_stop", method="aslip", object="chips_can", success=False,
+                 stopping_error_m=None, reruns=["stale_slip", "stale_slip"],
+                 controller_reason="stale_slip"),
+            dict(task="slip_stop", method="aslip", object="pla_rod", success=True,
+                 stopping_error_m=0.004, reruns=[], controller_reason="slip")]
+    cells = dm.summarize(rows)["slip_stop"]["aslip"]
+    assert cells["chips_can"]["reruns"] == 3 and cells["chips_can"]["trials_rerun"] == 2
+    assert cells["chips_can"]["stale_final"] == 1 and cells["chips_can"]["successes"] == 1
+    assert cells["pla_rod"]["reruns"] == 0
+    assert cells["overall"]["reruns"] == 3 and cells["overall"]["trials"] == 3

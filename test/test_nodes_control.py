@@ -75,7 +75,9 @@ def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros
     _listen(bus)
     src = SlipSource(bus, velocity=(0.02, 0.0))
     with NodeProcess("scene_sim", ros_env, {"scenario": "drag", "seed": 3}) as sim, \
-            NodeProcess("slip_track", ros_env, {"max_speed_m_s": 0.05}) as ctl:
+            NodeProcess("slip_track", ros_env, {"max_speed_m_s": 0.02}) as ctl:
+        # A constant 2 cm/s slip while the arm moves means an object faster than the arm
+        # (object velocity = TCP velocity + slip): the law accelerates to the speed limit.
         sim.wait_ready()
         ctl.wait_ready()
         moving = lambda: [m for m in bus.messages(CMD) if np.linalg.norm(_v(m)) > 0]  # noqa
@@ -119,10 +121,11 @@ def test_watchdog_stops_the_arm_when_slip_goes_stale(rclpy_context, ros_env):
     src = SlipSource(bus, velocity=(0.0, -0.03))
     with NodeProcess("slip_track", ros_env) as ctl:
         ctl.wait_ready()
-        assert bus.wait(lambda: any(np.linalg.norm(_v(m)) > 0 for m in bus.messages(CMD)),
-                        20), ctl.output
-        v = _v(bus.messages(CMD)[-1])
-        assert v == pytest.approx([0.0, 0.0, -0.03])          # identity grasp plane
+        # The TCP stands still (the test plays it), so the object velocity is the slip; the
+        # command converges to it through the 50 ms low-pass.
+        target = np.array([0.0, 0.0, -0.03])                  # identity grasp plane
+        assert bus.wait(lambda: any(np.linalg.norm(_v(m) - target) < 1e-4
+                                    for m in bus.messages(CMD)), 20), ctl.output
         src.velocity = None                                   # inference dies
         silent_at = src.last_sent
         assert bus.wait(lambda: np.linalg.norm(_v(bus.stamped(CMD)[-1][1])) == 0.0, 5)

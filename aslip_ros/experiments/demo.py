@@ -211,6 +211,13 @@ def _notes(summary: dict) -> str:
              f"Episodes that fell behind real time (scene blocks skipped): "
              f"{m.get('episodes_behind', 0)}; trials repeated after a watchdog stop on "
              f"stale input: {m.get('reruns', 0)}."]
+    reruns = [f"{task} {method}: {cells['overall']['reruns']} reruns in "
+              f"{cells['overall']['trials_rerun']} trials"
+              for task, methods in summary["table"].items()
+              for method, cells in methods.items() if cells["overall"].get("reruns")]
+    if reruns:
+        lines.append("Reruns after a watchdog stop on stale input (per method and object in "
+                     "summary.json, `reruns`): " + "; ".join(reruns) + ".")
     if summary["errors"]:
         lines.append(f"Episodes that raised errors: {len(summary['errors'])}.")
     return "\n".join(lines) + "\n"

@@ -47,17 +47,24 @@ class StopSettings:
 
 @dataclass(frozen=True)
 class TrackSettings:
-    """Slip-track: drag duration and the controller's law (aslip_ros.control.slip_track)."""
+    """Slip-track: drag duration and the controller's law (aslip_ros.control.slip_track).
+
+    The law commands the estimated object velocity (TCP velocity over the model's 200 ms
+    window + predicted slip) plus a small integrated-slip position term; see the module.
+    """
 
     duration_s: float = 4.0
     drag_speed_m_s: float = 0.04
     gain: float = 1.0
     deadband_m_s: float = 0.002
     max_speed_m_s: float = 0.05
-    # The estimated direction flickers while the arm moves; a 150 ms low-pass keeps the
-    # arm from chasing single-window flips (gain 3 without it ran away in trials).
-    lowpass_tau_s: float = 0.15
-    hold_s: float = 0.2
+    lowpass_tau_s: float = 0.05
+    hold_s: float = 0.3
+    decay_s: float = 0.2
+    velocity_window_s: float = 0.2
+    position_gain_1_s: float = 2.0
+    position_leak_s: float = 3.0
+    max_offset_m: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -119,7 +126,10 @@ def node_params(ep: Episode, length_m: float) -> dict:
         scene.update(scenario="drag", drag_speed_m_s=k.drag_speed_m_s)
         ctl = {"gain": k.gain, "deadband_m_s": k.deadband_m_s,
                "max_speed_m_s": k.max_speed_m_s, "lowpass_tau_s": k.lowpass_tau_s,
-               "hold_s": k.hold_s}
+               "hold_s": k.hold_s, "decay_s": k.decay_s,
+               "velocity_window_s": k.velocity_window_s,
+               "position_gain_1_s": k.position_gain_1_s,
+               "position_leak_s": k.position_leak_s, "max_offset_m": k.max_offset_m}
     return {"scene_sim": scene, "slip_inference": {"checkpoint": str(ep.checkpoint)},
             ep.task: ctl}
 

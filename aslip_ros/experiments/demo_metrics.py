@@ -173,7 +173,24 @@ def summarize(results: Sequence[dict]) -> dict:
     return out
 
 
+def _reruns(rows: Sequence[dict]) -> dict:
+    """Repeats after a watchdog stop on stale input: visible per cell, never hidden.
+
+    ``reruns``: repeated runs in all; ``trials_rerun``: trials that needed at least one;
+    ``stale_final``: trials whose last run still ended on stale input (counted as failures).
+    """
+    return {"reruns": int(sum(len(r.get("reruns") or []) for r in rows)),
+            "trials_rerun": int(sum(1 for r in rows if r.get("reruns"))),
+            "stale_final": int(sum(1 for r in rows
+                                   if str(r.get("controller_reason") or "")
+                                   .startswith("stale")))}
+
+
 def _cell(task: str, rows: Sequence[dict]) -> dict:
+    return {**_cell_values(task, rows), **_reruns(rows)}
+
+
+def _cell_values(task: str, rows: Sequence[dict]) -> dict:
     if task == "slip_stop":
         errs = [abs(r["stopping_error_m"]) * 1e3 if r.get("stopping_error_m") is not None
                 else None for r in rows]

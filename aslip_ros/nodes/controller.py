@@ -119,6 +119,11 @@ def arm_params() -> list:
                 read_only=True),
         c.Param("grasp_plane_in_tcp", list(IDENTITY),
                 "grasp-plane pose in the TCP frame (x y z qx qy qz qw) [m]", c.pose7),
+        c.Param("start_after_messages", 10,
+                "start moving only after this many consecutive SlipVectors, each within "
+                "slip_timeout_s of the previous one (a steady stream, not the first one)",
+                lambda v: None if 1 <= v <= 1000 else "must be in [1, 1000]",
+                read_only=True),
         c.Param("autostart", True, "configure and activate at start", read_only=True),
         c.Param("exit_when_done", False, "exit once the task has ended", read_only=True),
     ]
@@ -144,6 +149,7 @@ class ControllerNode(LifecycleNode):
         self.rejected_slip = 0
         self.slip_count = 0
         self.last_slip_t: Optional[float] = None
+        self.steady_slip = 0    # consecutive SlipVectors, each within slip_timeout_s
         self._task_fed = False
         self._pose_fed = False
         self._started = False
@@ -188,6 +194,10 @@ class ControllerNode(LifecycleNode):
     def feed_slip(self, slip: convert.SlipData, now: float) -> None:
         """Hand one slip estimate to the task."""
         raise NotImplementedError
+
+    def feed_pose(self, pose, now: float, stamp_ns: int) -> None:
+        """Hand one TCP pose (and its measurement stamp) to the task."""
+        self.task.on_tcp_pose(pose, now)
 
     def start_task(self, now: float) -> bool:
         """Start the task; False to retry on the next cycle."""
@@ -315,7 +325,11 @@ class ControllerNode(LifecycleNode):
             self.get_logger().warning(f"SlipVector rejected: {exc}", throttle_duration_sec=1.0)
             return
         self.slip_count += 1
-        self.last_slip_t = time.monotonic()
+        now = time.monotonic()
+        fresh = self.last_slip_t is not None and \
+            now - self.last_slip_t <= self.p["slip_timeout_s"]
+        self.steady_slip = self.steady_slip + 1 if fresh else 1
+        self.last_slip_t = now
         with self._lock:
             if self.task is not None:
                 self.feed_slip(slip, time.monotonic())
@@ -323,14 +337,14 @@ class ControllerNode(LifecycleNode):
 
     def _on_tcp(self, msg: PoseStamped) -> None:
         try:
-            _, _, pose = convert.pose_from_msg(msg)
+            stamp_ns, _, pose = convert.pose_from_msg(msg)
         except ValueError:
             return
         with self._lock:
             if isinstance(self.arm, TopicArm):
                 self.arm.set_pose(pose)
             if self.task is not None:
-                self.task.on_tcp_pose(pose, time.monotonic())
+                self.feed_pose(pose, time.monotonic(), stamp_ns)
                 self._pose_fed = True
 
     def _control(self) -> None:
@@ -356,8 +370,11 @@ class ControllerNode(LifecycleNode):
                         pose, self.get_clock().now().nanoseconds, "link_base"))
                 if not self._started:
                     if not (self._task_fed and self._pose_fed) or \
-                            now - self.last_slip_t > self.p["slip_timeout_s"]:
-                        return  # a task never starts on silent slip or pose streams
+                            now - self.last_slip_t > self.p["slip_timeout_s"] or \
+                            self.steady_slip < self.p["start_after_messages"]:
+                        # A task never starts on silent slip or pose streams, nor on the
+                        # first estimates of a stream that is still warming up.
+                        return
                     try:
                         self._started = self.start_task(now)
                     except RuntimeError:

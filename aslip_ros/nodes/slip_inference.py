@@ -12,6 +12,15 @@ with a clear error), repeats or goes back in sample index, or jumps in time agai
 sample index. A forward gap in the sample index (blocks lost upstream) is counted and
 restarts the window: a window spliced across a gap is not what the model was trained on.
 Nothing that arrives can crash the node or put NaN on ``/aslip/slip``.
+
+Timing: the model runs on a thread of its own, never inside the audio callback, so a slow
+forward pass cannot hold up the audio subscription (which would overflow its best-effort
+queue and cost a window restart). When a hop is due the callback copies the newest window
+into a pre-allocated buffer and wakes the thread; if the thread is still busy, the newer
+window replaces the waiting one (counted as ``hops_superseded``: the freshest estimate is
+what a controller needs). torch runs with ``torch_threads`` (1) and the model is warmed up
+(the first calls pay torch's lazy initialisation) before the node subscribes to audio, so
+the first published estimates already come at the hop rate.
 """
 
 from __future__ import annotations
@@ -159,18 +168,32 @@ class SlipInference(Node):
         self.last_error = ""
         self.refusal = ""
 
+        self.hops_superseded = 0
+        # Double buffer between the audio callback and the inference thread, allocated once.
+        self._back = np.zeros((pr.window_samples, pr.n_channels), np.float32)
+        self._front = np.zeros_like(self._back)
+        self._job: Optional[tuple] = None        # (end stamp ns, t_in) of the back buffer
+        self._wake = threading.Condition(threading.Lock())
+        self._stop = False
+
+        # Warm-up before anything is subscribed: the first torch calls are slow (lazy
+        # initialisation, allocator); a few passes keep them out of the live stream.
+        for _ in range(3):
+            pr.predict(self._front)
         self.pub_slip = self.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
         self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
         self.diag = c.Diagnostics(self, "aslip: slip_inference", self.source)
-        # Inference runs inside the audio callback (lowest latency, no queueing); its group
-        # keeps it exclusive while diagnostics run beside it.
+        self._worker = threading.Thread(target=self._infer_loop, name="slip_inference_model",
+                                        daemon=True)
+        self._worker.start()
+        # The audio callback only gates, buffers and hands over: its own group, so neither
+        # diagnostics nor metadata ever wait behind it (or it behind them).
         self.create_subscription(AudioFrame, c.AUDIO_TOPIC, self._on_audio, c.SENSOR_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS)
+        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(self.p["diagnostics_period_s"], self._diagnose,
                           callback_group=MutuallyExclusiveCallbackGroup())
-        # Warm-up: the first torch call is slow; keep that out of the measured latency.
-        pr.predict(np.zeros((pr.window_samples, pr.n_channels), np.float32))
         c.ready(self, f"{self.source} model, {pr.n_channels} channels "
                       f"{pr.channel_names} at {pr.sample_rate:g} Hz, window "
                       f"{pr.window_s * 1e3:.0f} ms, hop {self.hop_frames} frames")
@@ -256,17 +279,59 @@ class SlipInference(Node):
             return
         # Several hops inside one block: one estimate on the newest window is what matters.
         self._since_hop %= self.hop_frames
-        pred = pr.predict(self.ring.window())
-        try:
-            out = convert.prediction_to_slip(pred, self.threshold, a.end_stamp_ns, self.source,
-                                             self.p["frame_id"])
-        except ValueError as exc:
-            self._drop("bad_estimate", str(exc))
-            return
-        self.pub_slip.publish(out)
-        self.latency.append(time.perf_counter() - t_in)
-        self.published += 1
-        self.pub_marker.publish(convert.slip_markers(out, scale_s=self.p["marker_scale_s"]))
+        with self._wake:
+            np.copyto(self._back, self.ring.window())
+            if self._job is not None:
+                self.hops_superseded += 1
+            self._job = (a.end_stamp_ns, t_in)
+            self._wake.notify()
+
+    def _infer_loop(self) -> None:
+        """The model thread: newest window in, SlipVector out."""
+        pr = self.predictor
+        while True:
+            with self._wake:
+                while self._job is None and not self._stop:
+                    self._wake.wait(0.5)
+                if self._stop:
+                    return
+                stamp_ns, t_in = self._job
+                self._job = None
+                self._back, self._front = self._front, self._back
+            try:
+                pred = pr.predict(self._front)
+                with self._lock:
+                    threshold = self.threshold
+                try:
+                    out = convert.prediction_to_slip(pred, threshold, stamp_ns, self.source,
+                                                     self.p["frame_id"])
+                except ValueError as exc:
+                    with self._lock:
+                        self._drop("bad_estimate", str(exc))
+                    continue
+                self.pub_slip.publish(out)
+                with self._lock:
+                    self.latency.append(time.perf_counter() - t_in)
+                    self.published += 1
+                self.pub_marker.publish(convert.slip_markers(
+                    out, scale_s=self.p["marker_scale_s"]))
+            except Exception as exc:  # noqa: BLE001 - the thread must outlive a bad window
+                if self._stop:
+                    return
+                with self._lock:
+                    self.last_error = f"{type(exc).__name__}: {exc}"
+                    self.drops["internal_error"] += 1
+                self.get_logger().error(f"inference failed: {self.last_error}",
+                                        throttle_duration_sec=1.0)
+
+    def destroy_node(self) -> None:
+        """Stop the model thread, then destroy the node."""
+        with self._wake:
+            self._stop = True
+            self._wake.notify()
+        if self._worker.is_alive() and self._worker is not threading.current_thread():
+            self._worker.join(timeout=2.0)
+        super().destroy_node()
 
     def _refuse(self, reason: str, detail: str) -> None:
         self.refusal = detail
@@ -283,6 +348,7 @@ class SlipInference(Node):
             values = {"blocks_received": self.blocks_in, "blocks_accepted": self.blocks_ok,
                       "blocks_dropped": sum(self.drops.values()), "gaps": self.gaps,
                       "frames_lost": self.frames_lost, "estimates_published": self.published,
+                      "hops_superseded": self.hops_superseded,
                       "threshold": self.threshold, "model": self.source}
             values.update({f"dropped_{k}": v for k, v in sorted(self.drops.items())})
         recent = [t for t in arr if t > time.monotonic() - 2.0]

@@ -1,10 +1,13 @@
 """``slip_track``: move the gripper with the object while it slips in the grasp.
 
 The control law is :class:`aslip_ros.control.slip_track.SlipTrack`: the commanded gripper
-velocity is ``gain`` times the predicted slip vector (deadband, magnitude saturation,
-optional low-pass), rotated from the grasp plane into ``link_base`` with the newest TCP
-pose and the ``grasp_plane_in_tcp`` calibration. When slip ends it holds still for
-``hold_s`` and waits for the next slip (or, with ``stop_on_slip_end``, ends the task).
+velocity is the estimated OBJECT velocity, the TCP velocity measured over
+``velocity_window_s`` plus ``gain`` times the predicted slip (deadband, low-pass, magnitude
+saturation), plus ``position_gain_1_s`` times the integrated slip (the relative displacement
+accumulated during detection delays), rotated from the grasp plane into ``link_base`` with
+the newest TCP pose and the ``grasp_plane_in_tcp`` calibration. When slip ends it keeps the
+last object velocity for ``hold_s``, decays it to zero with ``decay_s`` and waits for the
+next slip (or, with ``stop_on_slip_end``, ends the task).
 ``duration_s`` > 0 ends the task after that long (with ``exit_when_done`` the node exits).
 """
 
@@ -29,14 +32,24 @@ class SlipTrackNode(ControllerNode):
     def task_params(self) -> list:
         """Control-law parameters (SI)."""
         return [
-            c.Param("gain", 1.0, "gripper velocity per unit slip velocity", c.positive),
+            c.Param("gain", 1.0, "fraction of the predicted slip corrected (0, 2)", c.positive),
             c.Param("deadband_m_s", 0.002, "slip speeds below this are ignored [m/s]",
                     c.non_negative),
             c.Param("max_speed_m_s", 0.05, "commanded speed limit [m/s]", c.positive),
-            c.Param("lowpass_tau_s", 0.0, "command low-pass time constant [s]; 0 = off",
+            c.Param("lowpass_tau_s", 0.05, "command low-pass time constant [s]; 0 = off",
                     c.non_negative),
-            c.Param("hold_s", 0.2, "hold still this long after slip ends [s]",
+            c.Param("hold_s", 0.3, "keep the object velocity this long after slip ends [s]",
                     c.non_negative),
+            c.Param("decay_s", 0.2, "then decay it to zero with this time constant [s]",
+                    c.non_negative),
+            c.Param("velocity_window_s", 0.2,
+                    "TCP velocity measured over this span (the model's window) [s]",
+                    c.positive),
+            c.Param("position_gain_1_s", 2.0, "integrated-slip position gain [1/s]; 0 = off",
+                    c.non_negative),
+            c.Param("position_leak_s", 3.0, "leak of the integrated slip [s]; 0 = none",
+                    c.non_negative),
+            c.Param("max_offset_m", 0.03, "clip of the integrated slip [m]", c.non_negative),
             c.Param("stop_on_slip_end", False, "end the task when slip ends"),
             c.Param("duration_s", 0.0, "end the task after this long [s]; 0 = never",
                     c.non_negative, read_only=True),
@@ -47,7 +60,11 @@ class SlipTrackNode(ControllerNode):
         return SlipTrackConfig(
             gain=values["gain"], deadband_m_s=values["deadband_m_s"],
             max_speed_m_s=values["max_speed_m_s"], lowpass_tau_s=values["lowpass_tau_s"],
-            hold_s=values["hold_s"], stop_on_slip_end=bool(values["stop_on_slip_end"]),
+            hold_s=values["hold_s"], decay_s=values["decay_s"],
+            velocity_window_s=values["velocity_window_s"],
+            position_gain_1_s=values["position_gain_1_s"],
+            position_leak_s=values["position_leak_s"], max_offset_m=values["max_offset_m"],
+            stop_on_slip_end=bool(values["stop_on_slip_end"]),
             grasp_plane_in_tcp=tuple(values["grasp_plane_in_tcp"]),
             slip_timeout_s=values["slip_timeout_s"], pose_timeout_s=values["pose_timeout_s"],
             command_duration_s=values["command_duration_s"])
@@ -76,6 +93,10 @@ class SlipTrackNode(ControllerNode):
     def feed_slip(self, slip, now: float) -> None:
         """Grasp-plane slip vector and decision."""
         self.task.on_slip((slip.vx, slip.vz), slip.slipping, now)
+
+    def feed_pose(self, pose, now: float, stamp_ns: int) -> None:
+        """TCP pose with its stamp: the arm velocity is measured on the sensor's clock."""
+        self.task.on_tcp_pose(pose, now, stamp=stamp_ns * 1e-9 if stamp_ns > 0 else None)
 
     def after_step(self, now: float) -> None:
         """End the task after ``duration_s``; exit when asked to once stopped."""
