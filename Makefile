@@ -34,8 +34,7 @@ demo: setup
 	$(ASLIP) demo
 
 datasets: setup
-	$(ASLIP) simulate --preset default --out data/bags
-	$(ASLIP) export --preset default --bags data/bags --out data/datasets
+	$(ASLIP) ablation --datasets-only --out results/ablation
 
 ablation: setup
 	$(ASLIP) ablation --out results/ablation

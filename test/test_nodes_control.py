@@ -19,6 +19,9 @@ from test_nodes_support import Bus, NodeProcess
 pytestmark = pytest.mark.ros
 
 CMD = "/aslip/arm/cmd_vel"
+# Tests that are not about the watchdog tolerate a scene process that stalls on a loaded CI
+# machine (a stalled TCP stream otherwise latches a correct, but here unwanted, stop).
+POSE_TIMEOUT_S = 0.5
 TCP = "/aslip/robot/tcp_pose"
 
 
@@ -66,6 +69,10 @@ def _v(m):
     return np.array([m.twist.linear.x, m.twist.linear.y, m.twist.linear.z])
 
 
+def _stamp(m):
+    return m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+
+
 def _p(m):
     return np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
 
@@ -75,7 +82,8 @@ def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros
     _listen(bus)
     src = SlipSource(bus, velocity=(0.02, 0.0))
     with NodeProcess("scene_sim", ros_env, {"scenario": "drag", "seed": 3}) as sim, \
-            NodeProcess("slip_track", ros_env, {"max_speed_m_s": 0.02}) as ctl:
+            NodeProcess("slip_track", ros_env, {"max_speed_m_s": 0.02,
+                                                "pose_timeout_s": POSE_TIMEOUT_S}) as ctl:
         # A constant 2 cm/s slip while the arm moves means an object faster than the arm
         # (object velocity = TCP velocity + slip): the law accelerates to the speed limit.
         sim.wait_ready()
@@ -85,12 +93,17 @@ def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros
         v = _v(moving()[-1])
         assert np.linalg.norm(v) == pytest.approx(0.02, rel=1e-3)
         assert abs(v[2]) < 1e-9                 # grasp-plane x is horizontal (level gripper)
-        p0 = _p(bus.messages(TCP)[-1])
+        assert bus.wait(lambda: len(bus.messages(TCP)) > 0, 20), "no TCP pose from the scene"
+        m0 = bus.messages(TCP)[-1]
         time.sleep(1.0)
-        p1 = _p(bus.messages(TCP)[-1])
-        moved = p1 - p0
-        # The scene's arm follows the commands: ~2 cm in 1 s along the commanded direction.
-        assert np.dot(moved, v / np.linalg.norm(v)) == pytest.approx(0.02, abs=0.006)
+        m1 = bus.messages(TCP)[-1]
+        moved = _p(m1) - _p(m0)
+        # The scene's arm follows the commands at 2 cm/s along the commanded direction.
+        # Timed by the scene's own stamps: on a loaded machine the scene may run slower
+        # than the wall clock, which says nothing about the controller.
+        dt = _stamp(m1) - _stamp(m0)
+        assert dt > 0.3
+        assert np.dot(moved, v / np.linalg.norm(v)) / dt == pytest.approx(0.02, abs=0.006)
         ctl.proc.send_signal(signal.SIGINT)
         assert ctl.proc.wait(10) == 0, ctl.output
         last = bus.messages(CMD)[-1]
@@ -119,13 +132,16 @@ def test_watchdog_stops_the_arm_when_slip_goes_stale(rclpy_context, ros_env):
     t = threading.Thread(target=tcp_loop, daemon=True)
     t.start()
     src = SlipSource(bus, velocity=(0.0, -0.03))
-    with NodeProcess("slip_track", ros_env) as ctl:
+    # Position term off: with the TCP held still by the test, integrated slip would grow
+    # the command without bound (up to its clip), so the feed-forward alone is checked.
+    with NodeProcess("slip_track", ros_env, params={"position_gain_1_s": 0.0}) as ctl:
         ctl.wait_ready()
         # The TCP stands still (the test plays it), so the object velocity is the slip; the
         # command converges to it through the 50 ms low-pass.
         target = np.array([0.0, 0.0, -0.03])                  # identity grasp plane
-        assert bus.wait(lambda: any(np.linalg.norm(_v(m) - target) < 1e-4
-                                    for m in bus.messages(CMD)), 20), ctl.output
+        ok = bus.wait(lambda: any(np.linalg.norm(_v(m) - target) < 1e-4
+                                  for m in bus.messages(CMD)), 20)
+        assert ok, (ctl.output, json.dumps(bus.diagnostics("slip_track")[-1:]))
         src.velocity = None                                   # inference dies
         silent_at = src.last_sent
         assert bus.wait(lambda: np.linalg.norm(_v(bus.stamped(CMD)[-1][1])) == 0.0, 5)
@@ -156,7 +172,7 @@ def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env):
     src = SlipSource(bus, velocity=(0.0, 0.0))
     params = {"retract_distance_m": 0.01, "retract_speed_m_s": 0.05, "settle_s": 0.1,
               "approach_speed_m_s": 0.05, "max_approach_distance_m": 0.03,
-              "debounce_count": 2, "settle_result_s": 0.2}
+              "debounce_count": 2, "settle_result_s": 0.2, "pose_timeout_s": POSE_TIMEOUT_S}
     with NodeProcess("scene_sim", ros_env, {"scenario": "wall_push", "seed": 1}) as sim, \
             NodeProcess("slip_stop", ros_env, params) as ctl:
         sim.wait_ready()
@@ -164,9 +180,9 @@ def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env):
         assert ctl.wait_for("wall push along", 20), ctl.output
         meta = None
         assert ctl.wait_for("retracting", 20), ctl.output
-        assert bus.wait(lambda: any(d["values"].get("task_state") == "approaching"
-                                    for d in bus.diagnostics("slip_stop")), 20), ctl.output
-        src.velocity = (-0.02, 0.0)            # slip detected
+        # Slip from now on: ignored while retracting and settling (slip is judged only
+        # during the approach), so the trial ends at the approach's first debounced slip.
+        src.velocity = (-0.02, 0.0)
         assert bus.wait(lambda: any(json.loads(m.data)["final"]
                                     for m in bus.messages("/aslip/slip_stop/result")), 10)
         meta = [json.loads(m.data) for m in bus.messages("/aslip/slip_stop/result")][-1]

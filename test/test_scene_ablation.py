@@ -27,6 +27,15 @@ def test_texture_lines_give_the_slip_axis():
     assert smooth["mag_rmse_mm"] > textured["mag_rmse_mm"]
 
 
+def test_smooth_pad_spreads_the_source():
+    """Without ridges the source is not pinned to the leading edge: the sign cue weakens."""
+    smooth = run(replace(DIRN, pad="smooth"))
+    pinned = run(replace(DIRN, pad="smooth", acoustics=replace(AC, smooth_edge_fraction=1.0)))
+    assert smooth["dir_mae_deg"] > pinned["dir_mae_deg"] + 8.0
+    assert smooth["flip_pct"] > pinned["flip_pct"] + 5.0
+    assert smooth["dir_mae_deg"] > 1.5 * run(DIRN)["dir_mae_deg"]   # textured far better
+
+
 def test_leading_edge_levels_give_the_sign():
     ref = run(DIRN)
     flat = run(replace(DIRN, acoustics=replace(AC, leading_edge_shift_m=0.0)))

@@ -121,6 +121,19 @@ def test_scenarios_cover_slow_and_fast_slip_with_rest():
     assert s.max() > 0.05 and s.max() <= 0.1 + 1e-9
 
 
+def test_external_pushes_slip_in_about_a_third_of_the_windows():
+    """Detection accuracy means something only if "never slipping" scores well below it."""
+    share = []
+    for seed in range(8):
+        scn = scenarios.external_induced(seed=seed, duration_s=30.0)
+        push, _ = scenarios.agent_pushes(scn, np.random.default_rng(seed))
+        t = np.arange(0.0, 30.0, 1e-3)
+        x = np.cumsum(push.evaluate(t), axis=0) * 1e-3        # displacement [m]
+        d = np.hypot(*(x[200::100] - x[:-200:100]).T)          # per 200 ms window, 100 ms hop
+        share.append(np.mean(d > 1e-3))                         # > 5 mm/s on average
+    assert 0.25 < np.mean(share) < 0.45
+
+
 def test_robot_noise_only_when_arm_moves():
     kw = dict(seed=7, duration_s=3.0, layout="1mic")
     quiet = _collect(World(scenarios.external_induced(condition="robot_off", **kw)), 4800)

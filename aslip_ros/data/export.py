@@ -374,6 +374,8 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
         "seed": meta.get("seed"), "label_rate_hz": round(rate, 3),
         "dropped": res.dropped, "audio_gaps": len(seg_start) - 1,
         "has_metadata": bool(meta),
+        # Which scene defaults rendered a simulated bag (None for recorded ones).
+        "scene_version": meta.get("scene_version"),
         # Where the stored audio starts in the recorded stream, so windows can be put back
         # on the stream's clock (file position p of a gap-free trial is stream sample
         # first_sample_index + p, stamped start_stamp_ns + p / sample_rate).

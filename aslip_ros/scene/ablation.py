@@ -154,6 +154,8 @@ def ablation_table(quick: bool = False) -> list[tuple[str, str, dict[str, float]
     rows = [
         ("reference", "4mic textured", dirn),
         ("texture lines", "smooth pad", replace(dirn, pad="smooth")),
+        ("smooth-pad spread", "smooth pad, source as localised as on ridges",
+         replace(dirn, pad="smooth", acoustics=replace(ac, smooth_edge_fraction=1.0))),
         ("leading-edge level", "no source shift",
          replace(dirn, acoustics=replace(ac, leading_edge_shift_m=0.0))),
         ("contact wander", "no wander",

@@ -30,6 +30,12 @@ from scipy import signal
 
 from .layouts import Layout, ObjectSpec, PadSpec
 
+#: Version of the scene's physics and motion defaults, written into every trial's metadata.
+#: Bump it whenever a default changes what the scene renders, so that datasets from older
+#: bags can be told apart. 1: the first scene. 2: smooth pads radiate from a spread-out
+#: contact (smooth_edge_fraction) and external pushes come closer together.
+SCENE_VERSION = 2
+
 #: Noise columns drawn per sample; fixed so one seed gives the same noise for every layout.
 _COL_BB_LOW = slice(0, 2)
 _COL_BB_HIGH = slice(2, 4)
@@ -65,6 +71,7 @@ class Acoustics:
     line_level: float = 1.5           # texture lines relative to broadband
     ridge_jitter: float = 0.03        # relative period spread (line width)
     leading_edge_shift_m: float = 5.0e-3  # source centroid shift towards the leading edge
+    smooth_edge_fraction: float = 0.3  # leading-edge shift kept on a smooth pad (diffuse)
     tip_brightness: float = 0.5       # source towards the free fingertip sounds brighter
     contact_wander_m: float = 2.0e-3  # slow wander of each pad's contact centroid (std)
     contact_wander_tau_s: float = 0.5
@@ -92,6 +99,8 @@ class Acoustics:
         for name, value in vars(self).items():
             if not np.isfinite(value) or value < 0.0:
                 raise ValueError(f"Acoustics.{name} must be finite and >= 0, got {value}")
+        if self.smooth_edge_fraction > 1.0:
+            raise ValueError("Acoustics.smooth_edge_fraction must lie in [0, 1]")
         if not 0.0 < self.ridge_duty_x < 1.0 or not 0.0 < self.ridge_duty_z < 1.0:
             raise ValueError("ridge duty cycles must lie in (0, 1)")
         if int(self.n_harmonics) != self.n_harmonics or self.n_harmonics < 1:
@@ -330,7 +339,10 @@ class Synth:
         # Leading-edge source: the level at each microphone falls with its distance to it.
         # The contact centroid of each pad also wanders slowly (grasp pose, pressure
         # distribution), which blurs that level pattern like a real pad does.
-        centre = unit * (ac.leading_edge_shift_m * np.minimum(speed / 2e-3, 1.0))[:, None]
+        # On a smooth pad detachment fronts sweep the whole contact, so the radiating region
+        # stays spread out; ridges concentrate it at the leading edge (textured pads).
+        shift = ac.leading_edge_shift_m * (1.0 if self.pad.textured else ac.smooth_edge_fraction)
+        centre = unit * (shift * np.minimum(speed / 2e-3, 1.0))[:, None]
         wx = ac.contact_wander_m * wander[:, 0:2][:, self._mic_finger]
         wz = ac.contact_wander_m * wander[:, 2:4][:, self._mic_finger]
         dx = self._mic_xz[None, :, 0] - centre[:, None, 0] - wx

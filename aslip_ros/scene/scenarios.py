@@ -28,6 +28,9 @@ KINDS = ("robot_induced", "external_induced", "wall_push", "external_drag", "scr
 CONDITIONS = ("robot_off", "robot_stationary", "robot_moving")
 #: Planned object excursion from the grasp centre beyond which pushes turn back [m].
 _EXCURSION_M = 0.02
+#: Pause between an agent's touches [s] (uniform range) and the longest slide of one push [m].
+_TOUCH_GAP_S = (0.1, 0.8)
+_PUSH_TRAVEL_M = 0.04
 
 
 @dataclass(frozen=True)
@@ -295,7 +298,7 @@ def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, P
 
     def gen(t: float):
         nonlocal planned
-        t_touch = t + rng.uniform(0.4, 2.0)
+        t_touch = t + rng.uniform(*_TOUCH_GAP_S)
         preload = rng.uniform(0.05, 0.3)
         t0 = t_touch + preload
         kind = rng.random()
@@ -310,7 +313,7 @@ def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, P
             speed = _slip_speed(rng, scn, 0.06)
             dur = rng.uniform(0.3, 2.0)
             ramp = min(rng.uniform(0.05, 0.2), dur / 3.0)
-            dur = min(dur, 0.025 / speed + ramp)
+            dur = min(dur, _PUSH_TRAVEL_M / speed + ramp)
             e = _direction_back(rng, planned)
             turn = rng.uniform(-1.0, 1.0) if rng.random() < 0.5 else 0.0
             pulses.append((t0, t0 + dur, ramp, e * speed, turn))

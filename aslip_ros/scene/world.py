@@ -17,7 +17,7 @@ import numpy as np
 from ..control.arm import ArmError
 from . import scenarios as sc
 from .layouts import get_layout, get_object, get_pad, yaw_quaternion, yaw_rotation
-from .physics import Synth
+from .physics import SCENE_VERSION, Synth
 
 #: Where the TCP starts in ``world`` [m]; an arbitrary reachable point in front of the base.
 TCP_START_M = np.array([0.40, 0.0, 0.30])
@@ -237,6 +237,7 @@ class World:
                 "layout": scn.layout, "object": scn.object, "pad": scn.pad,
                 "induced": scn.induced, "condition": scn.condition, "seed": int(scn.seed),
                 "trial_id": scn.trial_id, "scenario": scn.kind,
+                "scene_version": SCENE_VERSION,
                 "mocap_rate_hz": scn.mocap_rate_hz, "tcp_rate_hz": scn.tcp_rate_hz,
                 "grasp_plane_in_finger": [0, 0, 0, 0, 0, 0, 1],
                 "grasp_plane_in_tcp": [0, 0, 0, 0, 0, 0, 1]}
