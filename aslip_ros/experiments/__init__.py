@@ -1,0 +1,1 @@
+"""aslip_ros.experiments."""

@@ -1,0 +1,82 @@
+"""The ablation pipeline end to end on tiny synthetic datasets (plumbing, not accuracy)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from aslip_ros.experiments import ablation
+from aslip_ros.experiments.common import DataPlan, Recipe
+
+
+@pytest.fixture(scope="module")
+def run_ablation(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ablation")
+    cfg = ablation.AblationConfig(
+        out=root / "out",
+        data=DataPlan(root=root / "data", synthetic=True, progress=False, synthetic_s=2.0),
+        recipe=Recipe(epochs=1, patience=1, threads=1, progress=False, svm_max_train=300))
+    res = ablation.Ablation(cfg).run()
+    return cfg, res
+
+
+def test_writes_every_table_one_row(run_ablation):
+    cfg, _ = run_ablation
+    table = json.loads((cfg.out / "table.json").read_text())
+    assert [r["key"] for r in table["rows"]] == list(ablation.ROW_KEYS)
+    for r in table["rows"]:
+        assert set(r["paper"]) == {"det_pct", "dir_mae_deg", "dir_std_deg", "mag_rmse_mm",
+                                   "mag_std_mm"}
+        assert 0.0 <= r["ours"]["det_pct"] <= 100.0
+        assert r["ours"]["dir_mae_deg"] is not None and r["ours"]["mag_rmse_mm"] is not None
+    md = (cfg.out / "table.md").read_text()
+    for row in ablation.TABLE1:
+        assert f"| {row.label} |" in md
+    assert "81.8" in md and "14.1 ± 6.9" in md          # the paper's numbers beside ours
+    assert table["checks"] and all("holds" in c for c in table["checks"])
+
+
+def test_per_object_and_robot_noise(run_ablation):
+    cfg, _ = run_ablation
+    per_obj = json.loads((cfg.out / "per_object.json").read_text())
+    assert "pla_rod" in per_obj and "all_object" in per_obj["pla_rod"]
+    assert per_obj["pla_rod"]["paper"]["per_object"]["det_pct"] == 94.5
+    assert "Per-obj." in (cfg.out / "per_object.md").read_text()
+    robot = json.loads((cfg.out / "robot_noise.json").read_text())
+    assert set(robot) == {"4mic", "2mic_centered", "2mic_corners", "2mic_same_finger", "1mic"}
+    assert robot["4mic"]["paper"]["dir_mae_deg"] == 15.9
+    assert robot["4mic"]["robot_val"]["n_windows"] > 0
+
+
+def test_cached_rows_are_not_retrained(run_ablation):
+    cfg, _ = run_ablation
+    ckpt = cfg.cache / "ft_4mic_w200.pt"
+    before = ckpt.stat().st_mtime_ns
+    row = ablation.Ablation(cfg).row(next(r for r in ablation.TABLE1 if r.key == "ft_4mic"))
+    assert row["training"]["cached"] is True
+    assert ckpt.stat().st_mtime_ns == before
+
+
+def test_orderings_on_hand_made_rows():
+    def row(key, det, d):
+        return {"key": key, "ours": {"det_pct": det, "dir_mae_deg": d}}
+    rows = [row("ft_4mic", 90, 10), row("ft_2mic_corners", 80, 15),
+            row("ft_2mic_same_finger", 78, 16), row("ft_2mic_centered", 70, 25),
+            row("w100", 70, 8), row("w200", 90, 10), row("w300", 85, 12)]
+    checks = {c["claim"]: c["holds"] for c in ablation.orderings(rows)}
+    assert checks["direction: 4-mic < corners < same-finger < centered (finetuned)"] is True
+    assert checks["longer windows raise detection (100 < 200 < 300 ms)"] is False
+    assert checks["longer windows worsen direction (100 < 200 < 300 ms MAE)"] is True
+    assert checks["4-mic finetuned better direction than the SVM"] is None   # no SVM row
+
+
+def test_cli_arguments():
+    import argparse
+    p = argparse.ArgumentParser()
+    ablation.add_arguments(p)
+    cfg = ablation.config_from_args(p.parse_args(["--quick", "--rows", "svm,ft_4mic"]))
+    assert cfg.rows == ("svm", "ft_4mic") and cfg.recipe.epochs == 2
+    assert cfg.data.scale == "tiny"
+    with pytest.raises(ValueError):
+        ablation.config_from_args(p.parse_args(["--rows", "nope"]))
