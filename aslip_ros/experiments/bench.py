@@ -205,9 +205,9 @@ def system_speed(cfg: BenchConfig, log: Log,
 
 
 #: Where the ROS colleague's node benchmark may live: (module, function).
-NODE_HOOKS = (("aslip_ros.nodes.slip_inference", "measure_node_latency"),
+NODE_HOOKS = (("aslip_ros.nodes.bench", "measure"),   # latency + 10 min capture stream
               ("aslip_ros.nodes.bench", "measure_node_latency"),
-              ("aslip_ros.nodes.bench", "measure"))
+              ("aslip_ros.nodes.slip_inference", "measure_node_latency"))
 
 
 def node_latency_hook(checkpoint: Path | None = None) -> dict[str, Any]:
