@@ -2,9 +2,9 @@
 
 Closed loop through topics: audio -> slip_inference -> slip_stop -> arm -> (scene).
 Simulation (default; the scene's arm through scene_sim):
-    ros2 launch aslip_ros slip_stop.launch.py checkpoint:=models/aslip.pt object:=chips_can
+    ros2 launch aslip_ros slip_stop.launch.py checkpoint:=models/aslip_cnn.pt object:=chips_can
 Hardware (xArm, audio interface, motion capture for the ground truth):
-    ros2 launch aslip_ros slip_stop.launch.py sim:=false checkpoint:=models/aslip.pt \
+    ros2 launch aslip_ros slip_stop.launch.py sim:=false checkpoint:=models/aslip_cnn.pt \
         xarm_ip:=192.168.1.222 audio_device:=UMC404HD \
         finger_topic:=/mocap/finger/pose object_topic:=/mocap/object/pose
 """
