@@ -87,8 +87,8 @@ def _arguments(by):
     return {a.args[0] for a in by.get("DeclareLaunchArgument", [])}
 
 
-@pytest.mark.parametrize("task,scenario,task_arg", [("slip_stop", "wall_push", "direction"),
-                                                      ("slip_track", "drag", "gain")])
+@pytest.mark.parametrize("task,scenario,task_arg", [
+    ("slip_stop", "wall_push", "direction"), ("slip_track", "drag", "gain")])
 def test_closed_loop_launch_files(fake_launch, task, scenario, task_arg):
     by = _describe(task)
     nodes = _nodes(by)
@@ -122,4 +122,3 @@ def test_export_and_rviz_launch_files(fake_launch):
     assert rviz.kwargs["executable"] == "rviz2"
     assert Path(rviz.kwargs["arguments"][-1]).name == "aslip.rviz"
     assert Path(rviz.kwargs["arguments"][-1]).is_file()
-
