@@ -37,8 +37,8 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 
-from .common import (DataPlan, Log, Recipe, evaluate_cached, fmt_num, markdown_table,
-                     paper_units, set_threads, train_cached)
+from .common import (DataPlan, Log, Recipe, add_plan_arguments, plan_from_args, evaluate_cached,
+                     fmt_num, markdown_table, paper_units, set_threads, train_cached)
 
 #: Model-size sweep: name -> ModelConfig overrides (the default is width 16, depth 3, 64).
 MODEL_SIZES: dict[str, dict[str, int]] = {
@@ -436,33 +436,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-system", action="store_true",
                    help="skip scene, export and node speed")
     p.add_argument("--iters", type=int, default=300, help="timed windows per method")
-    p.add_argument("--epochs", type=int, default=60)
-    p.add_argument("--patience", type=int, default=8)
-    p.add_argument("--time-budget", type=float, default=180.0)
-    p.add_argument("--finetune-time-budget", type=float, default=60.0,
-                   help="seconds of training per finetuning (heads only)")
-    p.add_argument("--noslip-ratio", type=float, default=3.0,
-                   help="no-slip windows per slip window drawn each epoch")
-    p.add_argument("--threads", type=int, default=2, help="training threads")
-    p.add_argument("--quick", action="store_true", help="tiny scale, 2 sizes, 1 feature")
-    p.add_argument("--force", action="store_true")
-    p.add_argument("--no-progress", action="store_true")
-    p.add_argument("--synthetic", action="store_true", help=argparse.SUPPRESS)
+    add_plan_arguments(p, "tiny scale, 2 sizes, 1 feature")
 
 
 def config_from_args(args: argparse.Namespace) -> BenchConfig:
-    from .ablation import EXTERNAL_TRIALS
-    progress = not args.no_progress
     quick = args.quick
-    external = None if (args.preset_finetune or quick or args.synthetic) \
-        else dict(EXTERNAL_TRIALS)
-    data = DataPlan(root=args.data, scale="tiny" if quick else args.scale,
-                    synthetic=args.synthetic, progress=progress, external=external)
-    recipe = Recipe(epochs=2 if quick else args.epochs, patience=args.patience,
-                    time_budget_s=args.time_budget,
-                    finetune_time_budget_s=args.finetune_time_budget,
-                    noslip_ratio=args.noslip_ratio, threads=args.threads,
-                    progress=progress)
+    data, recipe = plan_from_args(args)
     sizes = tuple(x for x in args.sizes.split(",") if x)
     feats = tuple(x for x in args.features.split(",") if x)
     if quick:

@@ -12,6 +12,7 @@ of minutes, for the pipelines' own tests only (it says nothing about the scene).
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -291,3 +292,37 @@ def set_threads(n: int) -> None:
 
 def dump(obj: Any) -> str:
     return json.dumps(obj, indent=2)
+
+
+def add_plan_arguments(p: argparse.ArgumentParser, quick_help: str) -> None:
+    """The training-recipe and run-control arguments that bench and stability share."""
+    p.add_argument("--epochs", type=int, default=60)
+    p.add_argument("--patience", type=int, default=8)
+    p.add_argument("--time-budget", type=float, default=180.0)
+    p.add_argument("--finetune-time-budget", type=float, default=60.0,
+                   help="seconds of training per finetuning (heads only)")
+    p.add_argument("--noslip-ratio", type=float, default=3.0,
+                   help="no-slip windows per slip window drawn each epoch")
+    p.add_argument("--threads", type=int, default=2, help="training threads")
+    p.add_argument("--quick", action="store_true", help=quick_help)
+    p.add_argument("--force", action="store_true")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--synthetic", action="store_true", help=argparse.SUPPRESS)
+
+
+def plan_from_args(args: argparse.Namespace, **recipe: Any) -> tuple[DataPlan, Recipe]:
+    """DataPlan and Recipe from the arguments of ``add_plan_arguments`` (plus ``--data``,
+    ``--scale`` and ``--preset-finetune``); ``recipe`` overrides Recipe fields."""
+    from .ablation import EXTERNAL_TRIALS
+    progress = not args.no_progress
+    quick = args.quick
+    external = None if (args.preset_finetune or quick or args.synthetic) \
+        else dict(EXTERNAL_TRIALS)
+    data = DataPlan(root=args.data, scale="tiny" if quick else args.scale,
+                    synthetic=args.synthetic, progress=progress, external=external)
+    rec = Recipe(epochs=2 if quick else args.epochs, patience=args.patience,
+                 time_budget_s=args.time_budget,
+                 finetune_time_budget_s=args.finetune_time_budget,
+                 noslip_ratio=args.noslip_ratio, threads=args.threads, progress=progress,
+                 **recipe)
+    return data, rec
