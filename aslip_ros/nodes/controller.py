@@ -130,7 +130,7 @@ def arm_params() -> list:
 
 
 class ControllerNode(LifecycleNode):
-    """Lifecycle shell: subclasses provide ``task_params``, ``cross_check``, ``make_task``,
+    """Lifecycle shell: subclasses provide ``task_params``, ``task_config``, ``make_task``,
     ``feed_slip`` and optionally ``after_step``."""
 
     task_name = "controller"
@@ -183,8 +183,17 @@ class ControllerNode(LifecycleNode):
         """Parameter specs of the task."""
         return []
 
+    def task_config(self, values: dict):
+        """The core controller's config built from parameter ``values`` (raises ValueError)."""
+        return None
+
     def cross_check(self, values: dict) -> Optional[str]:
-        """Error text when the task's parameters do not make a valid core config."""
+        """Error text when the task's parameters do not make a valid core config: the core's
+        own validation of the combination (e.g. approach distance > retract distance)."""
+        try:
+            self.task_config(values)
+        except ValueError as exc:
+            return str(exc)
         return None
 
     def make_task(self):

@@ -67,7 +67,7 @@ class SlipStopNode(ControllerNode):
                     c.non_negative, read_only=True),
         ]
 
-    def _config(self, values: dict, direction=None):
+    def task_config(self, values: dict, direction=None):
         from aslip_ros.control.slip_stop import SlipStopConfig
         return SlipStopConfig(
             direction=tuple(direction if direction is not None else (1.0, 0.0, 0.0)),
@@ -79,14 +79,6 @@ class SlipStopNode(ControllerNode):
             slip_timeout_s=values["slip_timeout_s"], pose_timeout_s=values["pose_timeout_s"],
             command_duration_s=values["command_duration_s"],
             time_margin=values["time_margin"])
-
-    def cross_check(self, values: dict) -> Optional[str]:
-        """The core's own validation of the combination (e.g. approach > retract)."""
-        try:
-            self._config(values)
-        except ValueError as exc:
-            return str(exc)
-        return None
 
     def _direction(self):
         d = np.asarray(self.p["direction"], dtype=float)
@@ -108,7 +100,7 @@ class SlipStopNode(ControllerNode):
         self._stopped_at = None
         self._final_sent = False
         self.get_logger().info(f"wall push along {np.round(d, 4).tolist()} (link_base)")
-        return SlipStop(self._config(self.p, d))
+        return SlipStop(self.task_config(self.p, d))
 
     def start_task(self, now: float) -> bool:
         """Start from the current (contact) TCP pose."""

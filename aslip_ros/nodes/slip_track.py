@@ -55,7 +55,7 @@ class SlipTrackNode(ControllerNode):
                     c.non_negative, read_only=True),
         ]
 
-    def _config(self, values: dict):
+    def task_config(self, values: dict):
         from aslip_ros.control.slip_track import SlipTrackConfig
         return SlipTrackConfig(
             gain=values["gain"], deadband_m_s=values["deadband_m_s"],
@@ -69,19 +69,11 @@ class SlipTrackNode(ControllerNode):
             slip_timeout_s=values["slip_timeout_s"], pose_timeout_s=values["pose_timeout_s"],
             command_duration_s=values["command_duration_s"])
 
-    def cross_check(self, values: dict) -> Optional[str]:
-        """The core's own validation of the combination."""
-        try:
-            self._config(values)
-        except ValueError as exc:
-            return str(exc)
-        return None
-
     def make_task(self):
         """A fresh SlipTrack controller."""
         from aslip_ros.control.slip_track import SlipTrack
         self._t_start = None
-        return SlipTrack(self._config(self.p))
+        return SlipTrack(self.task_config(self.p))
 
     def start_task(self, now: float) -> bool:
         """Start tracking."""
