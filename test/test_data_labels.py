@@ -141,3 +141,72 @@ def test_bad_inputs():
     tr = L.PoseTrack([0.0, 0.1, 0.1, 0.2], [[0, 0, 0, 0, 0, 0, 1], [0, 0, 0, 0, 0, 0, 0],
                                             [1, 0, 0, 0, 0, 0, 2], [2, 0, 0, 0, 0, 0, 1]])
     assert len(tr) == 3 and np.allclose(tr.quat[1], [0, 0, 0, 1])
+
+
+def calibration_poses(n=200, pos_noise_m=0.0, rot_noise_deg=0.0, seed=3):
+    """Finger poses all over the place, the object rigidly at CALIB's origin in the finger
+    frame (any orientation); measured with the given position and finger-rotation noise."""
+    rng = np.random.default_rng(seed)
+    rot = Rotation.random(n, random_state=seed)
+    f = np.concatenate([rng.uniform(-0.5, 0.5, (n, 3)), rot.as_quat()], axis=1)
+    o = np.concatenate([L.compose(f, CALIB)[:, :3],
+                        Rotation.random(n, random_state=seed + 1).as_quat()], axis=1)
+    f[:, :3] += rng.normal(0.0, pos_noise_m, (n, 3))
+    o[:, :3] += rng.normal(0.0, pos_noise_m, (n, 3))
+    jitter = Rotation.from_rotvec(np.deg2rad(rng.normal(0.0, rot_noise_deg, (n, 3))))
+    f[:, 3:] = (rot * jitter).as_quat()
+    return f, o
+
+
+def test_invert_is_the_inverse_pose():
+    f, _ = calibration_poses(n=5)
+    np.testing.assert_allclose(L.compose(L.invert(f), f)[:, :3], 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.abs(L.compose(f, L.invert(f))[:, 6]), 1.0, atol=1e-12)
+    np.testing.assert_allclose(L.invert(L.invert(FINGER)), FINGER, atol=1e-12)
+
+
+def test_measure_grasp_plane_recovers_the_object_offset():
+    f, o = calibration_poses()
+    np.testing.assert_allclose(L.measure_grasp_plane(f, o, CALIB[3:]), CALIB, atol=1e-12)
+    # The orientation is taken as given (normalised), whatever the poses say.
+    got = L.measure_grasp_plane(f, o, [0.0, 0.0, 0.0, 2.0])
+    np.testing.assert_allclose(got, np.r_[CALIB[:3], 0, 0, 0, 1], atol=1e-12)
+    # A world-frame difference would be metres off: the finger rotation is undone.
+    assert np.linalg.norm(np.mean(o[:, :3] - f[:, :3], axis=0) - CALIB[:3]) > 0.01
+
+
+def test_measure_grasp_plane_with_noisy_poses():
+    # 0.5 mm position noise on both bodies and 0.2 deg on the finger's orientation.
+    f, o = calibration_poses(pos_noise_m=5e-4, rot_noise_deg=0.2)
+    got = L.measure_grasp_plane(f, o, CALIB[3:])
+    np.testing.assert_allclose(got[:3], CALIB[:3], atol=2e-4)
+    np.testing.assert_allclose(got[3:], CALIB[3:], atol=1e-12)
+    assert np.linalg.norm(got[:3] - CALIB[:3]) > 1e-7       # the noise did reach it
+
+
+def test_measure_grasp_plane_degenerate_input():
+    f, o = calibration_poses(n=4)
+    with pytest.raises(ValueError, match="at least 3 pose pairs, got 2"):
+        L.measure_grasp_plane(f[:2], o[:2])
+    with pytest.raises(ValueError, match="at least 10 pose pairs, got 4"):
+        L.measure_grasp_plane(f, o, min_pairs=10)
+    with pytest.raises(ValueError, match="at least 1 pose pairs, got 0"):
+        L.measure_grasp_plane(np.zeros((0, 7)), np.zeros((0, 7)), min_pairs=0)
+    with pytest.raises(ValueError, match=r"\(N, 7\)"):
+        L.measure_grasp_plane(f, o[:3])
+    with pytest.raises(ValueError, match=r"\(N, 7\)"):
+        L.measure_grasp_plane(f[:, :3], o[:, :3])
+    for body in (f, o):
+        for bad in (np.nan, np.inf):
+            saved = body[1, 2]
+            body[1, 2] = bad
+            with pytest.raises(ValueError, match="NaN or Inf"):
+                L.measure_grasp_plane(f, o)
+            body[1, 2] = saved
+    o[2, 3:] = 0.0
+    with pytest.raises(ValueError, match="zero quaternion"):
+        L.measure_grasp_plane(f, o)
+    f, o = calibration_poses(n=4)
+    with pytest.raises(ValueError, match="zero quaternion"):
+        L.measure_grasp_plane(f, o, [0.0, 0.0, 0.0, 0.0])
+    assert np.isfinite(L.measure_grasp_plane(f, o)).all()

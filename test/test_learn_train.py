@@ -74,6 +74,20 @@ def test_finetune_trains_heads_only(work):
     assert ft.meta["provenance"]["init_provenance"]["stage"] == "pretrain"
 
 
+def test_gain_augmentation_flags_reach_the_checkpoint(work, tmp_path, capsys):
+    root, _, ext = work
+    out = tmp_path / "g.pt"
+    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                       str(root / "pre.pt"), "--out", str(out), "--epochs", "1",
+                       "--gain-db", "2.5", "--channel-gain-db", "0"] + SMALL) == 0
+    cfg = load_checkpoint(out).meta["train_config"]
+    assert (cfg["gain_db"], cfg["channel_gain_db"]) == (2.5, 0.0)
+    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                       str(root / "pre.pt"), "--out", str(tmp_path / "bad.pt"),
+                       "--gain-db", "-1"] + SMALL) == 2
+    assert "gain_db" in capsys.readouterr().err and not (tmp_path / "bad.pt").exists()
+
+
 def test_finetune_refuses_other_channels(work, tmp_path):
     root, _, _ = work
     other = make_synthetic_dataset(tmp_path / "other", n_trials=3, channel_names=("a", "b"))

@@ -107,9 +107,10 @@ class Feeder:
         self.rng = np.random.default_rng(0)
 
     def frame(self, index=None, stamp_ns=None, names=SCENE_NAMES, rate=48000.0, frames=480,
-              data=None):
+              data=None, silent=()):
         from aslip_ros.nodes import convert
         block = (0.01 * self.rng.standard_normal((frames, len(names)))).astype(np.float32)
+        block[:, list(silent)] = 0.0                 # disconnected microphones
         msg = convert.audio_to_msg(self.index if index is None else index,
                                    self.stamp_ns if stamp_ns is None else stamp_ns, rate,
                                    names, block, "4mic")
@@ -117,9 +118,9 @@ class Feeder:
             msg.data = data
         return msg
 
-    def good(self, n: int = 1) -> None:
+    def good(self, n: int = 1, silent=()) -> None:
         for _ in range(n):
-            self.pub.publish(self.frame())
+            self.pub.publish(self.frame(silent=silent))
             self.index += 480
             self.stamp_ns += 10_000_000
             time.sleep(0.005)
@@ -194,11 +195,62 @@ def test_forward_gap_restarts_the_window_and_is_counted(live_inference):
     assert bus.diagnostics("slip_inference")[-1]["values"]["frames_lost"] >= 4800
 
 
+def _stamp_ns(m) -> int:
+    return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+
+
+def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inference):
+    """A window with an all-zero channel: no SlipVector, an ERROR naming the channel."""
+    bus, feeder, proc = live_inference
+    dead = SCENE_NAMES[1]
+    window_ns = 50_000_000                   # the fixture checkpoint's 50 ms window
+
+    def dead_errors():
+        return [d for d in bus.diagnostics("slip_inference")
+                if d["level"] == 2 and dead in d["message"]]
+
+    feeder.good(8)
+    assert bus.wait(lambda: bus.messages(SLIP), 10), proc.output
+    bus.clear(SLIP)
+    first_dead = feeder.stamp_ns             # start of the first block with the channel dead
+    feeder.good(20, silent=(1,))
+    last_dead = feeder.stamp_ns              # end of the last one
+    assert bus.wait(lambda: dead_errors(), 10), proc.output
+    assert proc.wait_for(f"dead microphone channel(s) {dead}: no slip estimate", 5), \
+        proc.output
+    doc = dead_errors()[-1]
+    assert doc["values"]["dead_channels"] == dead
+    assert doc["values"]["dead_channel_windows"] >= 1
+    assert "dead microphone" in doc["message"]
+    # The microphone comes back: estimates flow again once a window holds its signal, and
+    # none was published for a window wholly without it.
+    feeder.good(12)
+    assert bus.wait(lambda: any(_stamp_ns(m) > last_dead for m in bus.messages(SLIP)), 10), \
+        proc.output
+    stamps = [_stamp_ns(m) for m in bus.messages(SLIP)]
+    assert not [t for t in stamps if first_dead + window_ns <= t <= last_dead], stamps
+    assert bus.wait(lambda: bus.diagnostics("slip_inference")[-1]["level"] < 2, 5)
+    assert bus.diagnostics("slip_inference")[-1]["values"]["dead_channels"] == ""
+
+    # dead_channel_margin_db = 0 turns the check off; back on at run time.
+    assert all(r.successful for r in bus.set_params("slip_inference",
+                                                    {"dead_channel_margin_db": 0.0}))
+    bus.clear(SLIP)
+    first_dead = feeder.stamp_ns
+    feeder.good(12, silent=(1,))
+    assert bus.wait(lambda: any(_stamp_ns(m) >= first_dead + window_ns
+                                for m in bus.messages(SLIP)), 10), proc.output
+    assert all(r.successful for r in bus.set_params("slip_inference",
+                                                    {"dead_channel_margin_db": 40.0}))
+    feeder.good(8)
+
+
 # ------------------------------------------------------------------------------ parameters
 
 @pytest.mark.parametrize("params, needle", [
     ({"checkpoint": "/nonexistent/model.pt"}, "cannot load checkpoint"),
     ({"checkpoint": "CKPT", "hop_s": -0.01, "threshold": 1.5}, "hop_s"),
+    ({"checkpoint": "CKPT", "dead_channel_margin_db": 6.0}, "dead_channel_margin_db"),
 ])
 def test_invalid_parameters_refused_at_start(ros_env, known_ckpt, params, needle):
     params = {k: (str(known_ckpt) if v == "CKPT" else v) for k, v in params.items()}
@@ -219,6 +271,8 @@ def test_invalid_parameters_refused_at_run_time(rclpy_context, ros_env, known_ck
         assert not bad[0].successful and "hop_s" in bad[0].reason
         bad = bus.set_params("slip_inference", {"threshold": -0.5})
         assert not bad[0].successful
+        bad = bus.set_params("slip_inference", {"dead_channel_margin_db": -40.0})
+        assert not bad[0].successful and "dead_channel_margin_db" in bad[0].reason
         ro = bus.set_params("slip_inference", {"checkpoint": "/other.pt"})
         assert not ro[0].successful                      # read-only at run time
         ok = bus.set_params("slip_inference", {"threshold": 0.7, "hop_s": 0.02})

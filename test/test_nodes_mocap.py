@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 
@@ -125,3 +126,63 @@ def test_still_object_is_not_slipping_and_bad_params_refused(rclpy_context, ros_
     proc = NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": [0.0] * 7})
     assert proc.proc.wait(30) == 2
     assert "zero quaternion" in proc.stop()
+
+
+HELD_AT = np.array([0.01, -0.02, 0.05])      # object origin in the finger frame [m]
+SLIDE_FROM_S = 1.5
+
+
+def _held_then_sliding(t):
+    """Finger still (yawed and rolled) holding the object at HELD_AT; from SLIDE_FROM_S the
+    arm moves and the object slides 0.02 m/s along the finger's x axis."""
+    from scipy.spatial.transform import Rotation
+    q = Rotation.from_euler("zx", [90, 30], degrees=True)
+    moving = max(0.0, t - SLIDE_FROM_S)
+    p_f = np.array([0.4 + 0.05 * moving, 0.1, 0.3])
+    p_o = p_f + q.apply(HELD_AT + [0.02 * moving, 0.0, 0.0])
+    return np.concatenate([p_f, q.as_quat()]), np.concatenate([p_o, [0, 0, 0, 1.0]])
+
+
+def test_measured_calibration_is_the_held_objects_offset(rclpy_context, ros_env):
+    """calibration=measure: silent while calibrating, then the object's position in the
+    finger frame with the parameter's orientation, which orients the published slip."""
+    from scipy.spatial.transform import Rotation
+    from std_msgs.msg import String
+
+    from aslip_ros.msg import SlipVector
+    from aslip_ros.nodes import common as c
+    q_param = Rotation.from_euler("y", 90, degrees=True)
+    param = [0.5, 0.5, 0.5] + list(q_param.as_quat())        # position: not used
+    bus = Bus(rclpy_context)
+    bus.listen(SlipVector, TRUTH, c.RELIABLE_QOS)
+    bus.listen(String, "/aslip/diagnostics", c.RELIABLE_QOS)
+    params = {"calibration": "measure", "calibration_s": 0.4, "window_s": 0.1,
+              "grasp_plane_in_finger": param}
+    slide_s = SLIDE_FROM_S + 0.1 + 0.02          # windows ending later lie in the slide
+    with NodeProcess("mocap_bridge", ros_env, params) as node:
+        node.wait_ready()
+        streamer = PoseStreamer(bus, _held_then_sliding)
+
+        def motion_s(m):
+            return (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+                    - streamer.t0_ns) * 1e-9
+        assert node.wait_for("grasp-plane calibration measured", 10), node.output
+        assert bus.wait(lambda: sum(motion_s(m) > slide_s for m in bus.messages(TRUTH)) >= 10,
+                        10), node.output
+        assert bus.wait(lambda: any("grasp_plane_in_finger" in d["values"] for d in
+                                    bus.diagnostics("mocap_bridge")), 5)
+    streamer.close()
+    bus.close()
+    got = bus.messages(TRUTH)
+    # Nothing before the calibration time has passed (param mode starts after window_s).
+    assert motion_s(got[0]) >= 0.35
+    calib = [json.loads(d["values"]["grasp_plane_in_finger"])
+             for d in bus.diagnostics("mocap_bridge") if "grasp_plane_in_finger" in d["values"]]
+    np.testing.assert_allclose(calib[-1][:3], HELD_AT, atol=2e-6)
+    np.testing.assert_allclose(calib[-1][3:], q_param.as_quat(), atol=2e-6)
+    held = [m for m in got if motion_s(m) < SLIDE_FROM_S]
+    assert held and not any(m.slipping for m in held)
+    v = q_param.inv().apply([0.02, 0.0, 0.0])                 # the slide, in the grasp plane
+    for m in (m for m in got if motion_s(m) > slide_s):
+        assert m.slipping
+        assert (m.velocity.x, m.velocity.z) == pytest.approx((v[0], v[2]), abs=1e-6)

@@ -60,6 +60,43 @@ def compose(a, b) -> np.ndarray:
     return np.concatenate([pos, (ra * rb).as_quat()], axis=-1)
 
 
+def invert(pose) -> np.ndarray:
+    """Inverse of pose7 array(s) (``compose(invert(a), a)`` is the identity), broadcasting."""
+    p = np.asarray(pose, dtype=np.float64)
+    r = Rotation.from_quat(p[..., 3:]).inv()
+    return np.concatenate([-r.apply(p[..., :3]), r.as_quat()], axis=-1)
+
+
+def measure_grasp_plane(finger_poses, object_poses, orientation=IDENTITY_POSE[3:],
+                        min_pairs: int = 3) -> np.ndarray:
+    """``grasp_plane_in_finger`` measured from simultaneous finger and object poses.
+
+    The object is held centred between the pads, so the grasp-plane origin is the object's
+    mean position in the finger frame over the pairs; the orientation (qx qy qz qw) cannot
+    be measured this way and is taken as given. Returns the pose7.
+
+    :raises ValueError: fewer than ``min_pairs`` pairs, mismatched shapes, non-finite values
+        or a zero quaternion.
+    """
+    f = np.asarray(finger_poses, dtype=np.float64)
+    o = np.asarray(object_poses, dtype=np.float64)
+    if f.ndim != 2 or f.shape[1] != 7 or f.shape != o.shape:
+        raise ValueError(f"finger and object poses must both be (N, 7), got {f.shape} and "
+                         f"{o.shape}")
+    if len(f) < max(1, min_pairs):
+        raise ValueError(f"grasp-plane calibration needs at least {max(1, min_pairs)} pose "
+                         f"pairs, got {len(f)}")
+    if not (np.isfinite(f).all() and np.isfinite(o).all()):
+        raise ValueError("grasp-plane calibration poses contain NaN or Inf")
+    if min(np.linalg.norm(f[:, 3:], axis=1).min(), np.linalg.norm(o[:, 3:], axis=1).min()) \
+            < 1e-9:
+        raise ValueError("grasp-plane calibration poses contain a zero quaternion")
+    q = as_pose(np.concatenate([np.zeros(3), np.asarray(orientation, dtype=np.float64)
+                                .reshape(-1)]), "grasp-plane orientation")[3:]
+    rel = compose(invert(f), o)[:, :3]
+    return np.concatenate([rel.mean(axis=0), q])
+
+
 class PoseTrack:
     """A time series of poses with interpolation and gap bookkeeping.
 

@@ -6,6 +6,9 @@
 
 Below the threshold (default 0.5, the paper's) the reported slip vector is zero; the
 ungated estimate stays available in ``BatchPrediction.raw_velocity`` for evaluation.
+
+A model fed a window with a dead or disconnected microphone under-reports slip: live users
+check each window first with ``aslip_ros.learn.channel_check.dead_channels``.
 """
 
 from __future__ import annotations

@@ -75,6 +75,8 @@ class TrainConfig:
             raise ValueError("epochs >= 1, batch_size >= 2 and patience >= 1 are required")
         if self.noslip_ratio <= 0:
             raise ValueError("noslip_ratio must be positive")
+        if not (self.gain_db >= 0 and self.channel_gain_db >= 0):
+            raise ValueError("gain_db and channel_gain_db must be >= 0")
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -450,6 +452,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noslip-ratio", type=float, default=d.noslip_ratio,
                    help="no-slip windows per slip window drawn each epoch")
     p.add_argument("--threads", type=int, default=d.threads, help="torch.set_num_threads")
+    p.add_argument("--gain-db", type=float, default=d.gain_db,
+                   help="random whole-window gain augmentation, +/- dB")
+    p.add_argument("--channel-gain-db", type=float, default=d.channel_gain_db,
+                   help="extra random per-microphone gain augmentation, +/- dB")
     p.add_argument("--window", type=float, default=None,
                    help="window length in s; must equal the dataset's (checked)")
     p.add_argument("--channels", default=None, help="comma-separated channel names to use")
@@ -489,6 +495,7 @@ def run(args: argparse.Namespace) -> int:
                           lr=args.lr, weight_decay=args.weight_decay, patience=args.patience,
                           seed=args.seed, split_seed=args.split_seed,
                           noslip_ratio=args.noslip_ratio, time_budget_s=args.time_budget,
+                          gain_db=args.gain_db, channel_gain_db=args.channel_gain_db,
                           threads=args.threads, progress=not args.no_progress,
                           induced=args.induced, objects=tuple(_csv(args.objects) or ()) or None,
                           conditions=tuple(_csv(args.conditions) or ()) or None)

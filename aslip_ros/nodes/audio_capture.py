@@ -78,7 +78,12 @@ class SimAudio:
 
 
 class BagAudio:
-    """AudioFrame messages of a bag as a paced block source; stamps restart at replay time."""
+    """AudioFrame messages of a bag as a paced block source; stamps restart at replay time.
+
+    Sample indices restart at 0 but keep the bag's gaps (blocks missing from the recording
+    are reported as frames lost before the next block, and their time is waited out), so a
+    consumer never splices audio across a gap. Each loop pass continues the index.
+    """
 
     def __init__(self, path: str, topic: str, loop: bool) -> None:
         from aslip_ros.data.bags import BagReader
@@ -96,6 +101,7 @@ class BagAudio:
         self._it = None
         self._t0: Optional[float] = None
         self._index = 0
+        self._offset: Optional[int] = None   # bag sample index - replay index, this pass
         self._wall0 = 0.0
 
     def _messages(self):
@@ -107,6 +113,7 @@ class BagAudio:
         self._t0 = time.monotonic()
         self._wall0 = time.time()
         self._it = self._messages()
+        self._offset = None
 
     def stop(self) -> None:
         """Close the bag."""
@@ -122,6 +129,7 @@ class BagAudio:
             if not self._loop:
                 return None
             self._it = self._messages()
+            self._offset = None
             msg = next(self._it, None)
             if msg is None:
                 return None
@@ -130,12 +138,20 @@ class BagAudio:
         if n_ch == 0 or data.size % n_ch or list(msg.channel_names) != self.channel_names:
             return None
         block = data.reshape(-1, n_ch)
-        wait = self._t0 + (self._index + block.shape[0]) / self.sample_rate - time.monotonic()
+        bag_index = int(msg.first_sample_index)
+        if self._offset is None:
+            self._offset = bag_index - self._index
+        index = bag_index - self._offset
+        if index < self._index:
+            # A repeated or backwards index in the bag: continue contiguously from here.
+            self._offset, index = bag_index - self._index, self._index
+        lost = index - self._index
+        wait = self._t0 + (index + block.shape[0]) / self.sample_rate - time.monotonic()
         if wait > 0:
             time.sleep(wait)
-        t = self._index / self.sample_rate
-        out = AudioBlock(self._index, t, self._wall0 + t, block)
-        self._index += block.shape[0]
+        t = index / self.sample_rate
+        out = AudioBlock(index, t, self._wall0 + t, block, frames_lost_before=lost)
+        self._index = index + block.shape[0]
         return out
 
 

@@ -150,15 +150,14 @@ class MocapBridge(Node):
     def _collect_calibration(self) -> None:
         if not self.finger or not self.obj:
             return
-        f, o = self.finger[-1][1], self.obj[-1][1]
-        rel = self._labels.compose(_invert(f), o)
         now = time.monotonic()
         if self._measure_t0 is None:
             self._measure_t0 = now
-        self._measure.append(rel[:3])
+        self._measure.append((self.finger[-1][1], self.obj[-1][1]))
         if now - self._measure_t0 >= self.p["calibration_s"] and len(self._measure) >= 3:
-            q = self._labels.as_pose(self.p["grasp_plane_in_finger"])[3:]
-            self.calib = np.concatenate([np.mean(self._measure, axis=0), q])
+            f, o = (np.array(x) for x in zip(*self._measure))
+            self.calib = self._labels.measure_grasp_plane(
+                f, o, self.p["grasp_plane_in_finger"][3:])
             self.get_logger().info(f"grasp-plane calibration measured: {self.calib.tolist()}")
 
     # -- output -------------------------------------------------------------------------------
@@ -231,12 +230,6 @@ class MocapBridge(Node):
         level = {"running": c.Diagnostics.OK, "stale": c.Diagnostics.STALE}.get(
             self.state, c.Diagnostics.WARN)
         self.diag.publish(level, self.state, values)
-
-
-def _invert(pose: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-    r = Rotation.from_quat(pose[3:]).inv()
-    return np.concatenate([-r.apply(pose[:3]), r.as_quat()])
 
 
 def main(args: Optional[list] = None) -> int:

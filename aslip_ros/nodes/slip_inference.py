@@ -13,6 +13,13 @@ sample index. A forward gap in the sample index (blocks lost upstream) is counte
 restarts the window: a window spliced across a gap is not what the model was trained on.
 Nothing that arrives can crash the node or put NaN on ``/aslip/slip``.
 
+Dead microphones: before the model runs, each window is checked for a channel that looks
+dead or disconnected (``learn.channel_check.dead_channels``: digital silence, or more than
+``dead_channel_margin_db`` below the median of the other channels). A model fed such a
+window under-reports slip, so no SlipVector goes out for it: the controllers' stale-input
+watchdogs then hold the arm still. Each such window is counted, a throttled error names
+the channels, and the diagnostics go to ERROR naming them while it lasts.
+
 Timing: the model runs on a thread of its own, never inside the audio callback, so a slow
 forward pass cannot hold up the audio subscription (which would overflow its best-effort
 queue and cost a window restart). When a hop is due the callback copies the newest window
@@ -36,6 +43,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
+from aslip_ros.learn.channel_check import DEAD_MARGIN_DB, dead_channels
 from aslip_ros.msg import AudioFrame, SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
@@ -138,6 +146,11 @@ class SlipInference(Node):
                     lambda v: None if 1 <= v <= 64 else "must be in [1, 64]", read_only=True),
             c.Param("diagnostics_period_s", 1.0, "diagnostics period [s]",
                     c.in_range(0.05, 60.0), read_only=True),
+            c.Param("dead_channel_margin_db", DEAD_MARGIN_DB,
+                    "withhold the estimate when a channel is this far below the median of "
+                    "the others or digitally silent [dB]; 0 = no check",
+                    lambda v: None if v == 0.0 or c.in_range(20.0, 120.0)(v) is None else
+                    f"must be 0 (off) or in [20, 120] dB, got {v!r}"),
         ]
         self.p = c.declare_params(self, specs, self._on_change)
         import torch
@@ -167,6 +180,9 @@ class SlipInference(Node):
         self.arrivals = collections.deque(maxlen=500)
         self.last_error = ""
         self.refusal = ""
+        self.dead_margin_db = float(self.p["dead_channel_margin_db"])
+        self.dead_windows = 0                    # windows withheld for a dead channel
+        self.dead_recent: set = set()            # dead channels since the last diagnostics
 
         self.hops_superseded = 0
         # Double buffer between the audio callback and the inference thread, allocated once.
@@ -212,6 +228,8 @@ class SlipInference(Node):
                 self.gate.max_time_jump_ns = int(changed["max_time_jump_s"] * 1e9)
             if "marker_scale_s" in changed:
                 self.p["marker_scale_s"] = changed["marker_scale_s"]
+            if "dead_channel_margin_db" in changed:
+                self.dead_margin_db = float(changed["dead_channel_margin_db"])
 
     # -- input --------------------------------------------------------------------------------
 
@@ -299,9 +317,14 @@ class SlipInference(Node):
                 self._job = None
                 self._back, self._front = self._front, self._back
             try:
-                pred = pr.predict(self._front)
                 with self._lock:
-                    threshold = self.threshold
+                    threshold, margin_db = self.threshold, self.dead_margin_db
+                dead = dead_channels(self._front, pr.channel_names, margin_db) \
+                    if margin_db > 0 else []
+                if dead:
+                    self._withhold(dead)
+                    continue
+                pred = pr.predict(self._front)
                 try:
                     out = convert.prediction_to_slip(pred, threshold, stamp_ns, self.source,
                                                      self.p["frame_id"])
@@ -323,6 +346,14 @@ class SlipInference(Node):
                     self.drops["internal_error"] += 1
                 self.get_logger().error(f"inference failed: {self.last_error}",
                                         throttle_duration_sec=1.0)
+
+    def _withhold(self, dead: list) -> None:
+        """A window with dead channels: counted, reported, no estimate published."""
+        with self._lock:
+            self.dead_windows += 1
+            self.dead_recent.update(dead)
+        self.get_logger().error(f"dead microphone channel(s) {', '.join(dead)}: "
+                                "no slip estimate published", throttle_duration_sec=1.0)
 
     def destroy_node(self) -> None:
         """Stop the model thread, then destroy the node."""
@@ -349,8 +380,13 @@ class SlipInference(Node):
                       "blocks_dropped": sum(self.drops.values()), "gaps": self.gaps,
                       "frames_lost": self.frames_lost, "estimates_published": self.published,
                       "hops_superseded": self.hops_superseded,
+                      "dead_channel_windows": self.dead_windows,
                       "threshold": self.threshold, "model": self.source}
             values.update({f"dropped_{k}": v for k, v in sorted(self.drops.items())})
+            names = self.predictor.channel_names
+            dead = [n for n in names if n in self.dead_recent]
+            self.dead_recent.clear()
+        values["dead_channels"] = ",".join(dead)
         recent = [t for t in arr if t > time.monotonic() - 2.0]
         values["input_rate_hz"] = (len(recent) - 1) / (recent[-1] - recent[0]) \
             if len(recent) > 2 and recent[-1] > recent[0] else 0.0
@@ -361,6 +397,9 @@ class SlipInference(Node):
         level, message = c.Diagnostics.OK, "running"
         if self.refusal:
             level, message = c.Diagnostics.ERROR, f"stream refused: {self.refusal}"
+        elif dead:
+            level, message = c.Diagnostics.ERROR, (f"dead microphone channel(s): "
+                                                   f"{', '.join(dead)}; no estimates published")
         elif self.drops:
             level, message = c.Diagnostics.WARN, f"{sum(self.drops.values())} frames dropped"
         elif not recent:
