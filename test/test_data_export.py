@@ -211,3 +211,18 @@ def test_cli(tmp_path, capsys):
     rc = cli.main(["export", str(tmp_path / "a"), "-o", str(tmp_path / "ds2"),
                    "--audio-topic", "/nothing", "--no-progress"])
     assert rc == 1 and "/nothing" in capsys.readouterr().err
+
+
+def test_export_benchmark_reports_the_childs_own_peak_memory(tmp_path):
+    """Regression: the peak RSS came from RUSAGE_CHILDREN, the largest child ever waited
+    for, so an earlier big child (a training job) showed up as the export's memory."""
+    import subprocess
+    import sys
+
+    from aslip_ros.data.export import measure_export_speed
+    big = "bytearray(600 * 2**20)"              # a 600 MiB child, waited for first
+    subprocess.run([sys.executable, "-c", f"b = {big}; b[::4096] = b'x' * len(b[::4096])"],
+                   check=True)
+    res = measure_export_speed(duration_s=2.0, workdir=tmp_path)
+    assert 20.0 < res["peak_rss_mib"] < 500.0
+    assert res["windows"] > 0 and res["realtime_factor"] > 0

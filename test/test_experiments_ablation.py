@@ -58,6 +58,21 @@ def test_cached_rows_are_not_retrained(run_ablation):
     assert ckpt.stat().st_mtime_ns == before
 
 
+def test_force_retrains_a_shared_checkpoint_once_per_run(run_ablation):
+    """Regression: with --force every row that shares a pretrained encoder retrained it."""
+    from dataclasses import replace
+    cfg, _ = run_ablation
+    forced = ablation.Ablation(replace(cfg, force=True))
+    pre = cfg.cache / "pre_4mic_w200.pt"
+    before = pre.stat().st_mtime_ns
+    first = forced.row(next(r for r in ablation.TABLE1 if r.key == "pre_4mic"))
+    after_first = pre.stat().st_mtime_ns
+    second = forced.row(next(r for r in ablation.TABLE1 if r.key == "ft_4mic"))
+    assert after_first != before and first["training"]["cached"] is False
+    assert pre.stat().st_mtime_ns == after_first        # not retrained for the second row
+    assert second["training"]["cached"] is False          # its own finetuning still runs
+
+
 def test_orderings_on_hand_made_rows():
     def row(key, det, d):
         return {"key": key, "ours": {"det_pct": det, "dir_mae_deg": d}}

@@ -29,7 +29,6 @@ import argparse
 import json
 import math
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -549,12 +548,18 @@ def measure_export_speed(duration_s: float = 60.0, sample_rate: float = 48000.0,
         cmd = [sys.executable, "-m", "aslip_ros.cli", "export", str(bag), "-o",
                str(Path(tmp) / "ds"), "--no-progress", "--summary-json", str(summary_path)]
         t = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        wall = time.perf_counter() - t
-        if proc.returncode:
-            raise RuntimeError(f"benchmark export failed: {proc.stderr.strip()}")
+        with open(Path(tmp) / "stderr.txt", "w+") as err:
+            proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+            # wait4 gives this child's own peak RSS; RUSAGE_CHILDREN would report the
+            # largest child this process ever waited for (a training job, a node...).
+            _, status, usage = os.wait4(proc.pid, 0)
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            wall = time.perf_counter() - t
+            if proc.returncode:
+                err.seek(0)
+                raise RuntimeError(f"benchmark export failed: {err.read().strip()}")
         summary = json.loads(summary_path.read_text())
-        peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        peak_kib = usage.ru_maxrss
         bag_mib = sum(f.stat().st_size for f in bag.iterdir()) / 2**20
     return {
         "audio_s": summary["audio_s"], "sample_rate": sample_rate, "n_channels": n_channels,

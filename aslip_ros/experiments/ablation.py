@@ -134,6 +134,7 @@ class Ablation:
         self.cfg = cfg
         self.log = log or Log("ablation")
         cfg.data.log = self.log
+        self._retrained: set[Path] = set()    # --force retrains each checkpoint once a run
 
     # --- building blocks ------------------------------------------------------------------
     def ds(self, layout: str, stage: str, window_ms: int = 200) -> Path:
@@ -141,9 +142,10 @@ class Ablation:
 
     def _train(self, name: str, dataset: Path, stage: str, **kw: Any) -> tuple[Path, dict]:
         ckpt = self.cfg.cache / f"{name}.pt"
-        if not ckpt.is_file() or self.cfg.force:
+        if not ckpt.is_file() or (self.cfg.force and ckpt.resolve() not in self._retrained):
             self.log(f"train {name} ({stage}) on {dataset}")
         info = train_cached(ckpt, dataset, stage, self.cfg.recipe, force=self.cfg.force,
+                            trained=self._retrained,
                             log=lambda m: self.log(f"  {name}: {m}"), **kw)
         if not info["cached"]:
             self.log(f"  {name}: done in {info['wall_s_incl_features']:.0f} s "
@@ -416,11 +418,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rows", default=None, help=f"comma-separated subset of {ROW_KEYS}")
     p.add_argument("--no-per-object", action="store_true", help="skip Table II")
     p.add_argument("--no-robot-noise", action="store_true", help="skip the robot-noise table")
-    p.add_argument("--epochs", type=int, default=60, help="max epochs per training")
-    p.add_argument("--patience", type=int, default=8)
-    p.add_argument("--time-budget", type=float, default=180.0,
+    p.add_argument("--epochs", type=int, default=300, help="max epochs per training")
+    p.add_argument("--patience", type=int, default=30,
+                   help="early-stopping epochs (an epoch is only a few dozen batches)")
+    p.add_argument("--time-budget", type=float, default=300.0,
                    help="seconds of training per model after which the best epoch is kept")
-    p.add_argument("--finetune-time-budget", type=float, default=60.0,
+    p.add_argument("--finetune-time-budget", type=float, default=240.0,
                    help="seconds of training per finetuning (heads only)")
     p.add_argument("--noslip-ratio", type=float, default=3.0,
                    help="no-slip windows per slip window drawn each epoch")

@@ -244,6 +244,7 @@ class Bench:
         self.cfg = cfg
         self.log = log or Log("bench")
         cfg.data.log = self.log
+        self._retrained: set[Path] = set()    # --force retrains each checkpoint once a run
 
     def _reuse(self, name: str) -> Path | None:
         c = self.cfg.ablation_cache
@@ -252,9 +253,10 @@ class Bench:
 
     def _train(self, name: str, dataset: Path, stage: str, **kw: Any) -> Path:
         ckpt = self.cfg.cache / f"{name}.pt"
-        if not ckpt.is_file() or self.cfg.force:
+        if not ckpt.is_file() or (self.cfg.force and ckpt.resolve() not in self._retrained):
             self.log(f"train {name} ({stage})")
         info = train_cached(ckpt, dataset, stage, self.cfg.recipe, force=self.cfg.force,
+                            trained=self._retrained,
                             log=lambda m: self.log(f"  {name}: {m}"), **kw)
         if not info["cached"]:
             self.log(f"  {name}: {info['wall_s_incl_features']:.0f} s, "

@@ -149,8 +149,8 @@ class DataPlan:
 class Recipe:
     """Training budget shared by the rows of an experiment (the recipe itself is learn's)."""
 
-    epochs: int = 100
-    patience: int = 10
+    epochs: int = 300
+    patience: int = 30
     time_budget_s: float = 1140.0
     finetune_epochs: int | None = None   # None: same as epochs
     finetune_time_budget_s: float | None = None  # None: same as time_budget_s
@@ -184,8 +184,13 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
                  objects: Sequence[str] | None = None,
                  model_options: dict[str, Any] | None = None, feature_config=None,
                  seed: int | None = None, force: bool = False,
+                 trained: set[Path] | None = None,
                  log: Callable[[str], None] = print) -> dict[str, Any]:
     """Train one model unless its checkpoint exists; returns its training summary.
+
+    ``trained``, a runner's set of checkpoints it has (re)trained, makes ``force`` retrain
+    each checkpoint once per run rather than every time a row asks for it (rows share their
+    pretrained encoders); the set is updated here.
 
     The summary (time, epochs, stop reason, validation metrics) is read back from the
     checkpoint's provenance, so a cached row reports the numbers of the run that made it.
@@ -195,7 +200,7 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     from aslip_ros.learn.train import train_cnn, train_svm
 
     ckpt = Path(ckpt)
-    if ckpt.is_file() and not force:
+    if ckpt.is_file() and (not force or (trained is not None and ckpt.resolve() in trained)):
         meta = load_checkpoint(ckpt).meta
         return _train_summary(meta, cached=True)
     kw: dict[str, Any] = {}
@@ -217,6 +222,8 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     res.meta["provenance"].setdefault("training", {})["wall_s_incl_features"] = wall
     ckpt.parent.mkdir(parents=True, exist_ok=True)
     res.save(ckpt)
+    if trained is not None:
+        trained.add(ckpt.resolve())
     if res.history:
         write_json(ckpt.with_suffix(".history.json"), res.history)
     return _train_summary(res.meta, cached=False)
@@ -296,10 +303,11 @@ def dump(obj: Any) -> str:
 
 def add_plan_arguments(p: argparse.ArgumentParser, quick_help: str) -> None:
     """The training-recipe and run-control arguments that bench and stability share."""
-    p.add_argument("--epochs", type=int, default=60)
-    p.add_argument("--patience", type=int, default=8)
-    p.add_argument("--time-budget", type=float, default=180.0)
-    p.add_argument("--finetune-time-budget", type=float, default=60.0,
+    p.add_argument("--epochs", type=int, default=300)
+    p.add_argument("--patience", type=int, default=30,
+                   help="early-stopping epochs (an epoch is only a few dozen batches)")
+    p.add_argument("--time-budget", type=float, default=300.0)
+    p.add_argument("--finetune-time-budget", type=float, default=240.0,
                    help="seconds of training per finetuning (heads only)")
     p.add_argument("--noslip-ratio", type=float, default=3.0,
                    help="no-slip windows per slip window drawn each epoch")

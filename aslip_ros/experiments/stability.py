@@ -94,6 +94,7 @@ class Stability:
         self.cfg = cfg
         self.log = log or Log("stability")
         cfg.data.log = self.log
+        self._retrained: set[Path] = set()    # --force retrains each checkpoint once a run
         # The ablation's rows are this module's models: same cache, trained there if missing.
         self.abl = Ablation(AblationConfig(out=cfg.ablation_out, data=cfg.data,
                                            recipe=cfg.recipe), log=self.log)
@@ -289,10 +290,10 @@ class Stability:
 
     def _train(self, name: str, dataset: Path, stage: str, **kw: Any) -> Path:
         ckpt = self.cfg.cache / f"{name}.pt"
-        if not ckpt.is_file() or self.cfg.force:
+        if not ckpt.is_file() or (self.cfg.force and ckpt.resolve() not in self._retrained):
             self.log(f"train {name} ({stage})")
         train_cached(ckpt, dataset, stage, self.cfg.recipe, force=self.cfg.force,
-                     log=lambda m: self.log(f"  {name}: {m}"), **kw)
+                     trained=self._retrained, log=lambda m: self.log(f"  {name}: {m}"), **kw)
         return ckpt
 
     # --- training stability ---------------------------------------------------------------

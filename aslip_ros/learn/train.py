@@ -49,11 +49,11 @@ class TrainConfig:
     """Recipe hyper-parameters (paper: Adam 1e-3, wd 1e-4, SpecAugment, random gain)."""
 
     stage: str = "scratch"
-    epochs: int = 100
+    epochs: int = 300
     batch_size: int = 128
     lr: float = 1e-3
     weight_decay: float = 1e-4
-    patience: int = 10
+    patience: int = 30             # epochs; one epoch is only a few dozen batches
     seed: int = 0
     split_seed: int = 0
     noslip_ratio: float = 1.0      # no-slip windows drawn per slip window, each epoch
