@@ -73,6 +73,18 @@ def test_force_retrains_a_shared_checkpoint_once_per_run(run_ablation):
     assert second["training"]["cached"] is False          # its own finetuning still runs
 
 
+def test_a_cached_row_from_another_recipe_is_retrained(run_ablation):
+    """Regression: caches were reused whatever recipe trained them, so a recipe change
+    silently mixed old and new models in one table."""
+    from dataclasses import replace
+    cfg, _ = run_ablation
+    row = next(r for r in ablation.TABLE1 if r.key == "svm")
+    again = ablation.Ablation(cfg).row(row)
+    assert again["training"]["cached"] is True
+    other = ablation.Ablation(replace(cfg, recipe=replace(cfg.recipe, patience=2))).row(row)
+    assert other["training"]["cached"] is False
+
+
 def test_orderings_on_hand_made_rows():
     def row(key, det, d):
         return {"key": key, "ours": {"det_pct": det, "dir_mae_deg": d}}

@@ -38,7 +38,8 @@ import numpy as np
 from aslip_ros.util import write_json, write_text
 
 from .common import (DataPlan, Log, Recipe, add_plan_arguments, plan_from_args, evaluate_cached,
-                     fmt_num, markdown_table, paper_units, set_threads, train_cached)
+                     fmt_num, markdown_table, paper_units, recipe_changes, set_threads,
+                     train_cached)
 
 #: Model-size sweep: name -> ModelConfig overrides (the default is width 16, depth 3, 64).
 MODEL_SIZES: dict[str, dict[str, int]] = {
@@ -246,10 +247,18 @@ class Bench:
         cfg.data.log = self.log
         self._retrained: set[Path] = set()    # --force retrains each checkpoint once a run
 
-    def _reuse(self, name: str) -> Path | None:
+    def _reuse(self, name: str, stage: str) -> Path | None:
+        """The ablation's checkpoint ``name`` when it exists and has this run's recipe."""
+        from aslip_ros.learn.checkpoint import load_checkpoint
         c = self.cfg.ablation_cache
         p = Path(c) / f"{name}.pt" if c else None
-        return p if p is not None and p.is_file() and not self.cfg.force else None
+        if p is None or not p.is_file() or self.cfg.force:
+            return None
+        old = load_checkpoint(p).meta.get("train_config", {})
+        if recipe_changes(old, self.cfg.recipe.train_config(stage).to_dict()):
+            self.log(f"not reusing {p}: trained with another recipe")
+            return None
+        return p
 
     def _train(self, name: str, dataset: Path, stage: str, **kw: Any) -> Path:
         ckpt = self.cfg.cache / f"{name}.pt"
@@ -266,8 +275,8 @@ class Bench:
     def two_stage(self, name: str, model_options: dict | None = None,
                   feature_config=None) -> Path:
         lay = self.cfg.layout
-        pre = self._reuse(f"pre_{lay}_w200") if name == "cnn_default" else None
-        ft = self._reuse(f"ft_{lay}_w200") if name == "cnn_default" else None
+        pre = self._reuse(f"pre_{lay}_w200", "pretrain") if name == "cnn_default" else None
+        ft = self._reuse(f"ft_{lay}_w200", "finetune") if name == "cnn_default" else None
         if ft is not None:
             return ft
         pre = pre or self._train(f"pre_{name}", self.cfg.data.dataset(lay, "pretrain"),
@@ -313,7 +322,7 @@ class Bench:
                                      FEATURE_SWEEP[name]))
         if cfg.svm:
             self.log("SVM")
-            ckpt = self._reuse(f"svm_{cfg.layout}_w200") or self._train(
+            ckpt = self._reuse(f"svm_{cfg.layout}_w200", "svm") or self._train(
                 "svm", cfg.data.dataset(cfg.layout, "finetune"), "svm")
             points.append(self.point("svm", "svm", ckpt, "method", {}))
         order = {"method": 0, "size": 1, "features": 2}

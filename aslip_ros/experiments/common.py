@@ -200,15 +200,19 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     from aslip_ros.learn.train import train_cnn, train_svm
 
     ckpt = Path(ckpt)
-    if ckpt.is_file() and (not force or (trained is not None and ckpt.resolve() in trained)):
-        meta = load_checkpoint(ckpt).meta
-        return _train_summary(meta, cached=True)
     kw: dict[str, Any] = {}
     if objects:
         kw["objects"] = tuple(objects)
     if seed is not None:
         kw["seed"] = seed
     cfg = recipe.train_config(stage, **kw)
+    if ckpt.is_file() and (not force or (trained is not None and ckpt.resolve() in trained)):
+        meta = load_checkpoint(ckpt).meta
+        changed = recipe_changes(meta.get("train_config", {}), cfg.to_dict())
+        if not changed:
+            return _train_summary(meta, cached=True)
+        log(f"cached {ckpt.name} was trained with another recipe ({', '.join(changed)}); "
+            "retraining")
     ds = open_dataset(dataset)
     t0 = time.perf_counter()
     if stage == "svm":
@@ -227,6 +231,15 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     if res.history:
         write_json(ckpt.with_suffix(".history.json"), res.history)
     return _train_summary(res.meta, cached=False)
+
+
+#: TrainConfig fields that do not change what a training run produces.
+_RECIPE_IGNORED = ("threads", "progress")
+
+
+def recipe_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """Names of the recipe fields in which a cached checkpoint's train_config differs."""
+    return sorted(k for k in new if k not in _RECIPE_IGNORED and old.get(k) != new[k])
 
 
 def _train_summary(meta: dict[str, Any], cached: bool) -> dict[str, Any]:
