@@ -49,3 +49,20 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 
 def read_json(path: str | os.PathLike) -> Any:
     return json.loads(Path(path).read_text())
+
+
+def die_with_parent() -> None:
+    """``preexec_fn`` for child processes: SIGTERM the child when its parent dies (Linux).
+
+    Node processes started by a benchmark or a test must not outlive it: an orphan keeps
+    publishing on a ROS domain that ``domain_coordinator`` then hands to the next test. The
+    signal is tied to the thread that starts the child, so start children from a thread
+    that lives as long as they should. A no-op where ``prctl`` is unavailable.
+    """
+    import ctypes
+    import signal
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)    # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass

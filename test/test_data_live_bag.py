@@ -15,12 +15,15 @@ import pytest
 
 from conftest import HELPERS
 
+from aslip_ros.util import die_with_parent
+
 pytestmark = pytest.mark.ros
 
 
 def _child(args, env):
     proc = subprocess.Popen([sys.executable, *map(str, args)], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=die_with_parent)
     line = proc.stdout.readline()
     if "ready" not in line:
         proc.kill()

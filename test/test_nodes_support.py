@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aslip_ros.util import die_with_parent
+
 SCENE_NAMES = ["left_front_top", "left_rear_bottom", "right_front_bottom", "right_rear_top"]
 
 
@@ -63,7 +65,8 @@ class NodeProcess:
         cmd = launcher + ros_args(params or {}) + list(extra_args or [])
         self.name = name
         self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True, bufsize=1)
+                                     stderr=subprocess.STDOUT, text=True, bufsize=1,
+                                     preexec_fn=die_with_parent)
         self.lines: list[str] = []
         self._cv = threading.Condition()
         self._reader = threading.Thread(target=self._read, daemon=True)

@@ -15,6 +15,8 @@ import pytest
 from conftest import HELPERS
 from helpers.aslip_samples import REQUIRED_FIELDS, fill, to_plain
 
+from aslip_ros.util import die_with_parent
+
 pytestmark = pytest.mark.ros
 
 
@@ -25,7 +27,8 @@ def _start_publisher(env):
     sys.path, where the source tree would shadow the built package.
     """
     proc = subprocess.Popen([sys.executable, str(HELPERS / "pub_samples.py")], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=die_with_parent)
     line = proc.stdout.readline()
     if "publisher ready" not in line:
         proc.kill()

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aslip_ros.util import die_with_parent
+
 _CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 
@@ -49,7 +51,8 @@ class _Node:
         for k, v in params.items():
             args += ["-p", f"{k}:={v}"]
         self.proc = subprocess.Popen(args, env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True)
+                                     stderr=subprocess.STDOUT, text=True,
+                                     preexec_fn=die_with_parent)
         self.lines: list[str] = []
         self.ready = threading.Event()
         threading.Thread(target=self._drain, daemon=True).start()
