@@ -32,7 +32,7 @@ from typing import Any
 from aslip_ros.util import write_json, write_text
 
 from .common import (LAYOUTS_2MIC, DataPlan, Log, Recipe, evaluate_cached, fmt_num, fmt_pm,
-                     markdown_table, paper_units, set_threads, train_cached)
+                     markdown_table, paper_units, set_threads, train_named)
 
 
 @dataclass(frozen=True)
@@ -141,16 +141,8 @@ class Ablation:
         return self.cfg.data.dataset(layout, stage, window_ms)
 
     def _train(self, name: str, dataset: Path, stage: str, **kw: Any) -> tuple[Path, dict]:
-        ckpt = self.cfg.cache / f"{name}.pt"
-        if not ckpt.is_file() or (self.cfg.force and ckpt.resolve() not in self._retrained):
-            self.log(f"train {name} ({stage}) on {dataset}")
-        info = train_cached(ckpt, dataset, stage, self.cfg.recipe, force=self.cfg.force,
-                            trained=self._retrained,
-                            log=lambda m: self.log(f"  {name}: {m}"), **kw)
-        if not info["cached"]:
-            self.log(f"  {name}: done in {info['wall_s_incl_features']:.0f} s "
-                     f"({info['epochs_run']} epochs, {info['stop_reason']})")
-        return ckpt, info
+        return train_named(self.cfg.cache, name, dataset, stage, self.cfg.recipe,
+                           force=self.cfg.force, trained=self._retrained, log=self.log, **kw)
 
     def pretrained(self, layout: str, window_ms: int = 200) -> tuple[Path, dict]:
         return self._train(f"pre_{layout}_w{window_ms}", self.ds(layout, "pretrain", window_ms),

@@ -39,7 +39,7 @@ from aslip_ros.util import write_json, write_text
 
 from .common import (DataPlan, Log, Recipe, add_plan_arguments, plan_from_args, evaluate_cached,
                      fmt_num, markdown_table, paper_units, recipe_changes, set_threads,
-                     train_cached)
+                     train_named)
 
 #: Model-size sweep: name -> ModelConfig overrides (the default is width 16, depth 3, 64).
 MODEL_SIZES: dict[str, dict[str, int]] = {
@@ -261,16 +261,9 @@ class Bench:
         return p
 
     def _train(self, name: str, dataset: Path, stage: str, **kw: Any) -> Path:
-        ckpt = self.cfg.cache / f"{name}.pt"
-        if not ckpt.is_file() or (self.cfg.force and ckpt.resolve() not in self._retrained):
-            self.log(f"train {name} ({stage})")
-        info = train_cached(ckpt, dataset, stage, self.cfg.recipe, force=self.cfg.force,
-                            trained=self._retrained,
-                            log=lambda m: self.log(f"  {name}: {m}"), **kw)
-        if not info["cached"]:
-            self.log(f"  {name}: {info['wall_s_incl_features']:.0f} s, "
-                     f"{info['epochs_run']} epochs")
-        return ckpt
+        return train_named(self.cfg.cache, name, dataset, stage, self.cfg.recipe,
+                           force=self.cfg.force, trained=self._retrained, log=self.log,
+                           **kw)[0]
 
     def two_stage(self, name: str, model_options: dict | None = None,
                   feature_config=None) -> Path:

@@ -233,6 +233,22 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     return _train_summary(res.meta, cached=False)
 
 
+def train_named(cache: Path, name: str, dataset: Path, stage: str, recipe: Recipe, *,
+                force: bool, trained: set[Path], log: Callable[[str], None],
+                **kw: Any) -> tuple[Path, dict[str, Any]]:
+    """``train_cached`` for an experiment runner: checkpoint ``<cache>/<name>.pt``, progress
+    lines through ``log``, ``force`` once per run through the runner's ``trained`` set."""
+    ckpt = Path(cache) / f"{name}.pt"
+    if not ckpt.is_file() or (force and ckpt.resolve() not in trained):
+        log(f"train {name} ({stage}) on {dataset}")
+    info = train_cached(ckpt, dataset, stage, recipe, force=force, trained=trained,
+                        log=lambda m: log(f"  {name}: {m}"), **kw)
+    if not info["cached"]:
+        log(f"  {name}: done in {info['wall_s_incl_features']:.0f} s "
+            f"({info['epochs_run']} epochs, {info['stop_reason']})")
+    return ckpt, info
+
+
 #: TrainConfig fields that do not change what a training run produces.
 _RECIPE_IGNORED = ("threads", "progress")
 

@@ -33,7 +33,8 @@ import numpy as np
 from aslip_ros.util import write_json, write_text
 
 from .common import (DataPlan, Log, Recipe, add_plan_arguments, plan_from_args, evaluate_cached,
-                     fmt_num, fmt_pm, markdown_table, paper_units, set_threads, train_cached)
+                     fmt_num, fmt_pm, markdown_table, paper_units, set_threads, train_cached,
+                     train_named)
 
 DET_MIN_PCT = 70.0
 DIR_MAX_DEG = 30.0
@@ -289,12 +290,9 @@ class Stability:
                 "levels": levels, "results": res, "categorical": True}
 
     def _train(self, name: str, dataset: Path, stage: str, **kw: Any) -> Path:
-        ckpt = self.cfg.cache / f"{name}.pt"
-        if not ckpt.is_file() or (self.cfg.force and ckpt.resolve() not in self._retrained):
-            self.log(f"train {name} ({stage})")
-        train_cached(ckpt, dataset, stage, self.cfg.recipe, force=self.cfg.force,
-                     trained=self._retrained, log=lambda m: self.log(f"  {name}: {m}"), **kw)
-        return ckpt
+        return train_named(self.cfg.cache, name, dataset, stage, self.cfg.recipe,
+                           force=self.cfg.force, trained=self._retrained, log=self.log,
+                           **kw)[0]
 
     # --- training stability ---------------------------------------------------------------
     def seeds(self) -> dict[str, Any]:
