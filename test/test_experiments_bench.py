@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from aslip_ros.experiments import bench
 from aslip_ros.experiments.common import DataPlan, Recipe
 
@@ -56,6 +58,28 @@ def test_bench_end_to_end(tmp_path):
     assert "methods" in json.loads((cfg.out / "bench.json").read_text())
 
 
-def test_node_hook_never_invents_a_number():
-    res = bench.node_latency_hook()
-    assert ("TODO" in res) or ("source" in res)
+def test_node_latency_without_a_checkpoint_reports_why_and_no_number():
+    res = bench.node_latency(None)
+    assert set(res) == {"error"} and "checkpoint" in res["error"]
+
+
+@pytest.mark.ros
+def test_node_latency_reports_a_failing_node_benchmark(monkeypatch, tmp_path):
+    from aslip_ros.nodes import bench as node_bench
+
+    def broken(checkpoint):
+        raise RuntimeError("node did not start")
+    monkeypatch.setattr(node_bench, "measure", broken)
+    res = bench.node_latency(tmp_path / "m.pt")
+    assert "result" not in res and "node did not start" in res["error"]
+
+
+@pytest.mark.ros
+def test_node_latency_passes_the_checkpoint_to_the_node_benchmark(monkeypatch, tmp_path):
+    from aslip_ros.nodes import bench as node_bench
+    seen = []
+    monkeypatch.setattr(node_bench, "measure", lambda checkpoint: seen.append(checkpoint) or
+                        {"slip_inference": {"p99_ms": 1.0}})
+    res = bench.node_latency(tmp_path / "m.pt")
+    assert seen == [str(tmp_path / "m.pt")]
+    assert res["result"] == {"slip_inference": {"p99_ms": 1.0}}
