@@ -1,6 +1,7 @@
 """Bags -> dataset export (aslip_ros.data.export), including every bad-input case."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -226,3 +227,35 @@ def test_export_benchmark_reports_the_childs_own_peak_memory(tmp_path):
     res = measure_export_speed(duration_s=2.0, workdir=tmp_path)
     assert 20.0 < res["peak_rss_mib"] < 500.0
     assert res["windows"] > 0 and res["realtime_factor"] > 0
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_full_disk_is_one_error_line_naming_the_dataset(tmp_path, monkeypatch, capsys):
+    """Regression: a full disk gave two chained OSError tracebacks without the path."""
+    from aslip_ros.data import dataset as dataset_mod
+    write_synthetic_bag(tmp_path / "bags" / "a", duration_s=1.0)
+
+    def full_disk_open(path, mode="r", *a, **kw):
+        # Audio goes to a device that refuses every byte with ENOSPC, as a full disk does;
+        # closing the file then fails again when it flushes its buffer.
+        if str(path).endswith(".part"):
+            return open("/dev/full", mode, *a, **kw)
+        return open(path, mode, *a, **kw)
+
+    monkeypatch.setattr(dataset_mod, "open", full_disk_open, raising=False)
+    out = tmp_path / "ds"
+    rc = cli.main(["export", str(tmp_path / "bags"), "-o", str(out), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1
+    assert len(err) == 1 and str(out) in err[0] and "No space left" in err[0], err
+    assert leftovers(tmp_path) == []
+
+
+def test_unwritable_output_is_one_error_line(tmp_path, capsys):
+    write_synthetic_bag(tmp_path / "bags" / "a", duration_s=0.5)
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where the dataset's parent directory should be")
+    rc = cli.main(["export", str(tmp_path / "bags"), "-o", str(blocker / "ds"),
+                   "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and str(blocker / "ds") in err[0], err

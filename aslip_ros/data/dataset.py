@@ -17,6 +17,7 @@ renames it into place only when everything succeeded, so a failed export leaves 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import struct
@@ -41,6 +42,24 @@ TRIAL_KEYS = ("id", "file", "n_samples", "object", "pad", "layout", "condition",
 _NPY_HEADER_LEN = 128
 
 
+class DatasetWriteError(OSError):
+    """The dataset could not be written (full disk, no permission...); names the dataset."""
+
+
+@contextlib.contextmanager
+def _writing(target: Path):
+    """Turn an OSError while building ``target`` into one DatasetWriteError naming it."""
+    try:
+        yield
+    except DatasetWriteError:
+        raise
+    except OSError as exc:
+        err = DatasetWriteError(f"cannot write dataset {target}: "
+                                f"{exc.strerror or exc}")
+        err.errno = exc.errno
+        raise err from None
+
+
 def _npy_header(n_frames: int, n_channels: int) -> bytes:
     text = "{'descr': '<f4', 'fortran_order': False, 'shape': (%d, %d), }" % (
         n_frames, n_channels)
@@ -54,36 +73,46 @@ def _npy_header(n_frames: int, n_channels: int) -> bytes:
 class AudioFileWriter:
     """Stream float32 frames into an ``.npy`` file of initially unknown length."""
 
-    def __init__(self, path: str | os.PathLike, n_channels: int):
+    def __init__(self, path: str | os.PathLike, n_channels: int,
+                 target: str | os.PathLike | None = None):
         if n_channels < 1:
             raise ValueError(f"n_channels must be >= 1, got {n_channels}")
         self.path = Path(path)
+        # What a write error names: the dataset being built, not its temporary file.
+        self.target = Path(target) if target is not None else self.path
         self.n_channels = int(n_channels)
         self.n_frames = 0
-        self._f = open(self.path, "wb")
-        self._f.write(_npy_header(0, self.n_channels))
+        with _writing(self.target):
+            self._f = open(self.path, "wb")
+            self._f.write(_npy_header(0, self.n_channels))
 
     def append(self, block: np.ndarray) -> None:
         """Append (frames, n_channels) samples."""
         if block.ndim != 2 or block.shape[1] != self.n_channels:
             raise ValueError(f"audio block shape {block.shape}, expected (frames, "
                              f"{self.n_channels})")
-        self._f.write(np.ascontiguousarray(block, dtype="<f4").tobytes())
+        with _writing(self.target):
+            self._f.write(np.ascontiguousarray(block, dtype="<f4").tobytes())
         self.n_frames += block.shape[0]
 
     def close(self) -> None:
         """Write the final header; the file is then a regular ``.npy``."""
         if self._f.closed:
             return
-        self._f.seek(0)
-        self._f.write(_npy_header(self.n_frames, self.n_channels))
-        self._f.close()
+        with _writing(self.target):
+            self._f.seek(0)
+            self._f.write(_npy_header(self.n_frames, self.n_channels))
+            self._f.close()
 
     def discard(self) -> None:
         """Close and delete (a trial that failed half way)."""
         if not self._f.closed:
-            self._f.close()
-        self.path.unlink(missing_ok=True)
+            # Closing flushes the buffer, which fails again on a full disk; the file is
+            # deleted anyway, and the first error is the one to report.
+            with contextlib.suppress(OSError):
+                self._f.close()
+        with contextlib.suppress(OSError):
+            self.path.unlink(missing_ok=True)
 
 
 class DatasetWriter:
@@ -107,9 +136,14 @@ class DatasetWriter:
         self._n_channels: int | None = None
 
     def __enter__(self) -> "DatasetWriter":
-        self._ctx = atomic_path(self.path)
-        self.root = self._ctx.__enter__()
-        (self.root / "audio").mkdir(parents=True)
+        with _writing(self.path):
+            self._ctx = atomic_path(self.path)
+            self.root = self._ctx.__enter__()
+            try:
+                (self.root / "audio").mkdir(parents=True)
+            except OSError as exc:
+                self._ctx.__exit__(type(exc), exc, None)
+                raise
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -121,14 +155,16 @@ class DatasetWriter:
             exc = RuntimeError("DatasetWriter closed without finish(); dataset discarded")
             self._ctx.__exit__(type(exc), exc, None)
             raise exc
-        return bool(self._ctx.__exit__(exc_type, exc, tb))
+        with _writing(self.path):
+            return bool(self._ctx.__exit__(exc_type, exc, tb))
 
     def begin_trial(self, n_channels: int) -> AudioFileWriter:
         """Start the next trial's audio file."""
         if self._pending is not None:
             raise RuntimeError("begin_trial while another trial is open")
         k = len(self.trials)
-        self._pending = AudioFileWriter(self.root / "audio" / f".{k}.npy.part", n_channels)
+        self._pending = AudioFileWriter(self.root / "audio" / f".{k}.npy.part", n_channels,
+                                        target=self.path)
         return self._pending
 
     def abort_trial(self) -> None:
@@ -145,7 +181,8 @@ class DatasetWriter:
         k = len(self.trials)
         audio.close()
         final = self.root / "audio" / f"{k}.npy"
-        os.replace(audio.path, final)
+        with _writing(self.path):
+            os.replace(audio.path, final)
         self._pending = None
         rows = np.asarray(windows, dtype=WINDOW_DTYPE).copy()
         rows["trial"] = k
@@ -165,12 +202,13 @@ class DatasetWriter:
         """Write windows.npy and manifest.json (``manifest`` holds the dataset fields)."""
         windows = (np.concatenate(self._windows) if self._windows
                    else np.zeros(0, dtype=WINDOW_DTYPE))
-        np.save(self.root / "windows.npy", windows)
         doc = {"format": FORMAT, "version": VERSION}
         doc.update(manifest)
         doc["n_windows"] = int(windows.size)
         doc["trials"] = self.trials
-        write_json(self.root / "manifest.json", doc)
+        with _writing(self.path):
+            np.save(self.root / "windows.npy", windows)
+            write_json(self.root / "manifest.json", doc)
         return self.path
 
 

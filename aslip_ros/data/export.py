@@ -520,13 +520,13 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite, skip_bad=args.skip_bad, progress=not args.no_progress)
     try:
         summary = export(args.bags, args.out, cfg)
-    except (ValueError, FileExistsError) as exc:
+        print(summary)
+        if args.summary_json:
+            from aslip_ros.util import write_json
+            write_json(args.summary_json, summary.to_dict())
+    except (ValueError, OSError) as exc:        # OSError: a full disk, no permission...
         print(f"aslip export: error: {exc}", file=sys.stderr)
         return 1
-    print(summary)
-    if args.summary_json:
-        from aslip_ros.util import write_json
-        write_json(args.summary_json, summary.to_dict())
     return 0
 
 
