@@ -24,6 +24,7 @@ setup(
         "torch>=2.2",
         "scikit-learn>=1.3",
         "rosbags>=0.10",
+        "mcap>=1.1",
         "matplotlib>=3.7",
         "tqdm>=4.60",
         "PyYAML>=6",

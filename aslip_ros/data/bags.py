@@ -26,11 +26,10 @@ import sys
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from aslip_ros.util import atomic_path
 
 PACKAGE = "aslip_ros"
 AUDIO_TYPE = "aslip_ros/msg/AudioFrame"
@@ -76,6 +75,10 @@ def _qos(kind: str):
 
 class BagError(ValueError):
     """A bag that cannot be read or written as the contract requires."""
+
+
+class BagDamaged(BagError):
+    """A bag whose file is truncated or corrupt (as opposed to well-formed but unsuitable)."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -164,6 +167,14 @@ def make_metadata(**fields: Any) -> dict:
     return meta
 
 
+def __getattr__(name: str):
+    # The writer lives in its own module; ``bags.BagWriter`` stays its public name.
+    if name == "BagWriter":
+        from aslip_ros.data.bag_writer import BagWriter
+        return BagWriter
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def parse_metadata(text: str, where: str = "metadata") -> dict:
     """Parse the JSON metadata document; a clear ValueError when it is not one."""
     try:
@@ -176,157 +187,6 @@ def parse_metadata(text: str, where: str = "metadata") -> dict:
     if fmt != METADATA_FORMAT:
         raise BagError(f"{where}: format {fmt!r} is not {METADATA_FORMAT!r}")
     return meta
-
-
-# ---------------------------------------------------------------------------------------
-# Writing
-
-
-class BagWriter:
-    """Write a rosbag2 (mcap, version 9) bag of the project's topics, atomically.
-
-    Use as a context manager. The bag directory appears at ``path`` only when the block
-    exits without an exception. Times are seconds relative to ``start_ns`` (ROS time of
-    t = 0); the log time of each message equals its header stamp.
-    """
-
-    def __init__(self, path: str | os.PathLike, *, metadata: Mapping | None = None,
-                 topics: Topics = DEFAULT_TOPICS, start_ns: int = 0,
-                 overwrite: bool = False, audio_frame_id: str = "aslip_gripper"):
-        self.path = Path(path)
-        if self.path.exists() and not overwrite:
-            raise BagError(f"{self.path} exists already (pass overwrite=True to replace it)")
-        if start_ns < 0:
-            raise ValueError(f"start_ns must be >= 0, got {start_ns}")
-        self.topics = topics
-        self.start_ns = int(start_ns)
-        self.audio_frame_id = audio_frame_id
-        self._metadata = dict(metadata) if metadata is not None else None
-        self._store = typestore()
-        self._writer = None
-        self._conns: dict[str, Any] = {}
-        self._stack: contextlib.ExitStack | None = None
-        self._T = self._store.types
-
-    # context management -----------------------------------------------------------------
-    def __enter__(self) -> "BagWriter":
-        from rosbags.rosbag2 import StoragePlugin, Writer
-        self._stack = contextlib.ExitStack()
-        tmp = self._stack.enter_context(atomic_path(self.path))
-        self._writer = Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP)
-        self._writer.open()
-        if self._metadata is not None:
-            self.write_metadata(self._metadata)
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> bool:
-        stack, self._stack = self._stack, None
-        try:
-            if exc_type is None:
-                self._writer.close()
-            else:
-                with contextlib.suppress(Exception):
-                    self._writer.abort()
-                # Make atomic_path discard the temporary bag instead of renaming it.
-                stack.__exit__(exc_type, exc, tb)
-                return False
-        except BaseException as err:
-            stack.__exit__(type(err), err, err.__traceback__)
-            raise
-        stack.close()
-        return False
-
-    # low level ----------------------------------------------------------------------------
-    def _ns(self, t: float) -> int:
-        ns = self.start_ns + int(round(float(t) * 1e9))
-        if ns < 0:
-            raise ValueError(f"time {t} s lies before the bag's start")
-        return ns
-
-    def _header(self, ns: int, frame_id: str):
-        return self._T["std_msgs/msg/Header"](stamp=_time_msg(self._store, ns),
-                                              frame_id=frame_id)
-
-    def write(self, topic: str, msgtype: str, msg: Any, log_ns: int,
-              qos: str = "reliable") -> None:
-        """Serialize ``msg`` (a rosbags message object) onto ``topic`` at ``log_ns``.
-
-        ``qos`` ("sensor", "latched" or "reliable") is recorded as the topic's offered QoS
-        when the topic first appears, so ``ros2 bag play`` republishes it the same way.
-        """
-        if self._writer is None:
-            raise BagError("BagWriter used outside its `with` block")
-        conn = self._conns.get(topic)
-        if conn is None:
-            conn = self._writer.add_connection(topic, msgtype, typestore=self._store,
-                                               offered_qos_profiles=_qos(qos))
-            self._conns[topic] = conn
-        elif conn.msgtype != msgtype:
-            raise BagError(f"topic {topic} already holds {conn.msgtype}, not {msgtype}")
-        self._writer.write(conn, int(log_ns), self._store.serialize_cdr(msg, msgtype))
-
-    # typed helpers --------------------------------------------------------------------------
-    def write_metadata(self, metadata: Mapping, t: float = 0.0) -> None:
-        """Store metadata as the bag's ``custom_data['aslip']`` and on the metadata topic."""
-        meta = dict(metadata)
-        meta.setdefault("format", METADATA_FORMAT)
-        meta.setdefault("version", METADATA_VERSION)
-        text = json.dumps(meta, sort_keys=True)
-        self._writer.set_custom_data(CUSTOM_DATA_KEY, text)
-        self.write(self.topics.metadata, STRING_TYPE, self._T[STRING_TYPE](data=text),
-                   self._ns(t), qos="latched")
-
-    def write_audio(self, t: float, first_sample_index: int, block: np.ndarray,
-                    sample_rate: float, channel_names: Sequence[str],
-                    layout: str = "") -> None:
-        """One ``AudioFrame``: ``block`` is (frames, channels) float32, ``t`` its first sample."""
-        block = np.asarray(block)
-        if block.ndim != 2 or block.shape[1] != len(channel_names):
-            raise ValueError(f"audio block shape {block.shape} does not match "
-                             f"{len(channel_names)} channel names")
-        ns = self._ns(t)
-        msg = self._T[AUDIO_TYPE](
-            header=self._header(ns, self.audio_frame_id), sample_rate=float(sample_rate),
-            channel_names=list(channel_names), layout=str(layout),
-            first_sample_index=int(first_sample_index),
-            data=np.ascontiguousarray(block, dtype=np.float32).reshape(-1))
-        self.write(self.topics.audio, AUDIO_TYPE, msg, ns, qos="sensor")
-
-    def write_pose(self, which: str, t: float, pose: Sequence[float],
-                   frame_id: str | None = None) -> None:
-        """PoseStamped on the ``finger``, ``object`` or ``tcp`` topic; pose = x y z qx qy qz qw."""
-        if which not in POSE_FRAMES:
-            raise ValueError(f"unknown pose stream {which!r}; expected one of "
-                             f"{sorted(POSE_FRAMES)}")
-        p = np.asarray(pose, dtype=np.float64).reshape(-1)
-        if p.size != 7:
-            raise ValueError(f"pose must have 7 numbers (x y z qx qy qz qw), got {p.size}")
-        T = self._T
-        ns = self._ns(t)
-        msg = T[POSE_TYPE](
-            header=self._header(ns, frame_id or POSE_FRAMES[which]),
-            pose=T["geometry_msgs/msg/Pose"](
-                position=T["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
-                orientation=T["geometry_msgs/msg/Quaternion"](x=p[3], y=p[4], z=p[5],
-                                                              w=p[6])))
-        self.write(getattr(self.topics, which), POSE_TYPE, msg, ns, qos="sensor")
-
-    def write_slip_truth(self, t_end: float, vx: float, vz: float, window_s: float,
-                         threshold_m_s: float, frame_id: str = "aslip_grasp_plane") -> None:
-        """A ``SlipVector`` from ground truth (source ``mocap_truth``) ending at ``t_end``."""
-        T = self._T
-        speed = float(np.hypot(vx, vz))
-        slipping = speed > threshold_m_s
-        ns = self._ns(t_end)
-        msg = T[SLIP_TYPE](
-            header=self._header(ns, frame_id), probability=1.0 if slipping else 0.0,
-            slipping=bool(slipping), threshold=0.5,
-            velocity=T["geometry_msgs/msg/Vector3"](
-                x=float(vx) if slipping else 0.0, y=0.0, z=float(vz) if slipping else 0.0),
-            speed=speed if slipping else 0.0,
-            direction=float(np.arctan2(vz, vx)) if slipping else 0.0,
-            direction_sigma=-1.0, window_length=float(window_s), source="mocap_truth")
-        self.write(self.topics.slip_truth, SLIP_TYPE, msg, ns)
 
 
 # ---------------------------------------------------------------------------------------
@@ -367,8 +227,8 @@ def _wrap_errors(path: Path) -> Iterator[None]:
     except (ReaderError, SerdeError, OSError, EOFError, KeyError, IndexError, TypeError,
             AssertionError, struct.error, UnicodeDecodeError, ValueError) as exc:
         # rosbags reports some truncations as plain asserts or struct errors.
-        raise BagError(f"cannot read bag {path}: {type(exc).__name__}: {exc} "
-                       "(corrupt or truncated?)") from exc
+        raise BagDamaged(f"cannot read bag {path}: {type(exc).__name__}: {exc} "
+                         "(corrupt or truncated?)") from exc
 
 
 class BagReader:
@@ -396,6 +256,7 @@ class BagReader:
     def open(self) -> None:
         """Open the bag and register any message types it defines that the store lacks."""
         from rosbags.rosbag2 import Reader
+        self.verify()
         with _wrap_errors(self.path):
             self._reader = Reader(self.path)
             self._reader.open()
@@ -411,6 +272,25 @@ class BagReader:
                 self.info.start_ns = self._reader.start_time
                 self.info.duration_ns = self._reader.duration
             self._store = self._typestore_for(conns)
+
+    def verify(self) -> None:
+        """Raise BagDamaged naming the bag when an MCAP file of it is cut short or fails a CRC.
+
+        Chunk CRCs are checked while reading; this checks the end magic and the data-section
+        and summary CRCs (where the writer stored them) before anything is read.
+        """
+        from aslip_ros.data.mcap_crc import check
+        files = [self.path] if self.path.is_file() else sorted(self.path.glob("*.mcap"))
+        for f in files:
+            if f.suffix != ".mcap":
+                continue
+            try:
+                problem = check(f)
+            except OSError as exc:
+                problem = f"cannot read: {exc.strerror or exc}"
+            if problem:
+                where = self.path if f == self.path else f"{self.path} ({f.name})"
+                raise BagDamaged(f"cannot read bag {where}: {problem}")
 
     def close(self) -> None:
         """Close the bag (idempotent)."""
@@ -483,13 +363,24 @@ class BagReader:
         if not conns:
             return
         store = self._store
+        seen: dict[int, int] = {}
         with _wrap_errors(self.path):
             for conn, log_ns, raw in self._reader.messages(connections=conns):
-                if fast_poses and conn.msgtype == POSE_TYPE:
-                    msg = decode_pose_stamped(raw)
-                else:
-                    msg = store.deserialize_cdr(raw, conn.msgtype)
+                k = seen[conn.id] = seen.get(conn.id, 0) + 1
+                try:
+                    if fast_poses and conn.msgtype == POSE_TYPE:
+                        msg = decode_pose_stamped(raw)
+                    else:
+                        msg = store.deserialize_cdr(raw, conn.msgtype)
+                except Exception as exc:    # the decoders raise many types on bad bytes
+                    raise self._message_error(conn.topic, k, log_ns, exc) from None
                 yield BagMessage(conn.topic, conn.msgtype, log_ns, msg)
+
+    def _message_error(self, topic: str, k: int, log_ns: int, exc: Exception) -> BagDamaged:
+        after = (log_ns - self.info.start_ns) * 1e-9
+        what = str(exc) if isinstance(exc, BagError) else f"{type(exc).__name__}: {exc}"
+        return BagDamaged(f"bag {self.path}: message {k} on {topic} (log time {log_ns} ns, "
+                          f"{after:.3f} s into the bag) cannot be decoded: {what}")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,104 @@
+"""Damaged bags: flipped bits, undecodable messages, recordings cut short.
+
+Each case must end in one clear error naming the bag (never a silent export of damaged
+data), and an export that fails leaves nothing behind.
+"""
+
+import struct
+
+import numpy as np
+import pytest
+
+from aslip_ros import cli
+from aslip_ros.data import bags
+from aslip_ros.data.export import export
+from aslip_ros.data.synthetic import write_synthetic_bag
+
+
+def _mcap(bag):
+    return bag / f"{bag.name}.mcap"
+
+
+def _flip(path, positions):
+    data = bytearray(path.read_bytes())
+    for pos in positions:
+        data[pos // 8] ^= 1 << (pos % 8)
+    path.write_bytes(bytes(data))
+
+
+def test_written_bags_carry_crcs_that_the_mcap_library_accepts(tmp_path):
+    from mcap.records import Chunk, DataEnd, Footer
+    from mcap.stream_reader import StreamReader
+    bag = tmp_path / "b"
+    write_synthetic_bag(bag, duration_s=2.0)
+    with open(_mcap(bag), "rb") as f:
+        records = list(StreamReader(f, emit_chunks=True, validate_crcs=True).records)
+    chunks = [r for r in records if isinstance(r, Chunk)]
+    assert len(chunks) >= 2 and all(c.uncompressed_crc != 0 for c in chunks)
+    assert next(r for r in records if isinstance(r, DataEnd)).data_section_crc != 0
+    assert next(r for r in records if isinstance(r, Footer)).summary_crc != 0
+    with open(_mcap(bag), "rb") as f:      # every chunk's records check out against its CRC
+        n_msgs = sum(1 for _ in StreamReader(f, validate_crcs=True).records)
+    assert n_msgs > 100
+
+
+@pytest.mark.parametrize("where,n_bits", [("audio", 1), ("audio", 10), ("start", 1),
+                                          ("summary", 1), ("anywhere", 10)])
+def test_flipped_bits_are_refused_naming_the_bag(tmp_path, where, n_bits):
+    """Regression: bags with 1 or 10 flipped bits exported silently (CRCs were all 0)."""
+    bag = tmp_path / "bags" / "flipped"
+    write_synthetic_bag(bag, duration_s=2.0)
+    path = _mcap(bag)
+    size = path.stat().st_size
+    rng = np.random.default_rng(n_bits)
+    lo, hi = {"audio": (size // 4, size // 2), "start": (8, 400),
+              "summary": (size - 600, size - 60), "anywhere": (0, size)}[where]
+    _flip(path, rng.integers(lo * 8, hi * 8, n_bits))
+    with pytest.raises(bags.BagError, match="cannot read bag .*flipped") as err:
+        export([bag], tmp_path / "ds", progress=False)
+    assert "CRC mismatch" in str(err.value) or "truncated" in str(err.value)
+    assert not (tmp_path / "ds").exists()
+
+
+def test_bags_without_crcs_still_export(tmp_path, monkeypatch):
+    """Other writers may leave the CRCs at zero ("not computed"): nothing to verify."""
+    from rosbags.rosbag2.storage_mcap import McapWriter
+
+    from aslip_ros.data import mcap_crc
+    monkeypatch.setattr(mcap_crc.CrcMcapWriter, "close_chunk", McapWriter.close_chunk)
+    monkeypatch.setattr(mcap_crc, "seal", lambda path: None)
+    bag = tmp_path / "plain"
+    write_synthetic_bag(bag, duration_s=1.0)
+    data = _mcap(bag).read_bytes()
+    assert data[-8 - 4:-8] == b"\0\0\0\0"          # the footer's summary CRC: not computed
+    assert export([bag], tmp_path / "ds", progress=False).kept > 0
+
+
+def _bag_with_a_bad_pose(path, k_bad=3):
+    with bags.BagWriter(path, metadata=bags.make_metadata(trial_id="t")) as w:
+        for k in range(20):
+            w.write_audio(k * 0.01, k * 480, np.zeros((480, 2), np.float32), 48000.0,
+                          ["a", "b"])
+            if k == k_bad:
+                conn = w._conns["/aslip/mocap/finger"]
+                # A PoseStamped cut after its header: what a damaged driver might send.
+                raw = b"\x00\x01\x00\x00" + struct.pack("<iII", 0, 0, 6) + b"world\x00"
+                w._writer.write(conn, w._ns(k * 0.01), raw)
+            else:
+                w.write_pose("finger", k * 0.01, [0, 0, 0, 0, 0, 0, 1])
+            w.write_pose("object", k * 0.01, [0, 0, 0, 0, 0, 0, 1])
+
+
+def test_undecodable_pose_names_bag_topic_and_message(tmp_path, capsys):
+    """Regression: the error was "not a CDR PoseStamped (...)" with no bag named."""
+    bag = tmp_path / "damaged_pose"
+    _bag_with_a_bad_pose(bag)
+    with pytest.raises(bags.BagError) as err:
+        export([bag], tmp_path / "ds", progress=False)
+    text = str(err.value)
+    assert str(bag) in text and "/aslip/mocap/finger" in text and "message 4 " in text
+    assert "0.030 s into the bag" in text and "not a CDR PoseStamped" in text
+    rc = cli.main(["export", str(bag), "-o", str(tmp_path / "ds"), "--no-progress"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(lines) == 1 and str(bag) in lines[0]
+    assert not (tmp_path / "ds").exists()
