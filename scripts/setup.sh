@@ -91,7 +91,17 @@ if [ "$(cat "$VENV/.aslip-core" 2>/dev/null)" != "$core" ] || [ ! -x "$VENV/bin/
 fi
 
 # --- 4. colcon build (messages, node executables, launch and config files) -------------------
-build_key="$( (cat package.xml CMakeLists.txt msg/*.msg; find aslip_ros launch config -type f \
+# tf2_msgs (the type of /tf and /tf_static) has no wheel: where the venv lacks it, colcon
+# also builds the wire-identical definition in compat/tf2_msgs (compat/README.md).
+mkdir -p .colcon/src
+if env -u PYTHONPATH "$VENV/bin/python" -c 'import tf2_msgs.msg' 2>/dev/null; then
+  rm -f .colcon/src/tf2_msgs
+else
+  ln -sfn ../../compat/tf2_msgs .colcon/src/tf2_msgs
+fi
+build_key="$( (cat package.xml CMakeLists.txt msg/*.msg compat/tf2_msgs/msg/*.msg \
+  compat/tf2_msgs/package.xml compat/tf2_msgs/CMakeLists.txt; \
+  { readlink .colcon/src/tf2_msgs || true; }; find aslip_ros launch config -type f \
   -not -name '*.pyc' | LC_ALL=C sort) | sha256sum | cut -d' ' -f1)"
 if [ "$(cat install/.aslip-build 2>/dev/null)" != "$build_key" ] || [ ! -f install/setup.bash ]; then
   say "building the package with colcon into install/"

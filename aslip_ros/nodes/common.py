@@ -19,16 +19,20 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from typing import Any, Callable, Optional, Sequence
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import ParameterException
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
+
+# Parameter specs and validators live in params.py; the nodes use them as c.<name>.
+from aslip_ros.nodes.params import (Param, Rule, Validator, at_least, descriptor,  # noqa: F401
+                                    in_range, int_range, non_empty, non_negative, off_or,
+                                    one_of, pose7, positive, vector3)
 
 # --------------------------------------------------------------------------------- QoS
 #: High-rate sensor streams: a late sample is worth less than the next one.
@@ -71,80 +75,6 @@ class ConfigError(ValueError):
 
 # --------------------------------------------------------------------------------- params
 
-Validator = Callable[[Any], Optional[str]]
-
-
-@dataclass(frozen=True)
-class Param:
-    """A parameter spec: name, default (its type is the parameter's type), validator."""
-
-    name: str
-    default: Any
-    description: str
-    check: Optional[Validator] = None
-    read_only: bool = False
-
-
-def positive(v) -> Optional[str]:
-    """Finite and > 0."""
-    return None if _finite(v) and v > 0 else f"must be finite and > 0, got {v!r}"
-
-
-def non_negative(v) -> Optional[str]:
-    """Finite and >= 0."""
-    return None if _finite(v) and v >= 0 else f"must be finite and >= 0, got {v!r}"
-
-
-def in_range(lo: float, hi: float) -> Validator:
-    """Finite and within [lo, hi]."""
-    def check(v):
-        return None if _finite(v) and lo <= v <= hi else f"must lie in [{lo}, {hi}], got {v!r}"
-    return check
-
-
-def one_of(*choices) -> Validator:
-    """One of the given values."""
-    def check(v):
-        return None if v in choices else f"must be one of {list(choices)}, got {v!r}"
-    return check
-
-
-def non_empty(v) -> Optional[str]:
-    """A non-blank string."""
-    return None if isinstance(v, str) and v.strip() else "must be a non-empty string"
-
-
-def pose7(v) -> Optional[str]:
-    """Seven finite numbers with a non-zero quaternion."""
-    try:
-        vals = [float(x) for x in v]
-    except (TypeError, ValueError):
-        return f"must be 7 numbers, got {v!r}"
-    if len(vals) != 7 or not all(math.isfinite(x) for x in vals):
-        return f"must be 7 finite numbers (x y z qx qy qz qw), got {vals}"
-    if math.sqrt(sum(x * x for x in vals[3:])) < 1e-9:
-        return "has a zero quaternion"
-    return None
-
-
-def vector3(allow_empty: bool = False) -> Validator:
-    """Three finite numbers, not all zero (or empty when allowed)."""
-    def check(v):
-        vals = [float(x) for x in v]
-        if allow_empty and not vals:
-            return None
-        if len(vals) != 3 or not all(math.isfinite(x) for x in vals):
-            return f"must be 3 finite numbers{' or empty' if allow_empty else ''}, got {vals}"
-        if math.sqrt(sum(x * x for x in vals)) < 1e-9:
-            return "must not be the zero vector"
-        return None
-    return check
-
-
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def declare_params(node, specs: Sequence[Param],
                    on_change: Optional[Callable[[dict], None]] = None,
                    cross_check: Optional[Callable[[dict], Optional[str]]] = None) -> dict:
@@ -157,8 +87,12 @@ def declare_params(node, specs: Sequence[Param],
     """
     by_name = {s.name: s for s in specs}
     for s in specs:
-        node.declare_parameter(s.name, s.default, ParameterDescriptor(
-            description=s.description, read_only=s.read_only))
+        try:
+            node.declare_parameter(s.name, s.default, descriptor(s))
+        except InvalidParameterValueException:
+            # A start value outside the declared range: declared without the range, so the
+            # check below refuses it in the same words as every other invalid value.
+            node.declare_parameter(s.name, s.default, descriptor(s, with_range=False))
     values = {s.name: node.get_parameter(s.name).value for s in specs}
     checked = ((n, _check(by_name[n], v)) for n, v in values.items())
     problems = [f"{n}: {err}" for n, err in checked if err]

@@ -122,7 +122,7 @@ def arm_params() -> list:
         c.Param("start_after_messages", 10,
                 "start moving only after this many consecutive SlipVectors, each within "
                 "slip_timeout_s of the previous one (a steady stream, not the first one)",
-                lambda v: None if 1 <= v <= 1000 else "must be in [1, 1000]",
+                c.int_range(1, 1000),
                 read_only=True),
         c.Param("autostart", True, "configure and activate at start", read_only=True),
         c.Param("exit_when_done", False, "exit once the task has ended", read_only=True),

@@ -18,12 +18,13 @@ from geometry_msgs.msg import PoseStamped, TwistStamped
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from aslip_ros import frames
 from aslip_ros.msg import AudioFrame, SlipVector
 
 #: Default frame of slip vectors (docs/design.md, "Units and frames").
-GRASP_FRAME = "aslip_grasp_plane"
+GRASP_FRAME = frames.GRASP_PLANE
 #: Default frame of audio blocks.
-SENSOR_FRAME = "aslip_gripper"
+SENSOR_FRAME = frames.GRIPPER
 NS_PER_S = 1_000_000_000
 
 

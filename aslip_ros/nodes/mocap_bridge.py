@@ -14,6 +14,11 @@ the object is held centred between the pads at start).
 
 Stale poses (no new pose on either topic for ``stale_timeout_s``) or a pose gap inside the
 window give no output, a diagnostic and a throttled warning.
+
+TF (``publish_tf``): the calibration in use, as the static transform ``finger_frame`` ->
+``frame_id`` (re-sent when metadata or the measurement changes it), and ``frame_id`` ->
+``aslip_gripper`` (identity: the audio frame), so the slip arrows join the frames the
+scene or the motion-capture driver publishes (aslip_ros/frames.py).
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
+from aslip_ros import frames
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
@@ -69,6 +75,10 @@ class MocapBridge(Node):
             c.Param("frame_id", convert.GRASP_FRAME, "frame of the published slip",
                     c.non_empty, read_only=True),
             c.Param("marker", True, "also publish a ground-truth rviz marker", read_only=True),
+            c.Param("publish_tf", True, "publish the calibration on /tf_static", read_only=True),
+            c.Param("finger_frame", frames.FINGER,
+                    "TF frame of the finger rigid body (parent of frame_id on /tf_static)",
+                    c.non_empty, read_only=True),
         ]
         self.p = c.declare_params(self, specs, self.p_update)
         from aslip_ros.data import labels
@@ -96,6 +106,13 @@ class MocapBridge(Node):
         self.pub_marker = (self.create_publisher(MarkerArray, c.MARKER_TOPIC + "_truth",
                                                  c.MARKER_QOS) if self.p["marker"] else None)
         self.diag = c.Diagnostics(self, "aslip: mocap_bridge", "motion capture")
+        self.tf_static = None
+        if self.p["publish_tf"]:
+            from aslip_ros.nodes import tf_frames
+            self.tf_static = tf_frames.StaticFrames(self)
+            self.tf_static.set(self.p["frame_id"], frames.GRIPPER, IDENTITY)
+            if self.calib is not None:
+                self._publish_calibration(self.calib)
         group = MutuallyExclusiveCallbackGroup()
         self.create_subscription(PoseStamped, self.p["finger_topic"],
                                  lambda m: self._on_pose("finger", m), c.SENSOR_QOS,
@@ -128,7 +145,12 @@ class MocapBridge(Node):
             return
         with self._lock:
             self.calib = calib
+        self._publish_calibration(calib)
         self.get_logger().info(f"grasp-plane calibration from metadata: {calib.tolist()}")
+
+    def _publish_calibration(self, calib) -> None:
+        if self.tf_static is not None:
+            self.tf_static.set(self.p["finger_frame"], self.p["frame_id"], calib)
 
     def _on_pose(self, which: str, msg: PoseStamped) -> None:
         try:
@@ -158,6 +180,7 @@ class MocapBridge(Node):
             f, o = (np.array(x) for x in zip(*self._measure))
             self.calib = self._labels.measure_grasp_plane(
                 f, o, self.p["grasp_plane_in_finger"][3:])
+            self._publish_calibration(self.calib)
             self.get_logger().info(f"grasp-plane calibration measured: {self.calib.tolist()}")
 
     # -- output -------------------------------------------------------------------------------

@@ -7,6 +7,10 @@ what the real cell would: ``/aslip/audio``, ``/aslip/mocap/finger``, ``/aslip/mo
 command holds for ``command_timeout_s`` and the arm stops by itself when no newer one comes,
 like the xArm's ``duration``.
 
+TF: ``world`` -> ``link_base`` (static identity: they coincide in the scene) and, while
+anyone listens on ``/tf``, the finger, object and TCP poses of each block as
+``aslip_finger``, ``aslip_object`` and ``aslip_tcp`` (aslip_ros/frames.py).
+
 For evaluation (the closed-loop demo) it can write the world's true trajectory, the wall
 contact and the slip onset to ``trajectory_out`` (``.npz``) when the run ends.
 """
@@ -25,6 +29,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import String
 
+from aslip_ros import frames
 from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
@@ -41,7 +46,7 @@ def scene_params(prefix: str = "") -> list:
         c.Param(prefix + "scenario", "external_induced",
                 f"scene task: {', '.join(SCENARIOS)}", c.one_of(*SCENARIOS), read_only=True),
         c.Param(prefix + "seed", 0, "scenario seed (deterministic)",
-                lambda v: None if v >= 0 else "must be >= 0", read_only=True),
+                c.at_least(0), read_only=True),
         c.Param(prefix + "object", "chips_can", "grasped object",
                 c.one_of(*OBJECTS), read_only=True),
         c.Param(prefix + "layout", "4mic", "microphone layout", c.one_of(*LAYOUTS),
@@ -182,6 +187,11 @@ class SceneSim(Node):
         self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
         self.pub_meta = self.create_publisher(String, c.METADATA_TOPIC, c.LATCHED_QOS)
         self.diag = c.Diagnostics(self, "aslip: scene_sim", "scene")
+        from aslip_ros.nodes import tf_frames
+        self._tf_msg = tf_frames.transform_msg
+        self.tf = tf_frames.DynamicFrames(self)
+        self.tf_static = tf_frames.StaticFrames(self)
+        self.tf_static.set(frames.WORLD, frames.BASE, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
         self.create_subscription(TwistStamped, c.CMD_VEL_TOPIC, self._on_cmd, c.RELIABLE_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.pub_meta.publish(String(data=json.dumps(self.meta)))
@@ -230,10 +240,17 @@ class SceneSim(Node):
             chunk.first_sample_index, st(chunk.t0), self.world.fs, self.names, chunk.audio,
             self.meta.get("layout", ""), self.p["frame_id"]))
         for m in chunk.mocap:
-            self.pub_finger.publish(convert.pose_to_msg(m.finger_pose, st(m.t), "world"))
-            self.pub_object.publish(convert.pose_to_msg(m.object_pose, st(m.t), "world"))
+            self.pub_finger.publish(convert.pose_to_msg(m.finger_pose, st(m.t), frames.WORLD))
+            self.pub_object.publish(convert.pose_to_msg(m.object_pose, st(m.t), frames.WORLD))
         for t, pose in chunk.tcp:
-            self.pub_tcp.publish(convert.pose_to_msg(pose, st(t), "link_base"))
+            self.pub_tcp.publish(convert.pose_to_msg(pose, st(t), frames.BASE))
+        if self.tf.wanted:
+            tf = self._tf_msg
+            self.tf.publish(
+                [tf(frames.WORLD, body, pose, st(m.t)) for m in chunk.mocap
+                 for body, pose in ((frames.FINGER, m.finger_pose),
+                                    (frames.OBJECT, m.object_pose))]
+                + [tf(frames.BASE, frames.TCP, pose, st(t)) for t, pose in chunk.tcp])
 
     def _diagnose(self) -> None:
         w = self.world

@@ -134,8 +134,7 @@ class SlipInference(Node):
             c.Param("hop_s", 0.01, "run the model every hop_s of new audio [s]",
                     c.in_range(0.001, 1.0)),
             c.Param("threshold", -1.0, "slip probability threshold; -1 = the checkpoint's",
-                    lambda v: None if v == -1.0 or 0.0 <= v <= 1.0 else
-                    f"must be -1 or in [0, 1], got {v}"),
+                    c.off_or(-1.0, c.in_range(0.0, 1.0), "the checkpoint's")),
             c.Param("max_time_jump_s", 0.05,
                     "a stamp this far off its sample index is a time jump [s]", c.positive),
             c.Param("frame_id", convert.GRASP_FRAME, "frame of the published slip",
@@ -143,14 +142,13 @@ class SlipInference(Node):
             c.Param("marker_scale_s", 2.0, "rviz arrow length per slip speed [m per m/s]",
                     c.positive),
             c.Param("torch_threads", 1, "CPU threads for the model",
-                    lambda v: None if 1 <= v <= 64 else "must be in [1, 64]", read_only=True),
+                    c.int_range(1, 64), read_only=True),
             c.Param("diagnostics_period_s", 1.0, "diagnostics period [s]",
                     c.in_range(0.05, 60.0), read_only=True),
             c.Param("dead_channel_margin_db", DEAD_MARGIN_DB,
                     "withhold the estimate when a channel is this far below the median of "
                     "the others or digitally silent [dB]; 0 = no check",
-                    lambda v: None if v == 0.0 or c.in_range(20.0, 120.0)(v) is None else
-                    f"must be 0 (off) or in [20, 120] dB, got {v!r}"),
+                    c.off_or(0.0, c.in_range(20.0, 120.0), "off")),
         ]
         self.p = c.declare_params(self, specs, self._on_change)
         import torch

@@ -50,7 +50,8 @@ class SlipStopNode(ControllerNode):
         return [
             c.Param("direction", [0.0, 0.0, 0.0],
                     "approach direction towards the wall in link_base; 0 0 0 = from the "
-                    "scene metadata", _direction_check, read_only=True),
+                    "scene metadata", c.Rule(_direction_check, "3 finite numbers"),
+                    read_only=True),
             c.Param("approach_speed_m_s", 0.01, "re-approach speed [m/s]", c.positive),
             c.Param("retract_distance_m", 0.10, "back-off distance [m] (paper: 0.1)",
                     c.positive),
@@ -60,9 +61,9 @@ class SlipStopNode(ControllerNode):
             c.Param("max_approach_distance_m", 0.15, "approach travel limit [m]",
                     c.positive),
             c.Param("debounce_count", 3, "consecutive slip estimates needed to stop",
-                    lambda v: None if 1 <= v <= 100 else "must be in [1, 100]"),
+                    c.int_range(1, 100)),
             c.Param("time_margin", 2.0, "phase time limit factor (>= 1)",
-                    lambda v: None if v >= 1.0 else "must be >= 1"),
+                    c.at_least(1.0)),
             c.Param("settle_result_s", 0.5, "final result this long after the stop [s]",
                     c.non_negative, read_only=True),
         ]

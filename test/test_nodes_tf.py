@@ -1,0 +1,150 @@
+"""TF on the live graph: the standard TFMessage type, mocap_bridge's latched grasp-plane
+calibration, and the scene's moving frames agreeing with its PoseStamped topics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from test_nodes_support import Bus, NodeProcess
+
+pytestmark = pytest.mark.ros
+
+#: A calibration with a real offset and rotation, so a swapped or dropped part shows.
+CALIB_EULER_XYZ_DEG = (20.0, -35.0, 80.0)
+CALIB_XYZ = (0.012, -0.021, 0.034)
+
+
+def _calib() -> list:
+    from scipy.spatial.transform import Rotation
+    q = Rotation.from_euler("xyz", CALIB_EULER_XYZ_DEG, degrees=True).as_quat()
+    return list(CALIB_XYZ) + [float(x) for x in q]
+
+
+def _standard_tfmessage_hash() -> str:
+    """RIHS01 hash of ROS 2 Jazzy's tf2_msgs/msg/TFMessage, computed by rosbags from its
+    own copy of the Jazzy definitions (independent of the compat build)."""
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY).hash_rihs01("tf2_msgs/msg/TFMessage")
+
+
+def _hash_str(type_hash) -> str:
+    return f"RIHS{type_hash.version:02d}_{type_hash.value.hex()}"
+
+
+def _static_edges(bus, topic="/tf_static") -> dict:
+    """``child -> (parent, pose)`` from the newest /tf_static message of each publisher."""
+    from aslip_ros.nodes.tf_frames import transform_pose
+    out = {}
+    for msg in bus.messages(topic):
+        for t in msg.transforms:
+            _, parent, child, pose = transform_pose(t)
+            out[child] = (parent, pose)
+    return out
+
+
+def _same_pose(a, b, atol=1e-9) -> bool:
+    """Equal poses (a quaternion and its negative are the same rotation)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return bool(np.allclose(a[:3], b[:3], atol=atol)
+                and (np.allclose(a[3:], b[3:], atol=atol)
+                     or np.allclose(a[3:], -b[3:], atol=atol)))
+
+
+def test_tfmessage_has_the_standard_definition():
+    """Same package, name and fields as Jazzy's tf2_msgs (whichever provides it here)."""
+    from rosbags.typesys import Stores, get_typestore
+    from tf2_msgs.msg import TFMessage
+    assert TFMessage.get_fields_and_field_types() == {
+        "transforms": "sequence<geometry_msgs/TransformStamped>"}
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    _, fields = jazzy.fielddefs["tf2_msgs/msg/TFMessage"]
+    assert [name for name, _ in fields] == ["transforms"]
+    assert fields[0][1][1][0][1] == "geometry_msgs/msg/TransformStamped"
+
+
+def test_mocap_bridge_latches_its_calibration_on_tf_static(rclpy_context, ros_env):
+    """A late joiner on another process gets finger -> grasp plane = grasp_plane_in_finger
+    and grasp plane -> gripper (the audio frame), as the standard TFMessage type."""
+    from tf2_msgs.msg import TFMessage
+
+    from aslip_ros import frames
+    from aslip_ros.nodes.tf_frames import TF_STATIC_QOS
+    calib = _calib()
+    with NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": calib}) as node:
+        node.wait_ready()
+        bus = Bus(rclpy_context)            # joins after the message was sent: latched
+        bus.listen(TFMessage, "/tf_static", TF_STATIC_QOS)
+        assert bus.wait(lambda: len(_static_edges(bus)) >= 2, 20), node.output
+        edges = _static_edges(bus)
+        parent, pose = edges[frames.GRASP_PLANE]
+        assert parent == frames.FINGER
+        assert _same_pose(pose, calib), (pose, calib)
+        assert edges[frames.GRIPPER] == (frames.GRASP_PLANE, [0, 0, 0, 0, 0, 0, 1.0])
+        infos = bus.node.get_publishers_info_by_topic("/tf_static")
+        assert [i.topic_type for i in infos] == ["tf2_msgs/msg/TFMessage"]
+        assert _hash_str(infos[0].topic_type_hash) == _standard_tfmessage_hash()
+        qos = infos[0].qos_profile
+        assert (qos.durability, qos.reliability) == (TF_STATIC_QOS.durability,
+                                                     TF_STATIC_QOS.reliability)
+        bus.close()
+
+
+def _by_stamp(msgs) -> dict:
+    from aslip_ros.nodes import convert
+    return {stamp: pose for stamp, _, pose in (convert.pose_from_msg(m) for m in msgs)}
+
+
+def test_scene_tf_agrees_with_its_pose_topics(rclpy_context, ros_env):
+    """scene_sim + mocap_bridge: the published edges are exactly frames.TF_TREE; each /tf
+    pose equals the PoseStamped of the same stamp; the grasp plane composed through TF is
+    the finger pose composed with the calibration."""
+    from geometry_msgs.msg import PoseStamped
+    from tf2_msgs.msg import TFMessage
+
+    from aslip_ros import frames
+    from aslip_ros.control.frames import compose
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_QOS, transform_pose
+    calib = _calib()
+    bus = Bus(rclpy_context)
+    bus.listen(TFMessage, "/tf", TF_QOS)
+    bus.listen(TFMessage, "/tf_static", TF_STATIC_QOS)
+    for topic in (c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC):
+        bus.listen(PoseStamped, topic, c.SENSOR_QOS)
+    with NodeProcess("scene_sim", ros_env) as scene, \
+            NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": calib}) as bridge:
+        scene.wait_ready()
+        bridge.wait_ready()
+        assert bus.wait(lambda: len(bus.messages("/tf")) >= 30
+                        and len(_static_edges(bus)) >= 3, 30), scene.output + bridge.output
+    bus.close()
+
+    dynamic = {}                     # (child, stamp) -> (parent, pose)
+    for msg in bus.messages("/tf"):
+        for t in msg.transforms:
+            stamp, parent, child, pose = transform_pose(t)
+            dynamic[(child, stamp)] = (parent, pose)
+    static = _static_edges(bus)
+    tree = {child: parent for (child, _), (parent, _) in dynamic.items()}
+    tree.update({child: parent for child, (parent, _) in static.items()})
+    assert tree == dict(frames.TF_TREE)
+    assert _same_pose(static[frames.BASE][1], [0, 0, 0, 0, 0, 0, 1.0])
+
+    checked = {}
+    for topic, child in ((c.FINGER_TOPIC, frames.FINGER), (c.OBJECT_TOPIC, frames.OBJECT),
+                         (c.TCP_TOPIC, frames.TCP)):
+        poses = _by_stamp(bus.messages(topic))
+        both = [s for s in poses if (child, s) in dynamic]
+        checked[child] = len(both)
+        for s in both:
+            pose_tf = dynamic[(child, s)][1]
+            if child == frames.TCP:                    # through link_base -> world
+                pose_tf = compose(static[frames.BASE][1], pose_tf)
+            assert _same_pose(pose_tf, poses[s]), (child, s)
+    assert min(checked.values()) >= 10, checked
+
+    finger = _by_stamp(bus.messages(c.FINGER_TOPIC))
+    s = next(s for s in finger if (frames.FINGER, s) in dynamic)
+    plane_tf = compose(dynamic[(frames.FINGER, s)][1], static[frames.GRASP_PLANE][1])
+    assert _same_pose(plane_tf, compose(finger[s], calib))
