@@ -3,13 +3,29 @@
 Each subcommand lives in the module that owns the work; that module provides
 ``add_arguments(parser)`` and ``run(args) -> int``. Modules are imported lazily so that
 ``aslip --help`` stays fast and a subcommand's heavy dependencies load only when used.
+
+Exit codes, the same for every subcommand:
+
+- 0: done;
+- 1: the command refused its input or could not finish (a damaged bag or checkpoint, a
+  parameter out of range, a full disk...), reported as one line ``aslip <command>: error:
+  ...`` on stderr;
+- 2: the command line itself is wrong (argparse's usage errors, unknown names);
+- 130: interrupted (Ctrl-C).
+
+Set ``ASLIP_DEBUG=1`` to get the traceback of a refused input instead of its one line.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+EXIT_FAILED = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
 
 # name -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -65,11 +81,22 @@ def main(argv: list[str] | None = None) -> int:
     module = _load(SUBCOMMANDS[name][0])
     if module is None:
         print(f"aslip {name}: not available in this version yet", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     p = argparse.ArgumentParser(prog=f"aslip {name}", description=SUBCOMMANDS[name][1])
     module.add_arguments(p)
     args = p.parse_args(argv[1:])
-    return int(module.run(args) or 0)
+    try:
+        return int(module.run(args) or 0)
+    except KeyboardInterrupt:
+        print(f"aslip {name}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (ValueError, OSError) as exc:
+        # Subcommands report what they expect; this catches what reaches the top anyway
+        # (an unwritable --out, a refused file found late) as the same one line.
+        if os.environ.get("ASLIP_DEBUG"):
+            raise
+        print(f"aslip {name}: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
 
 
 if __name__ == "__main__":

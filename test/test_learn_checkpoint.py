@@ -1,5 +1,7 @@
 """Checkpoints: round trip, weights_only loading, refusal on mismatch; SVM without pickle."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -89,7 +91,9 @@ def test_svm_arrays_match_sklearn_and_survive_checkpoint(tmp_path):
     prob, vel = arrays.predict(x)
     np.testing.assert_array_equal(prob >= 0.5, est["svc"].predict(z) == 1)
     save_checkpoint(tmp_path / "svm.pt", {**cnn_meta(ModelConfig(), FeatureConfig()),
-                                          "model_type": "svm"}, arrays.to_tensors())
+                                          "model_type": "svm",
+                                          "model_config": SvmConfig().to_dict()},
+                    arrays.to_tensors())
     back = SvmArrays.from_tensors(torch.load(tmp_path / "svm.pt", weights_only=True)["tensors"])
     p2, v2 = back.predict(x)
     np.testing.assert_allclose(p2, prob)
@@ -102,3 +106,107 @@ def test_svm_featurizer_shape_and_finite():
     out = f(x)
     assert out.shape == (3, 2 * f.n_per_channel)
     assert np.isfinite(out).all()
+
+
+class _Touch:
+    """Unpickling this runs ``Path.touch(marker)``: what a malicious checkpoint would do."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        from pathlib import Path
+        return (Path.touch, (Path(self.marker),))
+
+
+def test_malicious_pickle_is_refused_without_running(tmp_path):
+    marker = tmp_path / "ran"
+    torch.save({"format": "aslip-checkpoint", "version": 1, "meta": "{}",
+                "tensors": {"w": _Touch(marker)}}, tmp_path / "evil.pt")
+    with pytest.raises(ValueError, match="evil.pt"):
+        load_checkpoint(tmp_path / "evil.pt")
+    assert not marker.exists()
+
+
+def _raw_checkpoint(path, meta, tensors=None, drop=()):
+    """A checkpoint file written without save_checkpoint's validation (as a foreign tool
+    or a damaged copy could produce it); ``meta`` None leaves the key out."""
+    payload = {"format": "aslip-checkpoint", "version": 1, "tensors": tensors or {}}
+    if meta is not None:
+        payload["meta"] = meta if isinstance(meta, str) else json.dumps(meta)
+    for k in drop:
+        payload.pop(k)
+    torch.save(payload, path)
+    return path
+
+
+def _good_meta():
+    return cnn_meta(ModelConfig(width=4, n_mels=40), FeatureConfig())
+
+
+_MC = ModelConfig(width=4).to_dict()
+BAD_META = {
+    "no meta": None,
+    "meta not JSON": "{oops",
+    "meta a list": [1, 2],
+    "no model_config": {k: v for k, v in _good_meta().items() if k != "model_config"},
+    "window_samples -5": {**_good_meta(), "window_samples": -5},
+    "window_samples disagrees": {**_good_meta(), "window_samples": 4800},
+    "sample_rate text": {**_good_meta(), "sample_rate": "48k"},
+    "sample_rate zero": {**_good_meta(), "sample_rate": 0},
+    "window_s NaN-like": {**_good_meta(), "window_s": -0.2},
+    "no channels": {**_good_meta(), "channel_names": []},
+    "duplicate channels": {**_good_meta(), "channel_names": ["a", "a", "b", "c"]},
+    "threshold 3": {**_good_meta(), "threshold": 3},
+    "unknown model type": {**_good_meta(), "model_type": "transformer"},
+    "width text": {**_good_meta(), "model_config": {**_MC, "width": "4"}},
+    "width fraction": {**_good_meta(), "model_config": {**_MC, "width": 2.5}},
+    "channel count": {**_good_meta(), "model_config": {**_MC, "n_channels": 2}},
+    "mel count": {**_good_meta(), "model_config": {**_MC, "n_mels": 32}},
+    "feature config": {**_good_meta(), "feature_config": {"n_fft": -1}},
+    "window too short": {**_good_meta(), "window_s": 0.01, "window_samples": 480},
+    "svm without n_bands type": {**_good_meta(), "model_type": "svm",
+                                 "model_config": {"n_bands": "eight"}},
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_META))
+def test_unusable_metadata_is_refused_by_the_loader(tmp_path, case):
+    """Regression: a checkpoint without meta/model_config or with window_samples -5 passed
+    the loader and crashed its consumer (KeyError in evaluate, the node on -5)."""
+    path = _raw_checkpoint(tmp_path / "m.pt", BAD_META[case])
+    with pytest.raises(ValueError, match="m.pt") as err:
+        load_checkpoint(path)
+    assert "Traceback" not in str(err.value)
+    with pytest.raises(ValueError):
+        Predictor.from_checkpoint(path)
+    with pytest.raises(ValueError):             # the same checks guard writing
+        if isinstance(BAD_META[case], dict):
+            save_checkpoint(tmp_path / "again.pt", BAD_META[case], {})
+        else:
+            raise ValueError("not a dict: nothing to save")
+
+
+def test_non_finite_or_foreign_tensors_are_refused(tmp_path, cnn_ckpt):
+    path, net = cnn_ckpt
+    state = dict(net.state_dict())
+    key = next(k for k, v in state.items() if v.is_floating_point())
+    state[key] = state[key].clone().fill_(float("nan"))
+    _raw_checkpoint(tmp_path / "nan.pt", _good_meta(), state)
+    with pytest.raises(ValueError, match="NaN"):
+        load_checkpoint(tmp_path / "nan.pt")
+    _raw_checkpoint(tmp_path / "nt.pt", _good_meta(), drop=("tensors",))
+    with pytest.raises(ValueError, match="tensors"):
+        load_checkpoint(tmp_path / "nt.pt")
+
+
+def test_evaluate_refuses_a_bad_checkpoint_in_one_line(tmp_path, capsys):
+    from aslip_ros import cli
+    from aslip_ros.learn.synthetic import make_synthetic_dataset
+    ds = make_synthetic_dataset(tmp_path / "ds", n_trials=3)
+    for case in ("no meta", "no model_config", "window_samples -5"):
+        path = _raw_checkpoint(tmp_path / "m.pt", BAD_META[case])
+        rc = cli.main(["evaluate", "--checkpoint", str(path), "--dataset", str(ds),
+                       "--split", "all"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 1 and len(err) == 1 and str(path) in err[0], (case, err)

@@ -84,7 +84,7 @@ def test_gain_augmentation_flags_reach_the_checkpoint(work, tmp_path, capsys):
     assert (cfg["gain_db"], cfg["channel_gain_db"]) == (2.5, 0.0)
     assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
                        str(root / "pre.pt"), "--out", str(tmp_path / "bad.pt"),
-                       "--gain-db", "-1"] + SMALL) == 2
+                       "--gain-db", "-1"] + SMALL) == 1
     assert "gain_db" in capsys.readouterr().err and not (tmp_path / "bad.pt").exists()
 
 
@@ -92,8 +92,8 @@ def test_finetune_refuses_other_channels(work, tmp_path):
     root, _, _ = work
     other = make_synthetic_dataset(tmp_path / "other", n_trials=3, channel_names=("a", "b"))
     assert cli(train, ["--dataset", str(other), "--stage", "finetune", "--init",
-                       str(root / "pre.pt"), "--out", str(tmp_path / "x.pt")] + SMALL) == 2
-    assert cli(evaluate, ["--checkpoint", str(root / "pre.pt"), "--dataset", str(other)]) == 2
+                       str(root / "pre.pt"), "--out", str(tmp_path / "x.pt")] + SMALL) == 1
+    assert cli(evaluate, ["--checkpoint", str(root / "pre.pt"), "--dataset", str(other)]) == 1
 
 
 def test_svm_baseline_and_single_channel(work, tmp_path):

@@ -16,7 +16,9 @@ metadata a JSON string means nothing in the file needs an unpickler beyond tenso
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import os
 import subprocess
 from dataclasses import dataclass, field
@@ -30,8 +32,10 @@ from aslip_ros.util import atomic_path
 FORMAT = "aslip-checkpoint"
 VERSION = 1
 MODEL_TYPES = ("aslip_cnn", "svm")
-_REQUIRED = ("model_type", "feature_config", "channel_names", "sample_rate", "window_s",
-             "window_samples", "epsilon_m_s")
+_REQUIRED = ("model_type", "model_config", "feature_config", "channel_names", "sample_rate",
+             "window_s", "window_samples", "epsilon_m_s")
+_TYPES = {"int": (int,), "float": (int, float), "str": (str,), "None": (type(None),),
+          "bool": (bool,)}
 
 
 class CheckpointMismatch(ValueError):
@@ -77,6 +81,100 @@ def check_compatible(meta: dict[str, Any], sample_rate: float,
                                  + f" (layout {meta.get('layout')!r})")
 
 
+def _number(meta: dict, key: str, low: float, *, strict: bool = True,
+            integer: bool = False) -> list[str]:
+    v = meta.get(key)
+    kinds = (int,) if integer else (int, float)
+    if isinstance(v, bool) or not isinstance(v, kinds) or not math.isfinite(v):
+        return [f"{key} must be {'an integer' if integer else 'a finite number'}, got {v!r}"]
+    if v < low or (strict and v == low):
+        return [f"{key} must be {'>' if strict else '>='} {low:g}, got {v!r}"]
+    return []
+
+
+def _config(cls: type, d: Any, key: str) -> tuple[Any, list[str]]:
+    """Build dataclass ``cls`` from ``d`` after checking each field's JSON type."""
+    if not isinstance(d, dict):
+        return None, [f"{key} must be a JSON object, got {type(d).__name__}"]
+    fields = {f.name: f.type for f in dataclasses.fields(cls)}
+    problems = [f"{key} has unknown fields {sorted(set(d) - set(fields))}"] \
+        if set(d) - set(fields) else []
+    for name, v in d.items():
+        allowed = tuple(t for part in str(fields.get(name, "")).split("|")
+                        for t in _TYPES.get(part.strip(), ()))
+        if name in fields and allowed and (isinstance(v, bool) and bool not in allowed
+                                           or not isinstance(v, allowed)
+                                           or isinstance(v, float) and not math.isfinite(v)):
+            problems.append(f"{key}.{name} must be {fields[name]}, got {v!r}")
+    if problems:
+        return None, problems
+    try:
+        return cls(**d), []
+    except (TypeError, ValueError) as exc:
+        return None, [f"{key}: {exc}"]
+
+
+def validate_meta(meta: Any) -> list[str]:
+    """Every problem of a checkpoint's metadata document (an empty list when it is sound).
+
+    Checks required keys, JSON types and ranges, that the model and feature configs build,
+    and that the parts agree: ``window_samples == round(window_s * sample_rate)``, a window
+    long enough for one feature frame, one CNN input per channel name, equal mel counts.
+    """
+    from .features import FeatureConfig
+    from .network import ModelConfig
+    from .svm import SvmConfig
+
+    if not isinstance(meta, dict):
+        return [f"metadata must be a JSON object, got {type(meta).__name__}"]
+    missing = [k for k in _REQUIRED if k not in meta]
+    if missing:
+        return [f"metadata lacks {missing}"]
+    problems: list[str] = []
+    if meta["model_type"] not in MODEL_TYPES:
+        problems.append(f"unknown model_type {meta['model_type']!r} (known: {MODEL_TYPES})")
+    names = meta["channel_names"]
+    if (not isinstance(names, list) or not names
+            or not all(isinstance(n, str) and n for n in names) or len(set(names)) != len(names)):
+        problems.append(f"channel_names must be a non-empty list of distinct names, got {names!r}")
+    problems += _number(meta, "sample_rate", 0.0) + _number(meta, "window_s", 0.0)
+    problems += _number(meta, "window_samples", 0, integer=True)
+    problems += _number(meta, "epsilon_m_s", 0.0, strict=False)
+    if meta.get("threshold") is not None:
+        t = meta["threshold"]
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0.0 <= t <= 1.0:
+            problems.append(f"threshold must be a number in [0, 1], got {t!r}")
+    for key in ("layout",):
+        if meta.get(key) is not None and not isinstance(meta[key], str):
+            problems.append(f"{key} must be a string, got {meta[key]!r}")
+    if problems:
+        return problems
+    want = round(meta["window_s"] * meta["sample_rate"])
+    if meta["window_samples"] != want:
+        problems.append(f"window_samples {meta['window_samples']} != round(window_s x "
+                        f"sample_rate) = {want}")
+    fcfg, bad = _config(FeatureConfig, meta["feature_config"], "feature_config")
+    problems += bad
+    if fcfg is not None:
+        try:
+            fcfg.n_frames(meta["window_s"])
+        except ValueError as exc:
+            problems.append(f"feature_config: {exc}")
+    model_cls = ModelConfig if meta["model_type"] == "aslip_cnn" else SvmConfig
+    mcfg, bad = _config(model_cls, meta["model_config"], "model_config")
+    problems += bad
+    if isinstance(mcfg, ModelConfig):
+        if mcfg.n_channels != len(names):
+            problems.append(f"model_config.n_channels {mcfg.n_channels} != "
+                            f"{len(names)} channel_names")
+        if fcfg is not None and mcfg.n_mels != fcfg.n_mels:
+            problems.append(f"model_config.n_mels {mcfg.n_mels} != feature_config.n_mels "
+                            f"{fcfg.n_mels}")
+    elif isinstance(mcfg, SvmConfig) and mcfg.n_bands < 1:
+        problems.append(f"model_config.n_bands must be >= 1, got {mcfg.n_bands}")
+    return problems
+
+
 def git_revision(start: str | os.PathLike | None = None) -> str | None:
     """The repository HEAD of the package source, or None outside a repository."""
     where = Path(start) if start else Path(__file__).resolve().parent
@@ -97,12 +195,10 @@ def _plain(obj: Any) -> Any:
 def save_checkpoint(path: str | os.PathLike, meta: dict[str, Any],
                     tensors: dict[str, torch.Tensor]) -> Path:
     """Validate and write atomically; returns the path."""
-    missing = [k for k in _REQUIRED if k not in meta]
-    if missing:
-        raise ValueError(f"checkpoint metadata lacks {missing}")
-    if meta["model_type"] not in MODEL_TYPES:
-        raise ValueError(f"unknown model_type {meta['model_type']!r}")
     doc = json.dumps(_plain(meta), allow_nan=False)
+    problems = validate_meta(json.loads(doc))
+    if problems:
+        raise ValueError("checkpoint metadata: " + "; ".join(problems))
     clean = {}
     for k, v in tensors.items():
         if not isinstance(v, torch.Tensor):
@@ -128,8 +224,22 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
         raise ValueError(f"{path} is not an {FORMAT} file")
     if payload.get("version") != VERSION:
         raise ValueError(f"{path}: unsupported checkpoint version {payload.get('version')}")
-    meta = json.loads(payload["meta"])
-    missing = [k for k in _REQUIRED if k not in meta]
-    if missing:
-        raise ValueError(f"{path}: checkpoint metadata lacks {missing}")
-    return Checkpoint(meta=meta, tensors=dict(payload["tensors"]))
+    if "meta" not in payload:
+        raise ValueError(f"{path}: not a usable checkpoint: no metadata document")
+    try:
+        meta = json.loads(payload["meta"])
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: checkpoint metadata is not a JSON document ({exc})") from None
+    problems = validate_meta(meta)
+    tensors = payload.get("tensors")
+    if not isinstance(tensors, dict):
+        problems.append("no tensors dict")
+    else:
+        for k, v in tensors.items():
+            if not isinstance(v, torch.Tensor):
+                problems.append(f"tensor {k!r} is a {type(v).__name__}")
+            elif v.is_floating_point() and not bool(torch.isfinite(v).all()):
+                problems.append(f"tensor {k!r} holds NaN or infinite values")
+    if problems:
+        raise ValueError(f"{path}: not a usable checkpoint: " + "; ".join(problems))
+    return Checkpoint(meta=meta, tensors=dict(tensors))

@@ -158,8 +158,8 @@ def run(args: argparse.Namespace) -> int:
                                   conditions=split_list(args.conditions),
                                   split_seed=args.split_seed, threshold=args.threshold)
     except (ValueError, FileNotFoundError) as exc:
-        print(f"aslip evaluate: {exc}", file=sys.stderr)
-        return 2
+        print(f"aslip evaluate: error: {exc}", file=sys.stderr)
+        return 1
     print(format_report(res))
     if args.json:
         write_json(args.json, res)

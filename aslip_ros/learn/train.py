@@ -514,8 +514,8 @@ def run(args: argparse.Namespace) -> int:
                             channels=_csv(args.channels), init=args.init,
                             cache_dir=args.cache_dir)
     except (ValueError, FileNotFoundError) as exc:
-        print(f"aslip train: {exc}", file=sys.stderr)
-        return 2
+        print(f"aslip train: error: {exc}", file=sys.stderr)
+        return 1
     res.save(args.out)
     val = res.meta["provenance"]["metrics"]["val"]
     print(f"wrote {args.out}: val detection {val.get('detection_accuracy', float('nan')):.3f}, "
