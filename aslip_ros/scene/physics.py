@@ -78,7 +78,8 @@ class Acoustics:
     falloff_m: float = 10.0e-3        # level ~ 1 / (1 + r / falloff)
     force_var_db: float = 2.0         # slow normal-force variation (std), both pads alike
     force_tau_s: float = 0.4
-    gain_mismatch_db: float = 0.0     # per-trial coupling (+-dB); off: no effect (scene.md)
+    gain_mismatch_db: float = 0.0     # per-grasp coupling (+-dB); off by default (scene.md)
+    handling_path_db: float = 0.0     # per-grasp path difference of handling noise (+-dB)
     click_rate_slip_smooth: float = 300.0   # stick-slip clicks per (m/s) per s, smooth pad
     click_rate_slip_textured: float = 60.0
     click_rate_touch: float = 25.0    # handling clicks per second while touched
@@ -216,6 +217,11 @@ class Synth:
         q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
         self._jac = q * rng.uniform(1.5, 3.5, 3)[:, None]
         self._robot_coupling = 10.0 ** (rng.uniform(-1, 1, c) / 20.0)
+        # The hand reaches each microphone through its own path in the object; drawn from a
+        # separate stream so that the default (0 dB) renders exactly what it always did.
+        path_rng = np.random.default_rng([int(seed), 0x4A7D])
+        self._handling_path = (10.0 ** (path_rng.uniform(-1, 1, c) * acoustics.handling_path_db
+                                        / 20.0)).astype(np.float32)
         self._mesh_hz = rng.uniform(2800.0, 3600.0, 3)  # gear-mesh Hz per (rad/s) per joint
         self._mic_xz = layout.positions_xz()
         self._mic_finger = layout.finger_index()
@@ -297,8 +303,8 @@ class Synth:
         # Handling noise reaches both pads through the object alike: no direction cue.
         hand = self._filt("handling", z[:, _COL_HANDLING:_COL_HANDLING + 1])
         if np.any(touch > 0.0) or np.any(impulses[:, 2]):
-            out += ((ac.handling_level / f["handling"][2]) * touch[:, None]) * hand \
-                + clicks[:, 2:3]
+            out += (((ac.handling_level / f["handling"][2]) * touch[:, None]) * hand
+                    + clicks[:, 2:3]) * self._handling_path
 
         out += self._robot(z, v_tcp)
         out *= self.gain.astype(np.float32)

@@ -31,6 +31,11 @@ _EXCURSION_M = 0.02
 #: Pause between an agent's touches [s] (uniform range) and the longest slide of one push [m].
 _TOUCH_GAP_S = (0.1, 0.8)
 _PUSH_TRAVEL_M = 0.04
+#: Per-grasp coupling range of the coupling variant [+-dB per microphone] (docs/scene.md).
+COUPLING_DB = 3.0
+#: Per-grasp path difference of handling noise to each microphone in that variant [+-dB]; the
+#: same spread the scene gives robot noise (``Synth._robot_coupling``).
+HANDLING_PATH_DB = 1.0
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,8 @@ class Scenario:
     grip_force_n: float = 15.0
     wall_stiffness_n_m: float = 3000.0
     drag_speed_m_s: float = 0.04
+    one_sided_fraction: float = 0.0
+    one_sided_spread_rad: float = np.pi / 6.0
     script: tuple[tuple[float, float, float, float], ...] = ()
     trial_id: str = ""
     acoustics: Acoustics = field(default_factory=Acoustics)
@@ -99,6 +106,12 @@ class Scenario:
             raise ValueError(f"mocap_drop_prob must lie in [0, 1), got {self.mocap_drop_prob}")
         if not 0.0 <= self.slow_fraction <= 1.0:
             raise ValueError(f"slow_fraction must lie in [0, 1], got {self.slow_fraction}")
+        if not 0.0 <= self.one_sided_fraction <= 1.0:
+            raise ValueError(f"one_sided_fraction must lie in [0, 1], got "
+                             f"{self.one_sided_fraction}")
+        if not 0.0 <= self.one_sided_spread_rad <= np.pi:
+            raise ValueError(f"one_sided_spread_rad must lie in [0, pi], got "
+                             f"{self.one_sided_spread_rad}")
         d = np.asarray(self.push_dir_xz, dtype=float)
         if d.shape != (2,) or not np.all(np.isfinite(d)) or np.hypot(*d) < 1e-9:
             raise ValueError(f"push_dir_xz must be a nonzero 2-vector, got {self.push_dir_xz}")
@@ -119,6 +132,11 @@ class Scenario:
     def closed_loop(self) -> bool:
         """True for the tasks driven by arm commands."""
         return self.kind in ("wall_push", "external_drag")
+
+    @property
+    def one_sided_direction_rad(self) -> float:
+        """Grasp-plane angle of the preferred slip direction of this trial (one-sided variant)."""
+        return float(np.random.default_rng([self.seed, 0x051D]).uniform(-np.pi, np.pi))
 
     @property
     def yaw_rad(self) -> float:
@@ -246,6 +264,43 @@ def _direction_back(rng: np.random.Generator, planned: np.ndarray) -> np.ndarray
     return np.array([np.cos(phi), np.sin(phi)])
 
 
+def _push_direction(rng: np.random.Generator, scn: Scenario,
+                    planned: np.ndarray) -> np.ndarray:
+    """An agent's push direction; with ``one_sided_fraction`` most pushes go one way.
+
+    One-sided pushes stand for gravity or a wall: they keep their sector however far the
+    object has gone (the excursion only moves the mocap pose, not the sound); the other
+    pushes go in uniformly random directions.
+    """
+    if scn.one_sided_fraction <= 0.0:
+        return _direction_back(rng, planned)
+    if rng.random() < scn.one_sided_fraction:
+        phi = scn.one_sided_direction_rad + rng.uniform(-1.0, 1.0) * scn.one_sided_spread_rad
+    else:
+        phi = rng.uniform(-np.pi, np.pi)
+    return np.array([np.cos(phi), np.sin(phi)])
+
+
+def _is_one_sided(e: np.ndarray, scn: Scenario) -> bool:
+    """True when ``e`` lies within the preferred sector of a one-sided scenario."""
+    d = np.angle(np.exp(1j * (np.arctan2(e[1], e[0]) - scn.one_sided_direction_rad)))
+    return bool(abs(d) <= scn.one_sided_spread_rad + 1e-12)
+
+
+def coupling_variant(scn: Scenario, gain_db: float = COUPLING_DB,
+                     path_db: float = HANDLING_PATH_DB) -> Scenario:
+    """``scn`` with per-grasp microphone coupling: each channel's gain uniform in +-gain_db,
+    and the hand's noise reaching each channel with its own +-path_db (not common mode)."""
+    return scn.with_(acoustics=replace(scn.acoustics, gain_mismatch_db=float(gain_db),
+                                       handling_path_db=float(path_db)))
+
+
+def one_sided_variant(scn: Scenario, fraction: float = 0.8,
+                      spread_rad: float = np.pi / 6.0) -> Scenario:
+    """``scn`` where ``fraction`` of the pushes go within +-spread_rad of one direction."""
+    return scn.with_(one_sided_fraction=float(fraction), one_sided_spread_rad=float(spread_rad))
+
+
 def _slip_speed(rng: np.random.Generator, scn: Scenario, fast_max: float) -> float:
     """Slip speed: a share of slow slip near a few mm/s, the rest up to ``fast_max``."""
     if rng.random() < scn.slow_fraction:
@@ -306,7 +361,7 @@ def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, P
         if kind < 0.35:                                   # impulsive push
             dur = rng.uniform(0.04, 0.15)
             speed = float(rng.uniform(0.02, scn.max_slip_speed_m_s))
-            e = _direction_back(rng, planned)
+            e = _push_direction(rng, scn, planned)
             pulses.append((t0, t0 + dur, 0.5 * dur, e * speed, 0.0))
             planned = planned + e * speed * 0.5 * dur
         elif kind < 0.8:                                  # sustained push, may curve
@@ -314,8 +369,10 @@ def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, P
             dur = rng.uniform(0.3, 2.0)
             ramp = min(rng.uniform(0.05, 0.2), dur / 3.0)
             dur = min(dur, _PUSH_TRAVEL_M / speed + ramp)
-            e = _direction_back(rng, planned)
+            e = _push_direction(rng, scn, planned)
             turn = rng.uniform(-1.0, 1.0) if rng.random() < 0.5 else 0.0
+            if scn.one_sided_fraction > 0.0 and _is_one_sided(e, scn):
+                turn = 0.0          # a curving push would leave the preferred sector
             pulses.append((t0, t0 + dur, ramp, e * speed, turn))
             planned = planned + e * speed * (dur - ramp)
         else:                                             # a touch that does not slip

@@ -1,0 +1,189 @@
+"""Plain baselines that any lab would try first: a small log-mel CNN and an RBF SVM.
+
+Both are deliberately untuned; the package's own recipe has to beat them. They read the
+same window features as the package's models, computed by ``features.LogMel`` with
+:func:`baseline_features` (48 mels at the stream's own rate, n_fft 1024, 10 ms hop), so
+``train.feature_cache`` serves them from an exported dataset and an experiment can hand
+them arrays (for example features with a per-grasp calibration removed).
+
+- Plain CNN: per-channel standardisation (training mean and std of each channel); three
+  3x3 conv blocks (32, 32, 48 channels) with batch norm, ReLU and max pooling over
+  frequency only; mean over mel; one 3-wide temporal convolution with ReLU; mean over time;
+  one linear layer giving the slip logit, the magnitude (in units of the median training
+  slip speed) and a 2-D direction. Adam 1e-3, 25 epochs, batch 64, loss
+  BCE + 2 x (1 - cosine) + 0.5 x Huber(magnitude) + 0.2 x MSE(direction, unit truth), the
+  last three over slip windows only.
+- Plain SVM: the time-averaged log-mel of each channel, standardised; RBF ``SVC`` for slip
+  and RBF ``SVR`` for vx and vz (slip windows), scikit-learn defaults.
+
+Arrays: ``x`` is ``(n, C, M, T)`` log-mel, ``v`` ``(n, 2)`` m/s, ``slip`` ``(n,)`` bool.
+``predict`` returns ``(p_slip, raw_velocity)`` as :func:`evaluate.compute_metrics` takes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from .features import FeatureConfig
+
+
+def baseline_features(stream_rate: float) -> FeatureConfig:
+    """The plain CNN's features: 48-mel log power at the stream's rate, 1024-point FFT,
+    10 ms hop."""
+    return FeatureConfig(sample_rate=float(stream_rate), n_fft=1024,
+                         hop=int(round(0.01 * stream_rate)), n_mels=48, fmin=30.0)
+
+
+def _check(x: np.ndarray, v: np.ndarray | None = None, slip: np.ndarray | None = None):
+    x = np.asarray(x, dtype=np.float32)
+    if x.ndim != 4 or x.shape[0] == 0:
+        raise ValueError(f"features must be (n, C, M, T) with n > 0, got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError("features contain NaN or Inf")
+    if v is None:
+        return x
+    v = np.asarray(v, dtype=np.float32).reshape(-1, 2)
+    slip = np.asarray(slip, dtype=bool).reshape(-1)
+    if v.shape[0] != x.shape[0] or slip.shape[0] != x.shape[0]:
+        raise ValueError("features, velocities and slip labels differ in length")
+    if slip.all() or not slip.any():
+        raise ValueError("training needs both slip and no-slip windows")
+    return x, v, slip
+
+
+class PlainCNN(nn.Module):
+    """The plain log-mel CNN (module docstring)."""
+
+    def __init__(self, n_channels: int) -> None:
+        super().__init__()
+        blocks, c_in = [], n_channels
+        for c_out in (32, 32, 48):
+            blocks += [nn.Conv2d(c_in, c_out, 3, padding=1), nn.BatchNorm2d(c_out), nn.ReLU(),
+                       nn.MaxPool2d((2, 1))]
+            c_in = c_out
+        self.conv = nn.Sequential(*blocks)
+        self.temporal = nn.Conv1d(48, 48, 3, padding=1)
+        self.out = nn.Linear(48, 4)
+        self.register_buffer("mean", torch.zeros(n_channels))
+        self.register_buffer("std", torch.ones(n_channels))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = (x - self.mean[None, :, None, None]) / self.std[None, :, None, None]
+        h = self.conv(x).mean(dim=2)                       # (B, 48, T)
+        h = F.relu(self.temporal(h)).mean(dim=2)           # (B, 48)
+        return self.out(h)                                 # logit, magnitude, dx, dz
+
+
+def plain_cnn_loss(out: torch.Tensor, v: torch.Tensor, slip: torch.Tensor,
+                   speed_scale: float) -> torch.Tensor:
+    """BCE + 2 x (1 - cos) + 0.5 x Huber + 0.2 x MSE on the unit direction (slip only)."""
+    loss = F.binary_cross_entropy_with_logits(out[:, 0], slip.float())
+    speed = torch.linalg.norm(v, dim=1)
+    m = slip & (speed > 0)
+    if m.any():
+        d_true = v[m] / speed[m, None]
+        d = out[m, 2:]
+        cos = F.cosine_similarity(d, d_true, dim=1, eps=1e-8)
+        loss = loss + 2.0 * (1.0 - cos).mean() \
+            + 0.5 * F.huber_loss(out[m, 1], speed[m] / speed_scale) \
+            + 0.2 * F.mse_loss(d, d_true)
+    return loss
+
+
+@dataclass
+class PlainCnnModel:
+    net: PlainCNN
+    speed_scale: float
+
+    def predict(self, x: np.ndarray, batch: int = 512) -> tuple[np.ndarray, np.ndarray]:
+        x = _check(x)
+        self.net.eval()
+        probs, vels = [], []
+        with torch.no_grad():
+            for s in range(0, x.shape[0], batch):
+                out = self.net(torch.from_numpy(x[s:s + batch]))
+                d = F.normalize(out[:, 2:], dim=1, eps=1e-8)
+                mag = torch.clamp(out[:, 1], min=0.0) * self.speed_scale
+                probs.append(torch.sigmoid(out[:, 0]).numpy())
+                vels.append((d * mag[:, None]).numpy())
+        return np.concatenate(probs).astype(np.float64), np.concatenate(vels).astype(np.float64)
+
+
+def fit_plain_cnn(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, epochs: int = 25,
+                  batch: int = 64, lr: float = 1e-3, seed: int = 0) -> PlainCnnModel:
+    """Train the plain CNN on all given windows (no validation, no early stopping)."""
+    x, v, slip = _check(x, v, slip)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    net = PlainCNN(x.shape[1])
+    net.mean.copy_(torch.from_numpy(x.mean(axis=(0, 2, 3))))
+    net.std.copy_(torch.from_numpy(np.maximum(x.std(axis=(0, 2, 3)), 1e-3)))
+    speed = np.linalg.norm(v, axis=1)
+    scale = float(np.median(speed[slip])) if np.any(speed[slip] > 0) else 1.0
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    xt, vt, st = torch.from_numpy(x), torch.from_numpy(v), torch.from_numpy(slip)
+    net.train()
+    for _ in range(epochs):
+        order = torch.from_numpy(rng.permutation(x.shape[0]))
+        for s in range(0, x.shape[0] - 1, batch):
+            b = order[s:s + batch]
+            if b.numel() < 2:          # batch norm needs two samples
+                continue
+            opt.zero_grad()
+            loss = plain_cnn_loss(net(xt[b]), vt[b], st[b], scale)
+            loss.backward()
+            opt.step()
+    return PlainCnnModel(net.eval(), scale)
+
+
+@dataclass
+class PlainSvmModel:
+    scaler: object
+    svc: object
+    svr_x: object
+    svr_z: object
+    speed_scale: float
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        f = self.scaler.transform(svm_features(x))
+        p = 1.0 / (1.0 + np.exp(-self.svc.decision_function(f)))
+        vel = np.stack([self.svr_x.predict(f), self.svr_z.predict(f)], axis=1)
+        return p.astype(np.float64), vel * self.speed_scale
+
+
+def svm_features(x: np.ndarray) -> np.ndarray:
+    """Time-averaged log-mel of each channel, ``(n, C * M)``."""
+    x = _check(x)
+    return x.mean(axis=3).reshape(x.shape[0], -1).astype(np.float64)
+
+
+def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: int = 4000,
+                  seed: int = 0) -> PlainSvmModel:
+    """RBF SVC (slip) and SVRs (vx, vz on slip windows) on time-averaged log-mel.
+
+    At most ``max_train`` windows (a random subset) keep the kernel fits to minutes.
+    """
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVC, SVR
+
+    x, v, slip = _check(x, v, slip)
+    rng = np.random.default_rng(seed)
+    idx = np.arange(x.shape[0])
+    if idx.size > max_train:
+        idx = np.sort(rng.choice(idx, max_train, replace=False))
+    f = svm_features(x[idx])
+    scaler = StandardScaler().fit(f)
+    f = scaler.transform(f)
+    s = slip[idx]
+    svc = SVC(kernel="rbf").fit(f, s)
+    speed = np.linalg.norm(v[idx], axis=1)
+    scale = float(np.median(speed[s])) if np.any(speed[s] > 0) else 1.0
+    tv = v[idx][s] / scale
+    svr_x = SVR(kernel="rbf").fit(f[s], tv[:, 0])
+    svr_z = SVR(kernel="rbf").fit(f[s], tv[:, 1])
+    return PlainSvmModel(scaler, svc, svr_x, svr_z, scale)

@@ -1,0 +1,277 @@
+"""Causal per-grasp, per-microphone level calibration over log-mel frames.
+
+A piezo pad couples to the object differently every time a grasp is made, so each
+microphone carries an unknown gain for the length of a grasp. Within one window that gain
+cannot be told from the level pattern that encodes slip direction. Across the earlier
+frames of the same grasp it can: every microphone hears the same common-mode background
+(the hand on the object, robot noise) through its own coupling, so the level of each
+channel relative to the channel mean, averaged over background frames, is the relative gain.
+
+The state sees only frames already received in the current grasp plus constants fitted on
+training data (:class:`CalibrationConstants`, stored in a checkpoint as a JSON document):
+
+- a slip gate: a logistic model on the channel-mean log-mel frame (gain-independent up to
+  the mean gain) that keeps slip frames out of the estimate. Slip levels depend on the slip
+  direction, so averaging them learns a one-sided grasp's main direction away;
+- an activity floor: frames near the electronics noise floor (which the coupling does not
+  scale) are ignored;
+- the background's own per-channel offset in training grasps (zero for a common-mode
+  background on a symmetric layout), subtracted from the estimate.
+
+The estimate shrinks towards zero gain with ``prior_frames`` pseudo-frames, so an empty or
+short history never produces a wild correction. ``converged`` turns true after
+``converge_frames`` accepted frames. Units: offsets are natural-log power (what log-mel
+features add), ``gain_db`` is the same in dB (relative to the channel mean).
+
+Methods: ``background`` (the default: no-slip frames above the floor), ``slip`` (slip frames
+only; kept to measure why it fails on one-sided slip) and ``all`` (every frame above the
+floor). docs/model.md, "Per-grasp calibration", has the measurements.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from .checkpoint import CheckpointMismatch
+
+METHODS = ("background", "slip", "all")
+_DB_PER_NEPER_POWER = 10.0 / np.log(10.0)
+
+
+@dataclass(frozen=True)
+class CalibrationConstants:
+    """Everything the state needs besides the stream; fitted by :func:`fit_constants`."""
+
+    channel_names: tuple[str, ...]
+    n_mels: int
+    hop_s: float
+    gate_mean: tuple[float, ...]
+    gate_std: tuple[float, ...]
+    gate_coef: tuple[float, ...]
+    gate_bias: float
+    floor_level: float
+    ref_offset: tuple[float, ...]
+    method: str = "background"
+    gate_threshold: float = 0.2
+    prior_frames: float = 50.0
+    converge_frames: int = 200
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"calibration method must be one of {METHODS}, got {self.method!r}")
+        c, m = len(self.channel_names), int(self.n_mels)
+        if c < 2:
+            raise ValueError("calibration needs at least two channels (gains are relative)")
+        for name, n in (("gate_mean", m), ("gate_std", m), ("gate_coef", m),
+                        ("ref_offset", c)):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape != (n,) or not np.all(np.isfinite(v)):
+                raise ValueError(f"calibration {name} must be {n} finite numbers")
+        if not (self.hop_s > 0 and self.prior_frames >= 0 and self.converge_frames >= 1
+                and 0.0 < self.gate_threshold < 1.0):
+            raise ValueError("calibration hop_s, prior_frames, converge_frames or "
+                             "gate_threshold out of range")
+
+    @property
+    def convergence_s(self) -> float:
+        """Seconds of accepted (background) audio until ``converged``."""
+        return float(self.converge_frames * self.hop_s)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["convergence_s"] = self.convergence_s
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "CalibrationConstants":
+        d = dict(d)
+        d.pop("convergence_s", None)
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ValueError(f"unknown calibration keys: {sorted(unknown)}")
+        for k in ("channel_names", "gate_mean", "gate_std", "gate_coef", "ref_offset"):
+            if k in d:
+                d[k] = tuple(d[k])
+        return cls(**d)
+
+    def with_(self, **changes: Any) -> "CalibrationConstants":
+        return dataclasses.replace(self, **changes)
+
+    def check_stream(self, channel_names: Sequence[str], n_mels: int, hop_s: float) -> None:
+        """CheckpointMismatch unless the stream's channels and features match the constants."""
+        if list(channel_names) != list(self.channel_names):
+            raise CheckpointMismatch(f"calibration was fitted for channels "
+                                     f"{list(self.channel_names)}, the stream has "
+                                     f"{list(channel_names)}")
+        if int(n_mels) != self.n_mels or abs(float(hop_s) - self.hop_s) > 1e-9:
+            raise CheckpointMismatch(f"calibration expects {self.n_mels} mels at a "
+                                     f"{self.hop_s * 1e3:g} ms hop, the stream gives {n_mels} "
+                                     f"at {hop_s * 1e3:g} ms")
+
+
+def frame_stats(frames: np.ndarray, k: CalibrationConstants
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: level deviation ``(C, T)``, p(slip) ``(T,)`` and activity ``(T,)``.
+
+    ``frames``: log-mel ``(C, M, T)`` (natural-log power, as ``features.LogMel`` gives).
+    """
+    x = np.asarray(frames, dtype=np.float64)
+    if x.ndim != 3 or x.shape[0] != len(k.channel_names) or x.shape[1] != k.n_mels:
+        raise ValueError(f"frames must be ({len(k.channel_names)}, {k.n_mels}, T), got "
+                         f"{x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError("frames contain NaN or Inf")
+    top = x.max(axis=1, keepdims=True)
+    level = (top + np.log(np.exp(x - top).sum(axis=1, keepdims=True)))[:, 0, :]   # (C, T)
+    mean_level = level.mean(axis=0)
+    dev = level - mean_level
+    z = (x.mean(axis=0).T - np.asarray(k.gate_mean)) / np.asarray(k.gate_std)      # (T, M)
+    logit = z @ np.asarray(k.gate_coef) + k.gate_bias
+    p = 1.0 / (1.0 + np.exp(-np.clip(logit, -50.0, 50.0)))
+    active = mean_level > k.floor_level
+    return dev, p, active
+
+
+def frame_weights(p: np.ndarray, active: np.ndarray, k: CalibrationConstants) -> np.ndarray:
+    """Which frames the chosen method averages (0 or 1 per frame)."""
+    if k.method == "background":
+        keep = p < k.gate_threshold
+    elif k.method == "slip":
+        keep = p >= 0.5
+    else:
+        keep = np.ones_like(p, dtype=bool)
+    return (keep & active).astype(np.float64)
+
+
+class CalibrationState:
+    """Running per-grasp gain estimate. ``update`` with new frames; ``reset`` on a new grasp."""
+
+    def __init__(self, constants: CalibrationConstants) -> None:
+        self.k = constants
+        self._ref = np.asarray(constants.ref_offset, dtype=np.float64)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the grasp: the next frames start a new estimate from zero gain."""
+        self.n_frames = 0
+        self.weight = 0.0
+        self._sum = np.zeros(len(self.k.channel_names))
+
+    def update(self, frames: np.ndarray) -> np.ndarray:
+        """Consume new log-mel frames ``(C, M, T)`` (each frame once); return the offsets."""
+        dev, p, active = frame_stats(frames, self.k)
+        w = frame_weights(p, active, self.k)
+        self.weight += float(w.sum())
+        self._sum += (dev - self._ref[:, None]) @ w
+        self.n_frames += int(dev.shape[1])
+        return self.offsets
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """Estimated per-channel log-power offset (subtract from log-mel features)."""
+        return self._sum / (self.weight + self.k.prior_frames) if self.weight > 0 \
+            else np.zeros_like(self._sum)
+
+    @property
+    def gain_db(self) -> np.ndarray:
+        """Estimated per-channel gain relative to the channel mean [dB]."""
+        return self.offsets * _DB_PER_NEPER_POWER
+
+    @property
+    def converged(self) -> bool:
+        return self.weight >= self.k.converge_frames
+
+    def apply(self, features: np.ndarray) -> np.ndarray:
+        """``features`` ``(..., C, M, T)`` with the current offsets removed."""
+        return np.asarray(features, dtype=np.float32) \
+            - self.offsets.astype(np.float32)[:, None, None]
+
+
+def offsets_at(frames: np.ndarray, ends: np.ndarray, k: CalibrationConstants) -> np.ndarray:
+    """Offline, for a whole grasp: the offsets after frames ``[0, end)`` for each ``end``.
+
+    Equal to feeding the frames to a fresh :class:`CalibrationState` in order and reading
+    ``offsets`` after frame ``end - 1`` (tested), computed with cumulative sums.
+    """
+    dev, p, active = frame_stats(frames, k)
+    w = frame_weights(p, active, k)
+    ref = np.asarray(k.ref_offset, dtype=np.float64)
+    cw = np.concatenate([[0.0], np.cumsum(w)])
+    cs = np.concatenate([np.zeros((1, dev.shape[0])),
+                         np.cumsum(((dev - ref[:, None]) * w).T, axis=0)])
+    ends = np.asarray(ends, dtype=np.int64)
+    if np.any(ends < 0) or np.any(ends > dev.shape[1]):
+        raise ValueError("window ends must lie within the grasp's frames")
+    wt = cw[ends]
+    out = cs[ends] / (wt + k.prior_frames)[:, None]
+    out[wt <= 0] = 0.0
+    return out
+
+
+def relative_log_gain(gain: np.ndarray) -> np.ndarray:
+    """The offsets a perfect calibration would find for linear amplitude gains ``(C,)``."""
+    lg = 2.0 * np.log(np.asarray(gain, dtype=np.float64))
+    return lg - lg.mean()
+
+
+def fit_constants(frames: Sequence[np.ndarray], frame_slip: Sequence[np.ndarray],
+                  channel_names: Sequence[str], hop_s: float, *,
+                  true_offsets: Sequence[np.ndarray] | None = None,
+                  method: str = "background", floor_margin_db: float = 10.0,
+                  max_frames: int = 60000, seed: int = 0, **options: Any
+                  ) -> CalibrationConstants:
+    """Fit the gate, the floor and the reference offset on training grasps.
+
+    ``frames``: one log-mel ``(C, M, T)`` per training grasp; ``frame_slip``: one boolean
+    ``(T,)`` label per frame (slip at the frame's centre). ``true_offsets``: per grasp, the
+    known relative log gains (a simulator's truth); without them the reference offset is the
+    mean over grasps of each grasp's final estimate, which assumes that coupling averages out
+    over many grasps.
+    """
+    from sklearn.linear_model import LogisticRegression
+
+    if len(frames) == 0 or len(frames) != len(frame_slip):
+        raise ValueError("need one slip label array per grasp, and at least one grasp")
+    common = np.concatenate([np.asarray(f, dtype=np.float64).mean(axis=0).T for f in frames])
+    labels = np.concatenate([np.asarray(s, dtype=bool) for s in frame_slip])
+    if labels.shape[0] != common.shape[0]:
+        raise ValueError("frame_slip lengths must equal the grasps' frame counts")
+    if labels.all() or not labels.any():
+        raise ValueError("the gate needs both slip and no-slip frames in the training grasps")
+    n_mels = common.shape[1]
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(common.shape[0], min(max_frames, common.shape[0]), replace=False)
+    mean, std = common.mean(axis=0), np.maximum(common.std(axis=0), 1e-3)
+    clf = LogisticRegression(C=1.0, max_iter=500)
+    clf.fit((common[pick] - mean) / std, labels[pick])
+    levels = np.concatenate([_mean_level(f) for f in frames])
+    floor = float(np.percentile(levels, 5.0)) + floor_margin_db / _DB_PER_NEPER_POWER
+    k = CalibrationConstants(
+        channel_names=tuple(channel_names), n_mels=n_mels, hop_s=float(hop_s),
+        gate_mean=tuple(mean), gate_std=tuple(std), gate_coef=tuple(clf.coef_[0]),
+        gate_bias=float(clf.intercept_[0]), floor_level=floor,
+        ref_offset=(0.0,) * len(channel_names), method=method, **options)
+    # Reference: the mean deviation of accepted frames once the coupling is taken out.
+    ests = []
+    for i, f in enumerate(frames):
+        dev, p, active = frame_stats(f, k)
+        w = frame_weights(p, active, k)
+        if w.sum() == 0:
+            continue
+        est = dev @ w / w.sum()
+        if true_offsets is not None:
+            est = est - np.asarray(true_offsets[i], dtype=np.float64)
+        ests.append(est)
+    ref = np.mean(ests, axis=0) if ests else np.zeros(len(channel_names))
+    return k.with_(ref_offset=tuple(float(v) for v in ref))
+
+
+def _mean_level(frames: np.ndarray) -> np.ndarray:
+    x = np.asarray(frames, dtype=np.float64)
+    top = x.max(axis=1, keepdims=True)
+    return (top + np.log(np.exp(x - top).sum(axis=1, keepdims=True)))[:, 0, :].mean(axis=0)

@@ -1,0 +1,62 @@
+"""Bootstrap confidence intervals over trials for the paper's metrics.
+
+Windows of one trial share a grasp, an object and a coupling, so they are not independent:
+resampling windows would give intervals far too narrow. Here whole trials are resampled with
+replacement and the metric is recomputed over the pooled windows of each resample.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from .evaluate import compute_metrics
+
+KEYS = ("detection_accuracy", "direction_mae_deg", "magnitude_rmse_mm")
+
+
+def _resamples(trial: np.ndarray, n_boot: int, seed: int):
+    trial = np.asarray(trial)
+    ids = np.unique(trial)
+    if ids.size < 2:
+        raise ValueError("a bootstrap over trials needs at least two trials")
+    members = {t: np.flatnonzero(trial == t) for t in ids}
+    rng = np.random.default_rng(seed)
+    for _ in range(n_boot):
+        pick = rng.choice(ids, ids.size, replace=True)
+        yield np.concatenate([members[t] for t in pick])
+
+
+def bootstrap_metrics(trial: np.ndarray, prob, raw_velocity, true_velocity, slip,
+                      window_s: float, *, n_boot: int = 1000, seed: int = 0,
+                      level: float = 0.95) -> dict[str, Any]:
+    """``compute_metrics`` overall plus ``<key>_ci`` = (low, high) for each of ``KEYS``."""
+    arrays = [np.asarray(a) for a in (prob, raw_velocity, true_velocity, slip)]
+    out = compute_metrics(*arrays, window_s)
+    samples = {k: [] for k in KEYS}
+    for idx in _resamples(trial, n_boot, seed):
+        m = compute_metrics(*(a[idx] for a in arrays), window_s)
+        for k in KEYS:
+            if k in m:
+                samples[k].append(m[k])
+    lo, hi = 50.0 * (1.0 - level), 50.0 * (1.0 + level)
+    for k, vals in samples.items():
+        if vals:
+            out[k + "_ci"] = (float(np.percentile(vals, lo)), float(np.percentile(vals, hi)))
+    return out
+
+
+def paired_difference(trial: np.ndarray, metric: Callable[[np.ndarray], float],
+                      other: Callable[[np.ndarray], float], *, n_boot: int = 1000,
+                      seed: int = 0, level: float = 0.95) -> tuple[float, float, float]:
+    """``metric - other`` on the same trial resamples: (estimate, low, high).
+
+    ``metric(idx)`` and ``other(idx)`` compute a scalar over the windows ``idx``. When the
+    interval contains 0 the two methods cannot be told apart on these trials.
+    """
+    everything = np.arange(np.asarray(trial).shape[0])
+    est = float(metric(everything) - other(everything))
+    diffs = [metric(idx) - other(idx) for idx in _resamples(trial, n_boot, seed)]
+    lo, hi = np.percentile(diffs, [50.0 * (1.0 - level), 50.0 * (1.0 + level)])
+    return est, float(lo), float(hi)

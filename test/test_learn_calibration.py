@@ -1,0 +1,177 @@
+"""Per-grasp calibration state: causal, resettable, robust to one-sided slip, round-trips."""
+
+import json
+
+import numpy as np
+import pytest
+
+from aslip_ros.learn import calibration as cal
+from aslip_ros.learn.checkpoint import CheckpointMismatch, load_checkpoint, save_checkpoint
+from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.svm import SvmConfig
+
+C, M = 4, 8
+MIC_ANGLE = np.array([0.25, 0.75, 1.25, 1.75]) * np.pi
+NAMES = ("a", "b", "c", "d")
+
+
+def grasp(rng, gains, n=3000, dirs=None, one_sided=None):
+    """Synthetic log-mel frames (C, M, n) and slip labels: silence at the floor (no gain),
+    common-mode background with a low spectrum, slip with a high spectrum whose level at
+    each microphone follows the slip direction. ``gains``: log-power offsets per channel."""
+    kind = rng.choice(3, n, p=[0.3, 0.4, 0.3])         # 0 floor, 1 background, 2 slip
+    low = np.linspace(2.0, -2.0, M)
+    high = -low
+    x = np.empty((C, M, n))
+    if one_sided is not None:
+        ang = one_sided + rng.uniform(-0.3, 0.3, n)
+    else:
+        ang = rng.uniform(-np.pi, np.pi, n)
+    pattern = 1.0 * np.cos(ang[None, :] - MIC_ANGLE[:, None])          # (C, n)
+    level = rng.normal(0.0, 0.5, n)
+    for t in range(n):
+        if kind[t] == 0:
+            x[:, :, t] = -12.0
+        elif kind[t] == 1:
+            x[:, :, t] = low[None, :] + level[t] + gains[:, None]
+        else:
+            x[:, :, t] = high[None, :] + level[t] + 1.0 + gains[:, None] + pattern[:, t, None]
+    x += rng.normal(0.0, 0.05, x.shape)
+    return x.astype(np.float32), kind == 2, ang
+
+
+def rel(g):
+    return g - g.mean()
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    rng = np.random.default_rng(0)
+    frames, labels, offsets = [], [], []
+    for _ in range(6):
+        g = rel(rng.uniform(-0.7, 0.7, C))
+        f, s, _ = grasp(rng, g, n=1500)
+        frames.append(f)
+        labels.append(s)
+        offsets.append(g)
+    return {m: cal.fit_constants(frames, labels, NAMES, 0.01, true_offsets=offsets, method=m,
+                                 prior_frames=10.0, converge_frames=200)
+            for m in cal.METHODS}
+
+
+def test_streaming_equals_offline_and_is_causal(fitted):
+    k = fitted["background"]
+    rng = np.random.default_rng(1)
+    f, _, _ = grasp(rng, rel(rng.uniform(-0.7, 0.7, C)), n=600)
+    state = cal.CalibrationState(k)
+    streamed = []
+    for s in range(0, 600, 37):                 # ragged blocks, as a node receives them
+        state.update(f[:, :, s:s + 37])
+        streamed.append((min(s + 37, 600), state.offsets.copy()))
+    ends = np.array([e for e, _ in streamed])
+    offline = cal.offsets_at(f, ends, k)
+    np.testing.assert_allclose(offline, np.array([o for _, o in streamed]), atol=1e-9)
+    # Future audio cannot change a past estimate: scramble everything after frame 300.
+    g = f.copy()
+    g[:, :, 300:] = rng.normal(0.0, 3.0, g[:, :, 300:].shape)
+    past = ends <= 300
+    np.testing.assert_array_equal(cal.offsets_at(g, ends[past], k), offline[past])
+    assert not np.allclose(cal.offsets_at(g, ends[~past], k), offline[~past])
+
+
+def test_reset_forgets_the_grasp(fitted):
+    k = fitted["background"]
+    rng = np.random.default_rng(2)
+    f, _, _ = grasp(rng, np.array([0.6, -0.6, 0.3, -0.3]), n=800)
+    state = cal.CalibrationState(k)
+    state.update(f)
+    assert state.converged and np.abs(state.gain_db).max() > 1.0
+    state.reset()
+    assert not state.converged and state.weight == 0.0
+    np.testing.assert_array_equal(state.offsets, np.zeros(C))
+    x = np.ones((C, M, 5), dtype=np.float32)
+    np.testing.assert_array_equal(state.apply(x), x)
+
+
+def test_background_calibration_recovers_gains_and_converges(fitted):
+    k = fitted["background"]
+    rng = np.random.default_rng(3)
+    g = rel(np.array([0.6, -0.5, 0.2, -0.1]))
+    f, _, _ = grasp(rng, g, n=2000)
+    state = cal.CalibrationState(k)
+    state.update(f[:, :, :20])
+    assert not state.converged
+    state.update(f[:, :, 20:])
+    assert state.converged
+    assert np.max(np.abs(state.offsets - g)) < 0.05
+    np.testing.assert_allclose(state.gain_db, state.offsets * 10.0 / np.log(10.0))
+    assert k.convergence_s == pytest.approx(2.0)  # 200 frames of 10 ms (fixture)
+
+
+def _direction_of_slip(x, slip):
+    """Direction read from the mean calibrated level pattern of slip frames."""
+    lv = x[:, :, slip].mean(axis=1)                   # (C, n) mean over mels
+    lv = lv - lv.mean(axis=0, keepdims=True)
+    vec = np.array([np.cos(MIC_ANGLE) @ lv.mean(1), np.sin(MIC_ANGLE) @ lv.mean(1)])
+    return np.arctan2(vec[1], vec[0]), np.hypot(*vec)
+
+
+def test_one_sided_stream_does_not_bias_direction(fitted):
+    rng = np.random.default_rng(4)
+    g = rel(np.array([0.5, -0.4, 0.3, -0.4]))
+    main = 1.0
+    f, slip, _ = grasp(rng, g, n=3000, one_sided=main)
+    _, clean_size = _direction_of_slip(f - g[:, None, None], slip)
+    errors = {}
+    for method in ("background", "slip"):
+        state = cal.CalibrationState(fitted[method])
+        state.update(f)
+        errors[method] = np.max(np.abs(state.offsets - g))
+        ang, size = _direction_of_slip(state.apply(f), slip)
+        errors[method + "_dir"] = abs(np.angle(np.exp(1j * (ang - main))))
+        errors[method + "_size"] = size / clean_size
+    # The background estimate keeps the slip's level pattern, so its direction survives...
+    assert errors["background"] < 0.05
+    assert errors["background_dir"] < 0.1 and errors["background_size"] > 0.9
+    # ...while averaging slip frames learns most of the one-sided direction away.
+    assert errors["slip"] > 0.3 and errors["slip_size"] < 0.5
+
+
+def test_constants_round_trip_and_refuse_a_mismatched_stream(fitted, tmp_path):
+    k = fitted["background"]
+    doc = json.loads(json.dumps(k.to_dict()))
+    assert doc["convergence_s"] == pytest.approx(k.convergence_s)
+    assert cal.CalibrationConstants.from_dict(doc) == k
+    meta = {"model_type": "svm", "model_config": SvmConfig().to_dict(),
+            "feature_config": FeatureConfig().to_dict(), "channel_names": list(NAMES),
+            "sample_rate": 16000.0, "window_s": 0.2, "window_samples": 3200,
+            "epsilon_m_s": 0.005, "threshold": 0.5, "calibration": k.to_dict()}
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, meta, {})
+    back = cal.CalibrationConstants.from_dict(load_checkpoint(path).meta["calibration"])
+    assert back == k
+    back.check_stream(list(NAMES), M, 0.01)
+    with pytest.raises(CheckpointMismatch, match="channels"):
+        back.check_stream(["a", "b", "d", "c"], M, 0.01)
+    with pytest.raises(CheckpointMismatch, match="mels"):
+        back.check_stream(list(NAMES), M + 1, 0.01)
+    with pytest.raises(CheckpointMismatch, match="hop"):
+        back.check_stream(list(NAMES), M, 0.016)
+    with pytest.raises(ValueError, match="unknown calibration keys"):
+        cal.CalibrationConstants.from_dict({**doc, "extra": 1})
+
+
+def test_bad_input_is_refused(fitted):
+    k = fitted["background"]
+    state = cal.CalibrationState(k)
+    with pytest.raises(ValueError, match="frames must be"):
+        state.update(np.zeros((C + 1, M, 3), dtype=np.float32))
+    bad = np.zeros((C, M, 3), dtype=np.float32)
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        state.update(bad)
+    assert state.n_frames == 0
+    with pytest.raises(ValueError, match="method"):
+        k.with_(method="median")
+    with pytest.raises(ValueError, match="both slip and no-slip"):
+        cal.fit_constants([np.zeros((C, M, 10))], [np.zeros(10, bool)], NAMES, 0.01)
