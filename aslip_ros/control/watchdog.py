@@ -72,3 +72,36 @@ class Watchdog:
     def is_stale(self, now: Optional[float] = None) -> bool:
         """True when no input arrived within the timeout (or none ever did)."""
         return self.age(now) > self._timeout_s
+
+
+class ArrivalStats:
+    """Arrival gaps of the input streams and how old slip estimates are when they arrive:
+    what the stale-input timeout has to be measured against."""
+
+    def __init__(self) -> None:
+        self.slip_gap_max = 0.0
+        self.pose_gap_max = 0.0
+        self.slip_age_max = 0.0
+        self.slip_gaps_over_50ms = 0
+
+    def slip(self, now: float, previous: Optional[float], stamp: float) -> None:
+        """One valid slip estimate arrived at ``now`` (monotonic); ``stamp``: its wall-clock
+        stamp [s] (the end of the audio window), 0 when unknown."""
+        if previous is not None:
+            gap = now - previous
+            self.slip_gap_max = max(self.slip_gap_max, gap)
+            self.slip_gaps_over_50ms += gap > 0.05
+        if stamp > 0:
+            self.slip_age_max = max(self.slip_age_max, time.time() - stamp)
+
+    def pose(self, now: float, previous: Optional[float]) -> None:
+        """One TCP pose arrived at ``now`` (monotonic)."""
+        if previous is not None:
+            self.pose_gap_max = max(self.pose_gap_max, now - previous)
+
+    def values(self) -> dict:
+        """Diagnostic values [ms]."""
+        return {"slip_gap_max_ms": self.slip_gap_max * 1e3,
+                "slip_gaps_over_50ms": int(self.slip_gaps_over_50ms),
+                "slip_age_max_ms": self.slip_age_max * 1e3,
+                "pose_gap_max_ms": self.pose_gap_max * 1e3}

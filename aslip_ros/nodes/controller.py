@@ -6,15 +6,23 @@ wires it to topics and an arm:
 - ``arm:=sim``: :class:`TopicArm` publishes ``/aslip/arm/cmd_vel`` (TwistStamped,
   ``link_base``), which ``scene_sim`` executes on the scene's simulated arm, and reads the TCP
   from ``/aslip/robot/tcp_pose``.
-- ``arm:=xarm``: :class:`aslip_ros.hw.xarm.XArmAdapter` at ``xarm_ip``; the TCP is polled
-  every control cycle and republished on ``/aslip/robot/tcp_pose``.
+- ``arm:=xarm``: :class:`aslip_ros.hw.xarm.XArmAdapter` at ``xarm_ip``; the TCP comes from
+  the SDK's report stream (polled on the arm thread where there is none) and is republished
+  on ``/aslip/robot/tcp_pose``, stamped when it was measured.
+
+Every arm call runs on a thread of its own (:mod:`aslip_ros.control.arm_worker`): the
+control step only posts its command, so slip and pose callbacks never wait behind arm I/O.
+A stale input is acted on by a one-shot deadline per stream, re-armed by each valid input,
+so the stop leaves ``slip_timeout_s`` (or ``pose_timeout_s``) after the last valid input,
+not at the next control tick.
 
 Lifecycle: ``configure`` builds and connects the arm (an unreachable xArm fails the
 transition, is reported on diagnostics and leaves the node unconfigured: nothing moves),
 ``activate`` enables velocity mode and starts the task, ``deactivate``/``cleanup``/
 ``shutdown`` stop the arm. With ``autostart`` (default) the node configures and activates
 itself. Safety: stale slip or TCP input (watchdogs in the core), any arm error and process
-shutdown all stop the arm.
+shutdown all stop the arm, and no velocity command follows a stop until the next
+activation.
 """
 
 from __future__ import annotations
@@ -24,72 +32,18 @@ import threading
 import time
 from typing import Optional
 
-import numpy as np
-from geometry_msgs.msg import PoseStamped, TwistStamped
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from geometry_msgs.msg import PoseStamped
+from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import String
 
+from aslip_ros.control.watchdog import ArrivalStats
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
+from aslip_ros.nodes.topic_arm import TopicArm
 
 IDENTITY = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
-
-
-class TopicArm:
-    """An :class:`aslip_ros.control.arm.Arm` whose commands go out as TwistStamped.
-
-    The receiver (``scene_sim``) holds each command for its ``command_timeout_s``, which
-    plays the role of ``duration_s``; a zero twist is a stop.
-    """
-
-    poll_pose = False
-
-    def __init__(self, node, topic: str = c.CMD_VEL_TOPIC, frame_id: str = "link_base"):
-        self._node = node
-        self._pub = node.create_publisher(TwistStamped, topic, c.RELIABLE_QOS)
-        self._frame = frame_id
-        self._pose: Optional[np.ndarray] = None
-        self._enabled = False
-        self.commands = 0
-
-    def connect(self) -> None:
-        """Nothing to open: the topic exists once the publisher does."""
-
-    def enable_velocity_mode(self) -> None:
-        """Accept velocity commands from now on."""
-        self._enabled = True
-
-    def send_velocity(self, v_xyz_m_s, duration_s: float) -> None:
-        """Publish a velocity command [m/s, ``link_base``]."""
-        from aslip_ros.control.arm import ArmError
-        if not self._enabled:
-            raise ArmError("velocity mode is not enabled")
-        now = self._node.get_clock().now().nanoseconds
-        self._pub.publish(convert.twist_to_msg(v_xyz_m_s, now, self._frame))
-        self.commands += 1
-
-    def stop(self) -> None:
-        """Publish a zero twist (a stop)."""
-        now = self._node.get_clock().now().nanoseconds
-        self._pub.publish(convert.twist_to_msg([0.0, 0.0, 0.0], now, self._frame))
-
-    def set_pose(self, pose: np.ndarray) -> None:
-        """Newest TCP pose from the TCP topic."""
-        self._pose = pose
-
-    def tcp_pose(self) -> np.ndarray:
-        """Newest TCP pose received."""
-        from aslip_ros.control.arm import ArmError
-        if self._pose is None:
-            raise ArmError("no TCP pose received yet")
-        return self._pose.copy()
-
-    def close(self) -> None:
-        """Stop; the publisher goes with the node."""
-        self.stop()
-        self._enabled = False
 
 
 def arm_params() -> list:
@@ -131,7 +85,13 @@ def arm_params() -> list:
 
 class ControllerNode(LifecycleNode):
     """Lifecycle shell: subclasses provide ``task_params``, ``task_config``, ``make_task``,
-    ``feed_slip`` and optionally ``after_step``."""
+    ``feed_slip`` and optionally ``after_step``.
+
+    Threads: the executor's one dispatch thread runs the input callbacks, the control timer
+    and the two deadline timers; an :class:`~aslip_ros.control.arm_worker.ArmWorker` thread
+    does every arm call; the xArm SDK's report thread delivers poses. ``_lock`` guards the
+    task and the input bookkeeping and is never held across arm I/O.
+    """
 
     task_name = "controller"
 
@@ -139,8 +99,9 @@ class ControllerNode(LifecycleNode):
         super().__init__(name)
         self.p = c.declare_params(self, arm_params() + self.task_params(), self._on_change,
                                   self.cross_check)
-        self._lock = threading.RLock()
+        self._lock = threading.Lock()
         self.arm = None
+        self.worker = None
         self.task = None
         self.active = False
         self.done = False
@@ -149,27 +110,35 @@ class ControllerNode(LifecycleNode):
         self.rejected_slip = 0
         self.slip_count = 0
         self.last_slip_t: Optional[float] = None
+        self.last_pose_t: Optional[float] = None
         self.steady_slip = 0    # consecutive SlipVectors, each within slip_timeout_s
+        self.inputs = ArrivalStats()
+        self._stop_report: Optional[dict] = None
         self._task_fed = False
         self._pose_fed = False
         self._started = False
         self.meta: Optional[dict] = None
         self.diag = c.Diagnostics(self, f"aslip: {name}", self.p["arm"])
         self.pub_tcp = None
-        inputs = MutuallyExclusiveCallbackGroup()
+        # One dispatch thread (common._executor): callback groups would change nothing.
         self.create_subscription(SlipVector, self.p["slip_topic"], self._on_slip,
-                                 c.RELIABLE_QOS, callback_group=inputs)
-        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS,
-                                 callback_group=inputs)
+                                 c.RELIABLE_QOS)
+        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS)
         if self.p["arm"] == "sim":
-            self.create_subscription(PoseStamped, c.TCP_TOPIC, self._on_tcp, c.SENSOR_QOS,
-                                     callback_group=inputs)
+            self.create_subscription(PoseStamped, c.TCP_TOPIC, self._on_tcp, c.SENSOR_QOS)
         else:
             self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
-        # Arm I/O may block (xArm SDK); it gets its own group so inputs keep flowing.
-        self.create_timer(1.0 / self.p["control_rate_hz"], self._control,
-                          callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_timer(1.0, self._diagnose, callback_group=MutuallyExclusiveCallbackGroup())
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(1.0 / self.p["control_rate_hz"], self._control, clock=steady)
+        # One-shot deadlines, re-armed by every valid input: a stale stream is acted on at
+        # the exact moment it goes stale, not at the next control tick.
+        self._slip_deadline = self.create_timer(
+            self.p["slip_timeout_s"], lambda: self._on_deadline(self._slip_deadline),
+            clock=steady, autostart=False)
+        self._pose_deadline = self.create_timer(
+            self.p["pose_timeout_s"], lambda: self._on_deadline(self._pose_deadline),
+            clock=steady, autostart=False)
+        self.create_timer(1.0, self._diagnose)
         if self.p["autostart"]:
             self.trigger_configure()
             if self.arm is not None:
@@ -214,7 +183,7 @@ class ControllerNode(LifecycleNode):
         return True
 
     def after_step(self, now: float) -> None:
-        """Called after each control cycle (results, end of task)."""
+        """Called after each control cycle (results, end of task), with ``_lock`` held."""
 
     def status(self) -> dict:
         """Task values for the diagnostics."""
@@ -225,6 +194,7 @@ class ControllerNode(LifecycleNode):
     def on_configure(self, state) -> TransitionCallbackReturn:
         """Create and connect the arm; an unreachable arm fails the transition."""
         from aslip_ros.control.arm import ArmError
+        from aslip_ros.control.arm_worker import ArmWorker
         try:
             arm = self._make_arm()
             arm.connect()
@@ -234,6 +204,13 @@ class ControllerNode(LifecycleNode):
                                     "unconfigured and commands nothing")
             self._diagnose()
             return TransitionCallbackReturn.FAILURE
+        streams = isinstance(arm, TopicArm)
+        listen = getattr(arm, "set_pose_listener", None)
+        if listen is not None:
+            streams = bool(listen(self._on_arm_pose))
+        poll = None if streams else 1.0 / self.p["control_rate_hz"]
+        self.worker = ArmWorker(arm, self._on_arm_error, on_pose=self._on_arm_pose,
+                                poll_period_s=poll, name=f"{self.get_name()}-arm-io")
         self.arm = arm
         self.arm_error = ""
         return TransitionCallbackReturn.SUCCESS
@@ -250,7 +227,9 @@ class ControllerNode(LifecycleNode):
         with self._lock:
             self.task = None
             self._started = False
+            self._stop_report = None
             self.active = True
+            self.worker.rearm()
         return super().on_activate(state)
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
@@ -285,31 +264,41 @@ class ControllerNode(LifecycleNode):
                          connect_timeout_s=self.p["xarm_connect_timeout_s"],
                          workspace_min_m=tuple(self.p["xarm_workspace_min_m"]),
                          workspace_max_m=tuple(self.p["xarm_workspace_max_m"]))
-        adapter = XArmAdapter(cfg)
-        adapter.poll_pose = True
-        return adapter
+        return XArmAdapter(cfg)
+
+    def post(self, command) -> None:
+        """Hand a controller output to the arm thread (never blocks on the arm)."""
+        if command is not None and self.worker is not None:
+            if command.stop and self._stop_report is None:
+                self._stop_report = {"reason": command.reason,
+                                     "last_slip_t": self.last_slip_t,
+                                     "last_pose_t": self.last_pose_t,
+                                     "posted_t": time.monotonic()}
+            self.worker.post(command)
 
     def _halt(self, why: str) -> None:
-        from aslip_ros.control.command import apply_command
+        from aslip_ros.control.command import VelocityCommand
         with self._lock:
-            task, arm = self.task, self.arm
+            task, worker = self.task, self.worker
             if task is not None:
                 task.shutdown()
-                try:
-                    apply_command(arm, task.step())
-                except Exception as exc:  # noqa: BLE001 - still try the plain stop below
-                    self.get_logger().error(f"stop command failed: {exc}")
-            if arm is not None:
-                try:
-                    arm.stop()
-                except Exception as exc:  # noqa: BLE001
-                    self.get_logger().error(f"arm stop failed ({why}): {exc}")
+                self.post(task.step())
+            if worker is not None:
+                self.post(VelocityCommand.halt(why))
+        if worker is not None and not worker.flush(2.0):
+            self.get_logger().error(f"arm stop not confirmed within 2 s ({why})")
 
     def _release(self) -> None:
         with self._lock:
             arm, self.arm = self.arm, None
+            worker, self.worker = self.worker, None
             self.active = False
+        if worker is not None:
+            worker.close(2.0)
         if arm is not None:
+            listen = getattr(arm, "set_pose_listener", None)
+            if listen is not None:
+                listen(None)
             try:
                 arm.close()
             except Exception as exc:  # noqa: BLE001
@@ -327,40 +316,71 @@ class ControllerNode(LifecycleNode):
             self.get_logger().error(f"unreadable /aslip/metadata: {exc}")
 
     def _on_slip(self, msg: SlipVector) -> None:
+        now = time.monotonic()
         try:
             slip = convert.slip_from_msg(msg)
         except ValueError as exc:
             self.rejected_slip += 1
             self.get_logger().warning(f"SlipVector rejected: {exc}", throttle_duration_sec=1.0)
             return
-        self.slip_count += 1
-        now = time.monotonic()
-        fresh = self.last_slip_t is not None and \
-            now - self.last_slip_t <= self.p["slip_timeout_s"]
-        self.steady_slip = self.steady_slip + 1 if fresh else 1
-        self.last_slip_t = now
+        self._slip_deadline.reset()
         with self._lock:
+            self.slip_count += 1
+            fresh = self.last_slip_t is not None and \
+                now - self.last_slip_t <= self.p["slip_timeout_s"]
+            self.steady_slip = self.steady_slip + 1 if fresh else 1
+            self.inputs.slip(now, self.last_slip_t,
+                             msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+            self.last_slip_t = now
             if self.task is not None:
-                self.feed_slip(slip, time.monotonic())
+                self.feed_slip(slip, now)
                 self._task_fed = True
 
     def _on_tcp(self, msg: PoseStamped) -> None:
+        now = time.monotonic()
         try:
             stamp_ns, _, pose = convert.pose_from_msg(msg)
         except ValueError:
             return
+        arm = self.arm
+        if isinstance(arm, TopicArm):
+            arm.set_pose(pose)
+        self._take_pose(pose, now, stamp_ns)
+
+    def _on_arm_pose(self, pose, now: float, stamp_ns: int) -> None:
+        """A pose measured by the arm itself (report stream or poll), stamped when taken."""
+        pub = self.pub_tcp
+        if pub is not None:
+            pub.publish(convert.pose_to_msg(pose, stamp_ns, "link_base"))
+        self._take_pose(pose, now, stamp_ns)
+
+    def _take_pose(self, pose, now: float, stamp_ns: int) -> None:
+        self._pose_deadline.reset()
         with self._lock:
-            if isinstance(self.arm, TopicArm):
-                self.arm.set_pose(pose)
+            self.inputs.pose(now, self.last_pose_t)
+            self.last_pose_t = now
             if self.task is not None:
-                self.feed_pose(pose, time.monotonic(), stamp_ns)
+                self.feed_pose(pose, now, stamp_ns)
                 self._pose_fed = True
 
-    def _control(self) -> None:
-        from aslip_ros.control.arm import ArmError
-        from aslip_ros.control.command import apply_command
+    def _on_deadline(self, timer) -> None:
+        """An input stream went silent: a control step now (the core decides it is stale,
+        against the same arrival times); the deadline then waits for the next input."""
+        timer.cancel()
+        self._control()
+
+    def _on_arm_error(self, exc) -> None:
+        """Arm thread: an arm call failed (the worker has latched and tried a stop)."""
+        self.arm_error = str(exc)
+        self.get_logger().error(f"arm error, stopping: {exc}")
         with self._lock:
-            if not self.active or self.arm is None:
+            if self.task is not None:
+                self.task.fault(str(exc))
+                self.post(self.task.step())
+
+    def _control(self) -> None:
+        with self._lock:
+            if not self.active or self.worker is None:
                 return
             now = time.monotonic()
             if self.task is None:
@@ -370,35 +390,31 @@ class ControllerNode(LifecycleNode):
                 self._started = False
                 self._task_fed = False
                 self._pose_fed = False
-            try:
-                if getattr(self.arm, "poll_pose", False):
-                    pose = self.arm.tcp_pose()
-                    self.task.on_tcp_pose(pose, now)
-                    self._pose_fed = True
-                    self.pub_tcp.publish(convert.pose_to_msg(
-                        pose, self.get_clock().now().nanoseconds, "link_base"))
-                if not self._started:
-                    if not (self._task_fed and self._pose_fed) or \
-                            now - self.last_slip_t > self.p["slip_timeout_s"] or \
-                            self.steady_slip < self.p["start_after_messages"]:
-                        # A task never starts on silent slip or pose streams, nor on the
-                        # first estimates of a stream that is still warming up.
-                        return
-                    try:
-                        self._started = self.start_task(now)
-                    except RuntimeError:
-                        return  # no fresh pose yet: try again next cycle
-                apply_command(self.arm, self.task.step())
-            except ArmError as exc:
-                self.arm_error = str(exc)
-                self.get_logger().error(f"arm error, stopping: {exc}")
-                self.task.fault(str(exc))
+            if not self._started:
+                if not (self._task_fed and self._pose_fed) or \
+                        now - self.last_slip_t > self.p["slip_timeout_s"] or \
+                        self.steady_slip < self.p["start_after_messages"]:
+                    # A task never starts on silent slip or pose streams, nor on the
+                    # first estimates of a stream that is still warming up.
+                    return
                 try:
-                    apply_command(self.arm, self.task.step())
-                    self.arm.stop()
-                except Exception as exc2:  # noqa: BLE001 - the arm may be gone entirely
-                    self.get_logger().error(f"stop after error failed: {exc2}")
+                    self._started = self.start_task(now)
+                except RuntimeError:
+                    return  # no fresh pose yet: try again next cycle
+            self.post(self.task.step(now))
             self.after_step(now)
+
+    def stop_latency(self) -> dict:
+        """When the last stop left, measured from the newest valid inputs before it [s]."""
+        rep, worker = self._stop_report, self.worker
+        if rep is None or worker is None or worker.last_stop_sent is None:
+            return {}
+        out = {"stop_reason": rep["reason"]}
+        for key in ("slip", "pose"):
+            t = rep[f"last_{key}_t"]
+            if t is not None:
+                out[f"stop_after_{key}_s"] = worker.last_stop_sent - t
+        return out
 
     def _diagnose(self) -> None:
         state = getattr(self, "_state_machine", None)
@@ -411,6 +427,12 @@ class ControllerNode(LifecycleNode):
             if self.task is not None:
                 values["task_state"] = self.task.state.value
             values.update(self.status())
+            values.update(self.inputs.values())
+            values.update(self.stop_latency())
+            worker = self.worker
+        if worker is not None:
+            values.update(arm_commands_sent=worker.sent,
+                          arm_commands_dropped_after_stop=worker.dropped_after_stop)
         if self.arm_error:
             level, message = c.Diagnostics.ERROR, f"arm error: {self.arm_error}"
         elif not self.active:

@@ -136,6 +136,9 @@ class SlipStopNode(ControllerNode):
                "approach_travel_m": result.approach_travel_m,
                "approach_time_s": result.approach_time_s, "detail": result.detail,
                "final": final}
+        if final:
+            # How long after the newest valid slip estimate and pose the stop went out.
+            doc.update(self.stop_latency())
         doc = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                for k, v in doc.items()}
         if self._result_pub is not None:

@@ -92,7 +92,6 @@ class SlipTrackNode(ControllerNode):
 
     def after_step(self, now: float) -> None:
         """End the task after ``duration_s``; exit when asked to once stopped."""
-        from aslip_ros.control.command import apply_command
         from aslip_ros.control.slip_track import TrackState
         if self._t_start is None:
             return
@@ -101,7 +100,7 @@ class SlipTrackNode(ControllerNode):
                 self.task.state is not TrackState.STOPPED:
             self.get_logger().info(f"tracking ran {limit:g} s; stopping")
             self.task.shutdown(now)
-            apply_command(self.arm, self.task.step(now))
+            self.post(self.task.step(now))
         if self.task.state is TrackState.STOPPED and self.p["exit_when_done"]:
             self.done = True
 

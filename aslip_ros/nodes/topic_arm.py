@@ -1,0 +1,69 @@
+"""The scene's simulated arm as an :class:`aslip_ros.control.arm.Arm`: commands on a topic.
+
+``scene_sim`` executes ``/aslip/arm/cmd_vel`` (TwistStamped, ``link_base``) on the scene's
+arm and publishes the TCP on ``/aslip/robot/tcp_pose``, which the controller hands back
+here with :meth:`TopicArm.set_pose`.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+from geometry_msgs.msg import TwistStamped
+
+from aslip_ros.nodes import common as c
+from aslip_ros.nodes import convert
+
+
+class TopicArm:
+    """An :class:`aslip_ros.control.arm.Arm` whose commands go out as TwistStamped.
+
+    The receiver (``scene_sim``) holds each command for its ``command_timeout_s``, which
+    plays the role of ``duration_s``; a zero twist is a stop.
+    """
+
+    def __init__(self, node, topic: str = c.CMD_VEL_TOPIC, frame_id: str = "link_base"):
+        self._node = node
+        self._pub = node.create_publisher(TwistStamped, topic, c.RELIABLE_QOS)
+        self._frame = frame_id
+        self._pose: Optional[np.ndarray] = None
+        self._enabled = False
+        self.commands = 0
+
+    def connect(self) -> None:
+        """Nothing to open: the topic exists once the publisher does."""
+
+    def enable_velocity_mode(self) -> None:
+        """Accept velocity commands from now on."""
+        self._enabled = True
+
+    def send_velocity(self, v_xyz_m_s, duration_s: float) -> None:
+        """Publish a velocity command [m/s, ``link_base``]."""
+        from aslip_ros.control.arm import ArmError
+        if not self._enabled:
+            raise ArmError("velocity mode is not enabled")
+        now = self._node.get_clock().now().nanoseconds
+        self._pub.publish(convert.twist_to_msg(v_xyz_m_s, now, self._frame))
+        self.commands += 1
+
+    def stop(self) -> None:
+        """Publish a zero twist (a stop)."""
+        now = self._node.get_clock().now().nanoseconds
+        self._pub.publish(convert.twist_to_msg([0.0, 0.0, 0.0], now, self._frame))
+
+    def set_pose(self, pose: np.ndarray) -> None:
+        """Newest TCP pose from the TCP topic."""
+        self._pose = pose
+
+    def tcp_pose(self) -> np.ndarray:
+        """Newest TCP pose received."""
+        from aslip_ros.control.arm import ArmError
+        if self._pose is None:
+            raise ArmError("no TCP pose received yet")
+        return self._pose.copy()
+
+    def close(self) -> None:
+        """Stop; the publisher goes with the node."""
+        self.stop()
+        self._enabled = False
