@@ -102,3 +102,75 @@ def test_undecodable_pose_names_bag_topic_and_message(tmp_path, capsys):
     lines = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(lines) == 1 and str(bag) in lines[0]
     assert not (tmp_path / "ds").exists()
+
+
+@pytest.fixture(scope="module")
+def full_bag(tmp_path_factory):
+    root = tmp_path_factory.mktemp("full")
+    write_synthetic_bag(root / "rec", duration_s=6.0)
+    kept = export([root / "rec"], root / "ds", progress=False).kept
+    return root / "rec", kept
+
+
+def _cut_copy(full, dest, fraction, keep_yaml=True):
+    """A copy of ``full`` cut at ``fraction`` of its MCAP file, as a crash leaves it."""
+    dest.mkdir(parents=True)
+    data = _mcap(full).read_bytes()
+    (dest / f"{dest.name}.mcap").write_bytes(data[:int(len(data) * fraction)])
+    if keep_yaml:
+        text = (full / "metadata.yaml").read_text().replace(full.name, dest.name)
+        (dest / "metadata.yaml").write_text(text)
+    return dest
+
+
+@pytest.mark.parametrize("fraction", [0.3, 0.5, 0.77, 0.95])
+def test_truncated_recording_is_refused_then_recovered(tmp_path, full_bag, fraction):
+    """Regression: a recording cut short was refused as a whole ("File end magic is
+    invalid") although its chunks up to the cut are readable."""
+    from aslip_ros.data.dataset import Dataset
+    full, full_kept = full_bag
+    bag = _cut_copy(full, tmp_path / "bags" / "crashed", fraction)
+    with pytest.raises(bags.BagError, match="crashed.*truncated.*--recover"):
+        export([bag], tmp_path / "ds", progress=False)
+    assert not (tmp_path / "ds").exists()
+    s = export([bag], tmp_path / "ds", progress=False, recover=True)
+    assert 0 < s.kept < full_kept
+    assert s.kept >= int(full_kept * fraction) - 15      # about what the cut leaves
+    (note,) = s.warnings
+    assert str(bag) in note and "lost" in note and "unread" in note
+    assert "of the 2043 messages that its metadata.yaml lists" in note
+    trial = Dataset(tmp_path / "ds").trials[0]
+    assert trial["recovered"] == note and trial["object"] == "synthetic"
+
+
+def test_recovery_without_metadata_yaml_and_nothing_readable(tmp_path, full_bag, capsys):
+    full, _ = full_bag
+    # A crashed recorder may leave no metadata.yaml: the bare .mcap is found and recovered.
+    bag = _cut_copy(full, tmp_path / "bags" / "noyaml", 0.6, keep_yaml=False)
+    rc = cli.main(["export", str(tmp_path / "bags"), "-o", str(tmp_path / "ds"),
+                   "--no-progress", "--recover"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "warning: bag" in out and "noyaml" in out and "lost" in out
+    # A file cut inside its first chunk has nothing to recover: one error line.
+    _cut_copy(full, tmp_path / "b2" / "early", 0.05)
+    rc = cli.main(["export", str(tmp_path / "b2"), "-o", str(tmp_path / "ds2"),
+                   "--no-progress", "--recover"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and "early" in err[0] and "nothing readable" in err[0]
+    assert not (tmp_path / "ds2").exists()
+    assert bag.exists()
+
+
+def test_a_chunk_failing_its_crc_is_skipped_by_recovery(tmp_path, full_bag):
+    full, full_kept = full_bag
+    bag = tmp_path / "flipped"
+    bag.mkdir()
+    data = bytearray(_mcap(full).read_bytes())
+    data[len(data) // 3] ^= 0x10                  # inside the second of five chunks
+    (bag / "flipped.mcap").write_bytes(bytes(data))
+    with pytest.raises(bags.BagError, match="flipped.*CRC mismatch"):
+        export([bag], tmp_path / "ds", progress=False)
+    s = export([bag], tmp_path / "ds", progress=False, recover=True)
+    (note,) = s.warnings
+    assert "a damaged chunk from" in note and "crc validation failed" in note
+    assert 0 < s.kept < full_kept and s.dropped["audio_gap"] > 0

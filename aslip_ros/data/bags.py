@@ -376,11 +376,11 @@ class BagReader:
                     raise self._message_error(conn.topic, k, log_ns, exc) from None
                 yield BagMessage(conn.topic, conn.msgtype, log_ns, msg)
 
-    def _message_error(self, topic: str, k: int, log_ns: int, exc: Exception) -> BagDamaged:
+    def _message_error(self, topic: str, k: int, log_ns: int, exc: Exception) -> BagError:
         after = (log_ns - self.info.start_ns) * 1e-9
         what = str(exc) if isinstance(exc, BagError) else f"{type(exc).__name__}: {exc}"
-        return BagDamaged(f"bag {self.path}: message {k} on {topic} (log time {log_ns} ns, "
-                          f"{after:.3f} s into the bag) cannot be decoded: {what}")
+        return BagError(f"bag {self.path}: message {k} on {topic} (log time {log_ns} ns, "
+                        f"{after:.3f} s into the bag) cannot be decoded: {what}")
 
 
 @dataclass(frozen=True)

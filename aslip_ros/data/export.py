@@ -29,9 +29,7 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import sys
-import tempfile
 import time
 from collections import Counter
 from dataclasses import asdict, dataclass, field, replace
@@ -40,9 +38,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from aslip_ros.data.bags import (AUDIO_TYPE, DEFAULT_TOPICS, POSE_TYPE, BagError,
-                                 BagReader, Topics, find_bags, stamp_to_ns)
+from aslip_ros.data.bags import (AUDIO_TYPE, DEFAULT_TOPICS, POSE_TYPE, BagDamaged,
+                                 BagError, BagReader, Topics, find_bags, stamp_to_ns)
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
+from aslip_ros.data.export_bench import measure_export_speed  # noqa: F401 (public name)
 from aslip_ros.data.labels import (DEFAULT_MAX_GAP_S, IDENTITY_POSE, OK, REASONS,
                                    PoseTrack, mocap_window_velocity, robot_window_velocity)
 
@@ -69,6 +68,7 @@ class ExportConfig:
     topics: Topics = DEFAULT_TOPICS
     overwrite: bool = False
     skip_bad: bool = False
+    recover: bool = False
     progress: bool = True
 
     def validate(self) -> None:
@@ -388,6 +388,37 @@ def _bag_name(path: Path) -> str:
     return path.stem if path.is_file() else path.name
 
 
+def _read_bag(reader: BagReader, cfg: ExportConfig, writer: DatasetWriter, stream: _Stream,
+              bar) -> tuple[dict, BagResult, dict]:
+    with reader as r:
+        meta = r.read_metadata(cfg.topics.metadata) or {}
+        source = _label_source(cfg, meta)
+        r.require([cfg.topics.audio], "audio")
+        r.require(_label_topics(cfg, source), f"labels from {source}")
+        bar.set_postfix_str(_bag_name(r.path), refresh=False)
+        res, trial = _export_bag(r, meta, cfg, writer, stream, bar)
+    return meta, res, trial
+
+
+def _export_or_recover(path: Path, cfg: ExportConfig, writer: DatasetWriter,
+                       stream: _Stream, bar, warnings: list) -> tuple[dict, BagResult, dict]:
+    """Export one bag. A damaged one (cut short, failing a CRC) is refused, or with
+    ``cfg.recover`` its readable part is exported and a warning says what was lost."""
+    try:
+        return _read_bag(BagReader(path), cfg, writer, stream, bar)
+    except BagDamaged as exc:
+        writer.abort_trial()
+        if not cfg.recover:
+            raise BagDamaged(f"{exc}; --recover exports its readable part") from None
+    from aslip_ros.data.recover import RecoveredBagReader
+    reader = RecoveredBagReader(path)
+    meta, res, trial = _read_bag(reader, cfg, writer, stream, bar)
+    note = reader.report.describe(path)
+    warnings.append(note)
+    trial["info"]["recovered"] = note
+    return meta, res, trial
+
+
 def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
            config: ExportConfig | None = None, **overrides: Any) -> ExportSummary:
     """Export ``bags`` (bag files/directories, or directories holding bags) to ``out``.
@@ -415,13 +446,8 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
         for p in paths:
             done = bar.n
             try:
-                with BagReader(p) as r:
-                    meta = r.read_metadata(cfg.topics.metadata) or {}
-                    source = _label_source(cfg, meta)
-                    r.require([cfg.topics.audio], "audio")
-                    r.require(_label_topics(cfg, source), f"labels from {source}")
-                    bar.set_postfix_str(_bag_name(p), refresh=False)
-                    res, trial = _export_bag(r, meta, cfg, writer, stream, bar)
+                meta, res, trial = _export_or_recover(p, cfg, writer, stream, bar,
+                                                      summary.warnings)
                 bar.update(done + 1 - bar.n)
             except BagError as exc:
                 writer.abort_trial()
@@ -496,6 +522,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
     parser.add_argument("--skip-bad", action="store_true",
                         help="skip unreadable or inconsistent bags instead of failing")
+    parser.add_argument("--recover", action="store_true",
+                        help="export the readable part of a damaged bag (a recording cut "
+                             "short by a crash, a chunk failing its CRC) instead of refusing "
+                             "it; a warning says what was lost")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--summary-json", type=Path, help="also write the summary as JSON")
     parser.add_argument("--bench", type=float, metavar="SECONDS", nargs="?", const=60.0,
@@ -517,7 +547,8 @@ def run(args: argparse.Namespace) -> int:
         topics=Topics(audio=args.audio_topic, finger=args.finger_topic,
                       object=args.object_topic, tcp=args.tcp_topic,
                       metadata=args.metadata_topic),
-        overwrite=args.overwrite, skip_bad=args.skip_bad, progress=not args.no_progress)
+        overwrite=args.overwrite, skip_bad=args.skip_bad, recover=args.recover,
+        progress=not args.no_progress)
     try:
         summary = export(args.bags, args.out, cfg)
         print(summary)
@@ -528,50 +559,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"aslip export: error: {exc}", file=sys.stderr)
         return 1
     return 0
-
-
-def measure_export_speed(duration_s: float = 60.0, sample_rate: float = 48000.0,
-                         n_channels: int = 4, workdir: str | os.PathLike | None = None
-                         ) -> dict:
-    """Export a synthetic bag in a child process; report speed against real time and peak RSS.
-
-    The child is a fresh ``aslip export`` process, so ``peak_rss_mib`` is the export's own
-    peak resident memory (interpreter and imports included), not this process's.
-    """
-    from aslip_ros.data.synthetic import write_synthetic_bag
-    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-        bag = Path(tmp) / "bench_bag"
-        names = [f"ch{k}" for k in range(n_channels)]
-        write_synthetic_bag(bag, duration_s=duration_s, sample_rate=sample_rate,
-                            channel_names=names, slip_velocity=(0.01, 0.0, 0.005))
-        summary_path = Path(tmp) / "summary.json"
-        cmd = [sys.executable, "-m", "aslip_ros.cli", "export", str(bag), "-o",
-               str(Path(tmp) / "ds"), "--no-progress", "--summary-json", str(summary_path)]
-        t = time.perf_counter()
-        with open(Path(tmp) / "stderr.txt", "w+") as err:
-            proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
-            # wait4 gives this child's own peak RSS; RUSAGE_CHILDREN would report the
-            # largest child this process ever waited for (a training job, a node...).
-            _, status, usage = os.wait4(proc.pid, 0)
-            proc.returncode = os.waitstatus_to_exitcode(status)
-            wall = time.perf_counter() - t
-            if proc.returncode:
-                err.seek(0)
-                raise RuntimeError(f"benchmark export failed: {err.read().strip()}")
-        summary = json.loads(summary_path.read_text())
-        peak_kib = usage.ru_maxrss
-        bag_mib = sum(f.stat().st_size for f in bag.iterdir()) / 2**20
-    return {
-        "audio_s": summary["audio_s"], "sample_rate": sample_rate, "n_channels": n_channels,
-        "bag_mib": round(bag_mib, 1),
-        "export_s": round(summary["elapsed_s"], 3),
-        "realtime_factor": round(summary["realtime_factor"], 1),
-        "process_wall_s": round(wall, 3),
-        "realtime_factor_with_startup": round(summary["audio_s"] / wall, 1),
-        "peak_rss_mib": round(peak_kib / 1024, 1),
-        "windows": summary["kept"],
-        "command": " ".join(cmd[:4] + ["<bag>", "-o", "<dataset>"]),
-    }
 
 
 if __name__ == "__main__":
