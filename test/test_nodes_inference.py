@@ -206,11 +206,15 @@ def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inferenc
     window_ns = 50_000_000                   # the fixture checkpoint's 50 ms window
 
     def dead_errors():
+        # Only this test's documents, and only the dead-channel ERROR: an earlier case's
+        # "stream refused" ERROR also names every channel of the stream.
         return [d for d in bus.diagnostics("slip_inference")
-                if d["level"] == 2 and dead in d["message"]]
+                if d["level"] == 2 and d["message"].startswith("dead microphone")]
 
     feeder.good(8)
     assert bus.wait(lambda: bus.messages(SLIP), 10), proc.output
+    assert bus.wait(lambda: bus.diagnostics("slip_inference")[-1]["level"] < 2, 5)
+    bus.clear(DIAG)
     bus.clear(SLIP)
     first_dead = feeder.stamp_ns             # start of the first block with the channel dead
     feeder.good(20, silent=(1,))
@@ -230,7 +234,8 @@ def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inferenc
     stamps = [_stamp_ns(m) for m in bus.messages(SLIP)]
     assert not [t for t in stamps if first_dead + window_ns <= t <= last_dead], stamps
     assert bus.wait(lambda: bus.diagnostics("slip_inference")[-1]["level"] < 2, 5)
-    assert bus.diagnostics("slip_inference")[-1]["values"]["dead_channels"] == ""
+    healthy = [d for d in bus.diagnostics("slip_inference") if d["level"] < 2][-1]
+    assert healthy["values"]["dead_channels"] == ""
 
     # dead_channel_margin_db = 0 turns the check off; back on at run time.
     assert all(r.successful for r in bus.set_params("slip_inference",
@@ -243,6 +248,41 @@ def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inferenc
     assert all(r.successful for r in bus.set_params("slip_inference",
                                                     {"dead_channel_margin_db": 40.0}))
     feeder.good(8)
+
+
+# ------------------------------------------------------------------------------ threshold
+
+def test_threshold_parameter_decides_slipping(rclpy_context, ros_env, tmp_path):
+    """p = 0.65 lies between the checkpoint's 0.5 and threshold:=0.8: not slipping, and the
+    message reports the threshold it was decided at; back to the checkpoint's at run time."""
+    from aslip_ros.msg import AudioFrame
+    from aslip_ros.nodes import common as c
+    ckpt = make_checkpoint(tmp_path / "p065.pt", slip_logit=math.log(0.65 / 0.35),
+                           velocity=(0.02, 0.0))
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+    feeder = Feeder(bus, pub)
+    with NodeProcess("slip_inference", ros_env, {"checkpoint": str(ckpt), "threshold": 0.8,
+                                                 "diagnostics_period_s": 0.1}) as inf:
+        inf.wait_ready()
+        assert bus.wait(lambda: pub.get_subscription_count() > 0, 10)
+        assert bus.wait(lambda: feeder.good(4) or len(bus.messages(SLIP)) >= 5, 20), inf.output
+        high = bus.messages(SLIP)
+        assert bus.wait(lambda: bus.diagnostics("slip_inference"), 5)
+        assert bus.diagnostics("slip_inference")[-1]["values"]["threshold"] == 0.8
+        assert all(r.successful for r in bus.set_params("slip_inference", {"threshold": -1.0}))
+        bus.clear(SLIP)
+        assert bus.wait(lambda: feeder.good(4) or len(bus.messages(SLIP)) >= 5, 20), inf.output
+        low = bus.messages(SLIP)[-3:]
+    bus.close()
+    for m in high:
+        assert m.probability == pytest.approx(0.65, abs=1e-4)
+        assert not m.slipping and m.threshold == pytest.approx(0.8)
+        assert (m.velocity.x, m.velocity.z, m.speed) == (0.0, 0.0, 0.0)
+    for m in low:
+        assert m.slipping and m.threshold == pytest.approx(0.5)
+        assert m.velocity.x == pytest.approx(0.02, abs=1e-5)
 
 
 # ------------------------------------------------------------------------------ parameters
