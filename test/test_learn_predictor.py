@@ -83,3 +83,24 @@ def test_stream_check_and_latency_helper():
         p.check_stream(48000.0, ["m0", "m1", "m2"])
     lat = benchmark_latency(p, n_iter=5, n_warmup=1)
     assert 0 < lat["p50_s"] <= lat["p99_s"]
+
+
+def test_one_threshold_decides_and_is_reported(tmp_path):
+    """p = 0.65, between the checkpoint's 0.5 and a user's 0.8: the set threshold decides."""
+    from test_nodes_support import make_checkpoint
+    ckpt = make_checkpoint(tmp_path / "p.pt", slip_logit=float(np.log(0.65 / 0.35)))
+    p = Predictor.from_checkpoint(ckpt)
+    w = window(p)
+    assert p.threshold == p.checkpoint_threshold == 0.5
+    first = p.predict(w)
+    assert first.probability == pytest.approx(0.65, abs=1e-4)
+    assert first.slipping and first.threshold == 0.5
+    assert p.set_threshold(0.8) == 0.8
+    high = p.predict(w)
+    assert not high.slipping and high.threshold == 0.8 and high.speed == 0.0
+    batch = p.predict_batch(np.stack([w, w]))
+    assert not batch.slipping.any() and batch.threshold == 0.8
+    with pytest.raises(ValueError):
+        p.set_threshold(1.2)
+    assert p.threshold == 0.8                       # a refused value changes nothing
+    assert p.set_threshold(None) == 0.5 and p.predict(w).slipping

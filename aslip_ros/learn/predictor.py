@@ -4,8 +4,11 @@
     p.check_stream(sample_rate, channel_names)     # CheckpointMismatch (a ValueError)
     pred = p.predict(window)                        # window: (window_samples, C) float32
 
-Below the threshold (default 0.5, the paper's) the reported slip vector is zero; the
-ungated estimate stays available in ``BatchPrediction.raw_velocity`` for evaluation.
+Below the threshold (default: the checkpoint's, else 0.5, the paper's) the reported slip
+vector is zero; the ungated estimate stays available in ``BatchPrediction.raw_velocity`` for
+evaluation. The predictor is the one holder of the decision threshold: a live user changes
+it with ``set_threshold`` and every estimate carries the threshold it was decided at, so a
+published decision and its reported threshold cannot disagree.
 
 A model fed a window with a dead or disconnected microphone under-reports slip: live users
 check each window first with ``aslip_ros.learn.channel_check.dead_channels``.
@@ -38,6 +41,7 @@ class Prediction:
     speed: float
     direction: tuple[float, float]   # unit (x, z) when slipping, else (0, 0)
     window_length: float
+    threshold: float = 0.5           # the decision threshold ``slipping`` was decided at
 
 
 @dataclass(frozen=True)
@@ -47,6 +51,7 @@ class BatchPrediction:
     velocity: np.ndarray       # (B, 2) gated: zero where not slipping
     raw_velocity: np.ndarray   # (B, 2) ungated estimate
     window_length: float
+    threshold: float = 0.5     # the decision threshold ``slipping`` was decided at
 
     def __len__(self) -> int:
         return int(self.probability.shape[0])
@@ -56,7 +61,7 @@ class BatchPrediction:
         speed = float(np.hypot(v[0], v[1]))
         d = (float(v[0] / speed), float(v[1] / speed)) if speed > 0 else (0.0, 0.0)
         return Prediction(float(self.probability[i]), bool(self.slipping[i]), float(v[0]),
-                          float(v[1]), speed, d, self.window_length)
+                          float(v[1]), speed, d, self.window_length, self.threshold)
 
 
 class _CnnBackend:
@@ -92,9 +97,8 @@ class Predictor:
         self.checkpoint = ckpt
         meta = ckpt.meta
         self.feature_config = FeatureConfig.from_dict(meta["feature_config"])
-        self.threshold = float(meta.get("threshold", 0.5) if threshold is None else threshold)
-        if not (0.0 <= self.threshold <= 1.0):
-            raise ValueError(f"threshold must be in [0, 1], got {self.threshold}")
+        self._threshold = 0.5
+        self.set_threshold(threshold)
         self.window_samples = int(meta["window_samples"])
         self.window_s = float(meta["window_s"])
         self.logmel = LogMel(self.feature_config, ckpt.sample_rate)
@@ -114,6 +118,27 @@ class Predictor:
         return cls(load_checkpoint(path), threshold=threshold)
 
     # --- what the checkpoint expects ------------------------------------------------------
+    @property
+    def checkpoint_threshold(self) -> float:
+        """The decision threshold the checkpoint was selected with (0.5 when it names none)."""
+        return float(self.meta.get("threshold", 0.5))
+
+    @property
+    def threshold(self) -> float:
+        """The decision threshold every following estimate is gated with."""
+        return self._threshold
+
+    def set_threshold(self, threshold: float | None) -> float:
+        """Gate the following estimates at ``threshold`` (``None``: the checkpoint's).
+
+        Returns the threshold now in force; ValueError outside [0, 1] (nothing changes).
+        """
+        t = self.checkpoint_threshold if threshold is None else float(threshold)
+        if not (0.0 <= t <= 1.0):
+            raise ValueError(f"threshold must be in [0, 1], got {t}")
+        self._threshold = t       # one float store: a concurrent predict sees old or new
+        return t
+
     @property
     def meta(self) -> dict[str, Any]:
         return self.checkpoint.meta
@@ -189,10 +214,11 @@ class Predictor:
         return self._gate(p, v)
 
     def _gate(self, prob: np.ndarray, raw: np.ndarray) -> BatchPrediction:
-        slipping = prob >= self.threshold
+        threshold = self._threshold      # read once: the decision and its report agree
+        slipping = prob >= threshold
         vel = np.where(slipping[:, None], raw, 0.0).astype(np.float32)
         return BatchPrediction(prob.astype(np.float32), slipping, vel, raw.astype(np.float32),
-                               self.window_s)
+                               self.window_s, threshold)
 
 
 def benchmark_latency(predictor: Predictor, n_iter: int = 300, n_warmup: int = 30,

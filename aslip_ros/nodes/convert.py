@@ -168,11 +168,15 @@ def slip_to_msg(vx: float, vz: float, probability: float, slipping: bool, thresh
     return msg
 
 
-def prediction_to_slip(pred, threshold: float, stamp_ns: int, source: str,
+def prediction_to_slip(pred, stamp_ns: int, source: str,
                        frame_id: str = GRASP_FRAME) -> SlipVector:
-    """A :class:`aslip_ros.learn.predictor.Prediction` as a SlipVector (validated)."""
-    return slip_to_msg(pred.vx, pred.vz, pred.probability, pred.slipping, threshold, stamp_ns,
-                       pred.window_length, source, frame_id)
+    """A :class:`aslip_ros.learn.predictor.Prediction` as a SlipVector (validated).
+
+    The message's ``threshold`` is the one the prediction's ``slipping`` was decided at
+    (``pred.threshold``), never a second value that could disagree with the decision.
+    """
+    return slip_to_msg(pred.vx, pred.vz, pred.probability, pred.slipping, pred.threshold,
+                       stamp_ns, pred.window_length, source, frame_id)
 
 
 @dataclass(frozen=True)

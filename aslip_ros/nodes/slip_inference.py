@@ -161,7 +161,8 @@ class SlipInference(Node):
             raise c.ConfigError(f"cannot load checkpoint {self.p['checkpoint']!r}: {exc}") \
                 from exc
         pr = self.predictor
-        self.threshold = pr.threshold if self.p["threshold"] < 0 else self.p["threshold"]
+        # The predictor holds the one decision threshold; -1 leaves the checkpoint's.
+        pr.set_threshold(None if self.p["threshold"] < 0 else self.p["threshold"])
         self.source = pr.model_type
         self.ring = RingBuffer(pr.window_samples, pr.n_channels)
         self.gate = StreamGate(self.p["max_time_jump_s"])
@@ -221,7 +222,7 @@ class SlipInference(Node):
                                                    self.predictor.sample_rate)))
             if "threshold" in changed:
                 t = changed["threshold"]
-                self.threshold = self.predictor.threshold if t < 0 else t
+                self.predictor.set_threshold(None if t < 0 else t)
             if "max_time_jump_s" in changed:
                 self.gate.max_time_jump_ns = int(changed["max_time_jump_s"] * 1e9)
             if "marker_scale_s" in changed:
@@ -316,7 +317,7 @@ class SlipInference(Node):
                 self._back, self._front = self._front, self._back
             try:
                 with self._lock:
-                    threshold, margin_db = self.threshold, self.dead_margin_db
+                    margin_db = self.dead_margin_db
                 dead = dead_channels(self._front, pr.channel_names, margin_db) \
                     if margin_db > 0 else []
                 if dead:
@@ -324,7 +325,7 @@ class SlipInference(Node):
                     continue
                 pred = pr.predict(self._front)
                 try:
-                    out = convert.prediction_to_slip(pred, threshold, stamp_ns, self.source,
+                    out = convert.prediction_to_slip(pred, stamp_ns, self.source,
                                                      self.p["frame_id"])
                 except ValueError as exc:
                     with self._lock:
@@ -379,7 +380,7 @@ class SlipInference(Node):
                       "frames_lost": self.frames_lost, "estimates_published": self.published,
                       "hops_superseded": self.hops_superseded,
                       "dead_channel_windows": self.dead_windows,
-                      "threshold": self.threshold, "model": self.source}
+                      "threshold": self.predictor.threshold, "model": self.source}
             values.update({f"dropped_{k}": v for k, v in sorted(self.drops.items())})
             names = self.predictor.channel_names
             dead = [n for n in names if n in self.dead_recent]
