@@ -129,15 +129,25 @@ def test_still_object_is_not_slipping_and_bad_params_refused(rclpy_context, ros_
 
 
 HELD_AT = np.array([0.01, -0.02, 0.05])      # object origin in the finger frame [m]
-SLIDE_FROM_S = 1.5
 
 
-def _held_then_sliding(t):
-    """Finger still (yawed and rolled) holding the object at HELD_AT; from SLIDE_FROM_S the
-    arm moves and the object slides 0.02 m/s along the finger's x axis."""
+class HeldThenSliding:
+    """Finger still (yawed and rolled) holding the object at HELD_AT; from ``slide_from``
+    (motion time [s], set by the test once the bridge has calibrated, so that a bridge
+    slow to discover the poses still measures the held object) the arm moves and the
+    object slides 0.02 m/s along the finger's x axis."""
+
+    def __init__(self) -> None:
+        self.slide_from = float("inf")
+
+    def __call__(self, t):
+        return _held_then_sliding(t, self.slide_from)
+
+
+def _held_then_sliding(t, slide_from):
     from scipy.spatial.transform import Rotation
     q = Rotation.from_euler("zx", [90, 30], degrees=True)
-    moving = max(0.0, t - SLIDE_FROM_S)
+    moving = max(0.0, t - slide_from)
     p_f = np.array([0.4 + 0.05 * moving, 0.1, 0.3])
     p_o = p_f + q.apply(HELD_AT + [0.02 * moving, 0.0, 0.0])
     return np.concatenate([p_f, q.as_quat()]), np.concatenate([p_o, [0, 0, 0, 1.0]])
@@ -158,19 +168,21 @@ def test_measured_calibration_is_the_held_objects_offset(rclpy_context, ros_env)
     bus.listen(String, "/aslip/diagnostics", c.RELIABLE_QOS)
     params = {"calibration": "measure", "calibration_s": 0.4, "window_s": 0.1,
               "grasp_plane_in_finger": param}
-    slide_s = SLIDE_FROM_S + 0.1 + 0.02          # windows ending later lie in the slide
     with NodeProcess("mocap_bridge", ros_env, params) as node:
         node.wait_ready()
-        streamer = PoseStreamer(bus, _held_then_sliding)
+        motion = HeldThenSliding()
+        streamer = PoseStreamer(bus, motion)
 
         def motion_s(m):
             return (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
                     - streamer.t0_ns) * 1e-9
-        assert node.wait_for("grasp-plane calibration measured", 10), node.output
+        assert node.wait_for("grasp-plane calibration measured", 30), node.output
+        motion.slide_from = (time.time_ns() - streamer.t0_ns) * 1e-9 + 0.2
+        slide_s = motion.slide_from + 0.1 + 0.02     # windows ending later lie in the slide
         assert bus.wait(lambda: sum(motion_s(m) > slide_s for m in bus.messages(TRUTH)) >= 10,
-                        10), node.output
+                        30), node.output
         assert bus.wait(lambda: any("grasp_plane_in_finger" in d["values"] for d in
-                                    bus.diagnostics("mocap_bridge")), 5)
+                                    bus.diagnostics("mocap_bridge")), 10)
     streamer.close()
     bus.close()
     got = bus.messages(TRUTH)
@@ -180,7 +192,7 @@ def test_measured_calibration_is_the_held_objects_offset(rclpy_context, ros_env)
              for d in bus.diagnostics("mocap_bridge") if "grasp_plane_in_finger" in d["values"]]
     np.testing.assert_allclose(calib[-1][:3], HELD_AT, atol=2e-6)
     np.testing.assert_allclose(calib[-1][3:], q_param.as_quat(), atol=2e-6)
-    held = [m for m in got if motion_s(m) < SLIDE_FROM_S]
+    held = [m for m in got if motion_s(m) < motion.slide_from]
     assert held and not any(m.slipping for m in held)
     v = q_param.inv().apply([0.02, 0.0, 0.0])                 # the slide, in the grasp plane
     for m in (m for m in got if motion_s(m) > slide_s):
