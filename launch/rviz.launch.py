@@ -1,18 +1,15 @@
 """rviz with the A-SLIP view: predicted and ground-truth slip arrows, finger/object/TCP poses.
 
     ros2 launch aslip_ros rviz.launch.py
+
+Without rviz2 installed it logs that and starts nothing (include it in a larger launch, or
+pass `rviz:=true` to the closed-loop launch files, without that graph failing).
 """
 
-import os
-
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch_ros.actions import Node
+
+from aslip_ros.nodes.closed_loop_launch import rviz_actions
 
 
 def generate_launch_description():
-    rviz_cfg = os.path.join(get_package_share_directory("aslip_ros"), "config", "aslip.rviz")
-    return LaunchDescription([
-        Node(package="rviz2", executable="rviz2", name="rviz2", arguments=["-d", rviz_cfg],
-             output="screen"),
-    ])
+    return LaunchDescription(rviz_actions())

@@ -222,13 +222,20 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     context down at once, after which a controller could no longer publish its final stop
     command. Here a signal only ends the spin loop; the node's ``before_shutdown()`` (if
     any) runs while the context still works, then the node is destroyed.
+    The process is tied to its parent (``_tie_to_parent``): when ``ros2 launch`` (or a test)
+    dies without stopping it, the node gets SIGTERM and shuts down the same way. Once a signal
+    came, the process exits within ``EXIT_GRACE_S`` even if a cleanup step hangs, so a launch
+    never has to escalate to SIGKILL (which would skip the controllers' stop command).
     Returns the process exit code (``EXIT_CONFIG`` when the node refused its configuration).
     """
+    _tie_to_parent()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
 
     def on_signal(signum, _frame) -> None:
-        stop.set()
+        if not stop.is_set():
+            stop.set()
+            _exit_after(EXIT_GRACE_S, _name(factory))
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
@@ -267,6 +274,36 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
 
 def _name(factory) -> str:
     return getattr(factory, "__name__", "aslip node")
+
+
+#: Seconds from SIGINT/SIGTERM to a forced exit; below launch's 5 s SIGINT->SIGTERM step.
+EXIT_GRACE_S = 4.0
+
+
+def _tie_to_parent() -> None:
+    """Get SIGTERM when the parent process dies (Linux), e.g. ``ros2 launch`` killed by
+    SIGTERM or SIGKILL: a node must never outlive its launch."""
+    import os
+
+    from aslip_ros.util import die_with_parent
+    parent = os.getppid()
+    die_with_parent()
+    if os.getppid() != parent:     # the parent died before the tie was made
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _exit_after(seconds: float, name: str) -> None:
+    """Force the process out ``seconds`` from now unless it has exited by then."""
+    import os
+
+    def force() -> None:
+        print(f"[{name}] shutdown took over {seconds:g} s; exiting now", file=sys.stderr,
+              flush=True)
+        os._exit(0)
+
+    timer = threading.Timer(seconds, force)
+    timer.daemon = True
+    timer.start()
 
 
 def ready(node, detail: str = "") -> None:

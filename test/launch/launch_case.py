@@ -1,0 +1,313 @@
+"""What the launch tests share: the launch description, an isolated domain, a topic probe.
+
+Each test file in this folder is a launch_testing test (run it with ``launch_test FILE`` or
+through pytest, where the launch_testing plugin collects it). Without launch_testing this
+module still imports, and ``MISSING`` says why the launch tests cannot run; conftest.py
+then skips them with that reason.
+
+The launched graph runs on a ROS domain reserved for it (``domain_coordinator``) with
+localhost discovery, so launch tests run beside the rest of the suite and other ROS users.
+The probe reads the graph's topics on that domain through its own rclpy context.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+
+try:
+    import launch
+    import launch_ros  # noqa: F401 - the launch files need it
+    import launch_testing.actions
+    from launch.launch_description_sources import PythonLaunchDescriptionSource
+except ImportError as exc:
+    MISSING = (f"{exc.name} is not importable: source a ROS 2 Jazzy install or "
+               "build/ros2-launch/env.sh")
+else:
+    MISSING = None
+
+#: The domain reservations live as long as the test process.
+_RESERVED = []
+
+
+def reserve_domain() -> int:
+    """A ROS_DOMAIN_ID no other user of domain_coordinator gets while this process runs."""
+    from domain_coordinator import domain_id
+    cm = domain_id()
+    did = cm.__enter__()
+    _RESERVED.append(cm)
+    return int(did)
+
+
+def description(launch_file: str, args: dict):
+    """``generate_test_description`` result: ``launch_file`` of the installed package,
+    with ``args``, on a domain of its own; the tests get that ``domain``."""
+    import os
+
+    from ament_index_python.packages import get_package_share_directory
+    from launch.actions import GroupAction, IncludeLaunchDescription, SetEnvironmentVariable
+    path = os.path.join(get_package_share_directory("aslip_ros"), "launch", launch_file)
+    did = reserve_domain()
+    # Scoped: the variables reach the launched processes, not the test process's environ.
+    group = GroupAction(scoped=True, forwarding=True, actions=[
+        SetEnvironmentVariable("ROS_DOMAIN_ID", str(did)),
+        SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"),
+        SetEnvironmentVariable("PYTHONUNBUFFERED", "1"),
+        IncludeLaunchDescription(PythonLaunchDescriptionSource(path),
+                                 launch_arguments=[(k, str(v)) for k, v in args.items()]),
+    ])
+    return (launch.LaunchDescription([group, launch_testing.actions.ReadyToTest()]),
+            {"domain": did})
+
+
+class Probe:
+    """Subscribes to graph topics on ``domain`` and keeps what arrives, with receipt times.
+
+    ``topics`` maps a name to ``(topic, type, qos)``; ``received[name]`` is a list of
+    ``(monotonic time, message)``. Spins on a daemon thread until ``close()``.
+    """
+
+    def __init__(self, domain: int, topics: dict) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+
+        self._ctx = Context()
+        rclpy.init(context=self._ctx, domain_id=domain)
+        self.node = rclpy.create_node("aslip_launch_probe", context=self._ctx)
+        self.received = {name: [] for name in topics}
+        self._lock = threading.Lock()
+        for name, (topic, msg_type, qos) in topics.items():
+            self.node.create_subscription(msg_type, topic, self._keeper(name), qos)
+        self._ex = SingleThreadedExecutor(context=self._ctx)
+        self._ex.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _keeper(self, name: str):
+        def keep(msg) -> None:
+            with self._lock:
+                self.received[name].append((time.monotonic(), msg))
+        return keep
+
+    def _spin(self) -> None:
+        import rclpy
+        while rclpy.ok(context=self._ctx):
+            try:
+                self._ex.spin_once(timeout_sec=0.1)
+            except Exception:  # noqa: BLE001 - the context went down under us
+                return
+
+    def messages(self, name: str) -> list:
+        """A copy of what arrived on ``name`` so far."""
+        with self._lock:
+            return list(self.received[name])
+
+    def wait_for(self, predicate, timeout: float, what: str):
+        """Poll ``predicate()`` until it returns something truthy; fail after ``timeout``."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            value = predicate()
+            if value:
+                return value
+            time.sleep(0.1)
+        raise AssertionError(f"no {what} within {timeout:g} s")
+
+    def close(self) -> None:
+        """Stop spinning and release the context."""
+        import rclpy
+        rclpy.try_shutdown(context=self._ctx)
+        self._thread.join(timeout=5.0)
+
+
+def closed_loop_topics() -> dict:
+    """Arm commands, slip estimates, controller diagnostics and the slip-stop result."""
+    from geometry_msgs.msg import TwistStamped
+    from std_msgs.msg import String
+
+    from aslip_ros.msg import SlipVector
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.slip_stop import RESULT_TOPIC
+    return {"cmd": (c.CMD_VEL_TOPIC, TwistStamped, c.RELIABLE_QOS),
+            "slip": (c.SLIP_TOPIC, SlipVector, c.RELIABLE_QOS),
+            "diag": (c.DIAG_JSON_TOPIC, String, c.RELIABLE_QOS),
+            "result": (RESULT_TOPIC, String, c.LATCHED_QOS)}
+
+
+def speed(twist_msg) -> float:
+    """Commanded TCP speed [m/s] of a TwistStamped."""
+    v = twist_msg.twist.linear
+    return math.sqrt(v.x * v.x + v.y * v.y + v.z * v.z)
+
+
+def moving_commands(probe: Probe) -> list:
+    """Arm commands with a non-zero velocity, as ``(time, msg)``."""
+    return [(t, m) for t, m in probe.messages("cmd") if speed(m) > 0.0]
+
+
+def assert_arm_commanded(probe: Probe, at_least: int = 20) -> list:
+    """The controller drove the arm: ``at_least`` moving commands in ``link_base``.
+
+    Returns them. This is what fails when the controller never commands the arm.
+    """
+    moving = moving_commands(probe)
+    if len(moving) < at_least:
+        raise AssertionError(f"the controller sent {len(moving)} moving arm commands "
+                             f"(of {len(probe.messages('cmd'))} on the topic); expected "
+                             f">= {at_least}")
+    frames = {m.header.frame_id for _, m in moving}
+    if frames != {"link_base"}:
+        raise AssertionError(f"arm commands in frames {frames}, expected link_base")
+    return moving
+
+
+def controller_status(probe: Probe, node: str) -> list:
+    """The controller's diagnostics values, oldest first (from /aslip/diagnostics)."""
+    out = []
+    for _, m in probe.messages("diag"):
+        doc = json.loads(m.data)
+        if doc.get("name") == f"aslip: {node}":
+            out.append(dict(doc.get("values", {}), level=doc.get("level"),
+                            message=doc.get("message")))
+    return out
+
+
+def final_slip_stop_result(probe: Probe):
+    """The final slip-stop result document, or None yet."""
+    for _, m in reversed(probe.messages("result")):
+        doc = json.loads(m.data)
+        if doc.get("final"):
+            return doc
+    return None
+
+
+def assert_no_motion_after(probe: Probe, t_stop: float) -> None:
+    """No moving arm command was received after ``t_stop`` (monotonic)."""
+    late = [speed(m) for t, m in moving_commands(probe) if t > t_stop]
+    if late:
+        raise AssertionError(f"{len(late)} moving arm commands after the stop "
+                             f"(up to {max(late):.4f} m/s)")
+
+
+#: The task's reasons to end (aslip_ros.control.slip_stop.StopReason values).
+def slip_stop_reasons() -> set:
+    from aslip_ros.control.slip_stop import StopReason
+    return {r.value for r in StopReason}
+
+
+def rviz_missing() -> bool:
+    """True where rviz2 is not installed (the launch files then run without it)."""
+    from aslip_ros.nodes.closed_loop_launch import rviz_found
+    return not rviz_found()
+
+
+def post_shutdown_test():
+    """``launch_testing.post_shutdown_test()``, or a no-op where launch_testing is missing."""
+    if MISSING is not None:
+        return lambda cls: cls
+    return launch_testing.post_shutdown_test()
+
+
+def assert_clean_exit(proc_info) -> None:
+    """Every process exited 0 (or died of the launch's SIGINT), none was killed."""
+    import launch_testing.asserts
+    launch_testing.asserts.assertExitCodes(proc_info, allowable_exit_codes=[0, -2])
+
+
+def final_result_time(probe: Probe):
+    """Receipt time of the first final slip-stop result, or None."""
+    for t, m in probe.messages("result"):
+        if json.loads(m.data).get("final"):
+            return t
+    return None
+
+
+def assert_rviz_started_where_installed(proc_info) -> None:
+    """With ``rviz:=true``: an rviz2 process where rviz2 is installed, none elsewhere."""
+    names = [str(n) for n in proc_info.process_names()]
+    started = any(n.startswith("rviz2") for n in names)
+    if started == rviz_missing():
+        raise AssertionError(f"rviz2 {'missing' if rviz_missing() else 'installed'} but "
+                             f"the launched processes were {names}")
+
+
+def scene_tcp(probe: Probe, after: float = 0.0, first: bool = False):
+    """A TCP position [m] scene_sim reported on its diagnostics after ``after``
+    (monotonic): the newest, or with ``first`` the oldest; None when there is none yet."""
+    msgs = [m for t, m in probe.messages("diag") if t > after]
+    for m in (msgs if first else reversed(msgs)):
+        doc = json.loads(m.data)
+        if doc.get("name") == "aslip: scene_sim":
+            v = doc.get("values", {})
+            if all(k in v for k in ("tcp_x", "tcp_y", "tcp_z")):
+                return [float(v["tcp_x"]), float(v["tcp_y"]), float(v["tcp_z"])]
+    return None
+
+
+def rviz_config():
+    """``(fixed frame, [display topics])`` of the installed config/aslip.rviz."""
+    import os
+
+    import yaml
+    from ament_index_python.packages import get_package_share_directory
+    path = os.path.join(get_package_share_directory("aslip_ros"), "config", "aslip.rviz")
+    with open(path) as f:
+        doc = yaml.safe_load(f)
+    manager = doc["Visualization Manager"]
+    topics = [d["Topic"]["Value"] for d in manager["Displays"]
+              if isinstance(d.get("Topic"), dict) and d["Topic"].get("Value")]
+    return manager["Global Options"]["Fixed Frame"], topics
+
+
+def rviz_topics(displays) -> dict:
+    """Probe subscriptions for rviz's display topics (named by topic) and TF."""
+    from geometry_msgs.msg import PoseStamped
+    from tf2_msgs.msg import TFMessage
+    from visualization_msgs.msg import MarkerArray
+
+    from aslip_ros.nodes import common as c
+    out = {}
+    for topic in displays:
+        msg_type = MarkerArray if "marker" in topic else PoseStamped
+        qos = c.MARKER_QOS if msg_type is MarkerArray else c.SENSOR_QOS
+        out[topic] = (topic, msg_type, qos)
+    out["/tf"] = ("/tf", TFMessage, c.SENSOR_QOS)
+    out["/tf_static"] = ("/tf_static", TFMessage, c.LATCHED_QOS)
+    return out
+
+
+def header_frames(messages) -> set:
+    """The frame ids of stamped messages or of the markers of MarkerArrays."""
+    frames = set()
+    for _, m in messages:
+        if hasattr(m, "markers"):
+            frames.update(k.header.frame_id for k in m.markers)
+        else:
+            frames.add(m.header.frame_id)
+    return frames
+
+
+def tf_edges(probe: Probe) -> set:
+    """``(parent, child)`` of every transform received on /tf and /tf_static."""
+    return {(t.header.frame_id, t.child_frame_id)
+            for name in ("/tf", "/tf_static") for _, m in probe.messages(name)
+            for t in m.transforms}
+
+
+def tf_connected(edges: set, a: str, b: str) -> bool:
+    """Whether TF ``edges`` join frames ``a`` and ``b`` (in either direction)."""
+    if a == b:
+        return True
+    seen, todo = {a}, [a]
+    while todo:
+        f = todo.pop()
+        for p, ch in edges:
+            for nxt in ((ch,) if p == f else ()) + ((p,) if ch == f else ()):
+                if nxt == b:
+                    return True
+                if nxt not in seen:
+                    seen.add(nxt)
+                    todo.append(nxt)
+    return False
