@@ -116,3 +116,31 @@ def test_presets_tiny(tmp_path, monkeypatch):
     ft = Dataset(tmp_path / "datasets" / "1mic" / "finetune")
     assert ft.trials[0]["induced"] == "external" and ft.channel_names == ["left_center"]
     assert (tmp_path / "datasets" / "summary.json").is_file()
+
+
+@pytest.mark.skipif(_scene_ready() is not None, reason="scene not available")
+def test_simulate_refuses_bags_recorded_with_other_parameters(tmp_path, capsys):
+    """Regression: simulate into a folder holding bags of another duration or layout kept
+    them silently, so one set mixed two recordings."""
+    out = tmp_path / "bags"
+    base = ["simulate", "--kind", "external", "--trials", "1", "-o", str(out),
+            "--no-progress"]
+    assert cli.main(base + ["--duration", "0.6", "--layout", "2mic_corners"]) == 0
+    (bag,) = bags.find_bags([out])
+    stamp = bag.stat().st_mtime_ns
+    # The same call resumes: the bag is kept.
+    assert cli.main(base + ["--duration", "0.6", "--layout", "2mic_corners"]) == 0
+    assert "1 existing kept" in capsys.readouterr().out
+    for other, what in ((["--duration", "0.8", "--layout", "2mic_corners"], "duration"),
+                        (["--duration", "0.6", "--layout", "4mic"], "layout"),
+                        (["--duration", "0.6", "--layout", "2mic_corners", "--seed", "3"],
+                         "seed")):
+        assert cli.main(base + other) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(bag) in err[0] and what in err[0], err
+        assert "--overwrite" in err[0]
+        assert bag.stat().st_mtime_ns == stamp
+    # --overwrite replaces it with the new parameters.
+    assert cli.main(base + ["--duration", "0.8", "--layout", "4mic", "--overwrite"]) == 0
+    with bags.BagReader(bag) as r:
+        assert r.metadata["layout"] == "4mic" and r.metadata["duration_s"] == 0.8

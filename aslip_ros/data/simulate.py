@@ -15,13 +15,14 @@ paired.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 import zlib
 from pathlib import Path
 from typing import Any, Sequence
 
-from aslip_ros.data.bags import BagWriter
+from aslip_ros.data.bags import BagError, BagReader, BagWriter
 
 KINDS = {"robot": "robot_induced", "external": "external_induced"}
 DEFAULT_START_NS = 1_700_000_000_000_000_000   # a fixed ROS time so bags are reproducible
@@ -36,12 +37,14 @@ def trial_seed(base_seed: int, kind: str, object: str, condition: str, index: in
 
 def record_world(world: Any, path: str | Path, *, block_frames: int = DEFAULT_BLOCK_FRAMES,
                  start_ns: int = DEFAULT_START_NS, overwrite: bool = False,
-                 on_block=None) -> dict:
+                 on_block=None, extra_metadata: dict | None = None) -> dict:
     """Stream ``world`` (anything with ``metadata()`` and ``stream(block_frames=)``) to a bag.
 
-    ``on_block(seconds)`` is called after each block (progress). Returns counts written.
+    ``on_block(seconds)`` is called after each block (progress). ``extra_metadata`` is
+    added to the world's metadata. Returns counts written.
     """
     meta = dict(world.metadata())
+    meta.update(extra_metadata or {})
     sample_rate = float(meta["sample_rate"])
     names = list(meta["channel_names"])
     layout = meta.get("layout", "")
@@ -93,6 +96,26 @@ def plan_trials(kind: str, objects: Sequence[str | None], conditions: Sequence[s
     return plan
 
 
+def recorded_differently(path: Path, metadata: dict, duration_s: float) -> str:
+    """How the bag at ``path`` differs from a trial with ``metadata`` and ``duration_s``
+    ("" when it is that trial). Bags without a recorded duration are measured instead."""
+    try:
+        with BagReader(path) as r:
+            old = r.read_metadata() or {}
+            span_s = r.info.duration_ns * 1e-9
+    except BagError as exc:
+        return f"it cannot be read ({exc})"
+    new = json.loads(json.dumps(metadata))
+    diffs = [f"{k} {old.get(k)!r} != {v!r}" for k, v in new.items()
+             if k != "duration_s" and old.get(k) != v]
+    old_duration = old.get("duration_s")
+    # Without a recorded duration, the messages span the trial less one block or sample.
+    if (old_duration is None and abs(span_s - duration_s) > 0.1) or (
+            old_duration is not None and old_duration != duration_s):
+        diffs.insert(0, f"duration {old_duration or round(span_s, 2)!r} s != {duration_s!r} s")
+    return "; ".join(diffs)
+
+
 def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = (None,),
              conditions: Sequence[str | None] = (None,), trials: int = 1,
              duration_s: float = 30.0, seed: int = 0, layout: str | None = None,
@@ -101,7 +124,10 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
     """Simulate ``trials`` bags per (object, condition) into ``out_dir``.
 
     ``None`` for object/condition/layout/pad means the scenario's own default. Existing bags
-    are kept (so an interrupted run resumes) unless ``overwrite``. Returns a summary dict.
+    of the same trials are kept (so an interrupted run resumes) unless ``overwrite``; an
+    existing bag recorded with other parameters (duration, layout, pad, seed, scene
+    version...) is refused with a ValueError before anything is recorded, since keeping it
+    would mix two recordings in one set. Returns a summary dict.
     """
     from tqdm import tqdm
 
@@ -109,6 +135,16 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
     make = getattr(scenarios, KINDS[kind])
     plan = plan_trials(kind, objects, conditions, trials, seed, layout, pad, duration_s)
     out = Path(out_dir)
+    worlds = [World(make(**kw)) for kw in plan]
+    extra = {"duration_s": float(duration_s)}
+    if not overwrite:
+        for kw, world in zip(plan, worlds):
+            path = out / kw["trial_id"]
+            why = path.exists() and recorded_differently(path, {**world.metadata(), **extra},
+                                                         float(duration_s))
+            if why:
+                raise ValueError(f"{path} holds a bag recorded with other parameters ({why}); "
+                                 "pass --overwrite to replace such bags, or another --out")
     out.mkdir(parents=True, exist_ok=True)
     summary = {"bags": [], "skipped": [], "audio_s": 0.0}
     t_start = time.perf_counter()
@@ -116,15 +152,14 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
               disable=not progress, leave=False,
               bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s audio [{elapsed}<{remaining}]"
               ) as bar:
-        for kw in plan:
+        for kw, world in zip(plan, worlds):
             path = out / kw["trial_id"]
             if path.exists() and not overwrite:
                 summary["skipped"].append(str(path))
                 bar.update(duration_s)
                 continue
-            world = World(make(**kw))
             counts = record_world(world, path, block_frames=block_frames, overwrite=overwrite,
-                                  on_block=bar.update)
+                                  on_block=bar.update, extra_metadata=extra)
             summary["bags"].append(str(path))
             summary["audio_s"] += counts["audio_s"]
     summary["elapsed_s"] = time.perf_counter() - t_start
@@ -169,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
                            duration_s=args.duration, seed=args.seed, layout=args.layout,
                            pad=args.pad, block_frames=args.block_frames,
                            overwrite=args.overwrite, progress=not args.no_progress)
-    except ValueError as exc:
+    except (ValueError, OSError) as exc:
         print(f"aslip simulate: error: {exc}", file=sys.stderr)
         return 1
     rate = summary["audio_s"] / summary["elapsed_s"] if summary["elapsed_s"] > 0 else 0.0
