@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from aslip_ros import cli
 
 
@@ -27,3 +29,79 @@ def test_unknown_subcommand_is_an_error():
                          capture_output=True, text=True, timeout=60)
     assert out.returncode != 0
     assert "invalid choice" in out.stderr
+
+
+def _lines(text):
+    return [ln for ln in text.strip().splitlines() if ln.strip()]
+
+
+def test_train_with_too_few_trials_refuses_instead_of_calling_training_numbers_val(
+        tmp_path, capsys):
+    """Regression: with no validation trial, `aslip train` validated on the training set and
+    printed those numbers labelled "val" (CNN and SVM alike)."""
+    from aslip_ros.learn.synthetic import make_synthetic_dataset
+    ds = make_synthetic_dataset(tmp_path / "ds", n_trials=2, duration_s=2.0)
+    for stage in ("svm", "scratch"):
+        rc = cli.main(["train", "--dataset", str(ds), "--stage", stage, "--out",
+                       str(tmp_path / f"{stage}.pt"), "--epochs", "1", "--width", "4",
+                       "--no-progress", "--threads", "1"])
+        out = capsys.readouterr()
+        err = _lines(out.err)
+        assert rc == 1 and "val detection" not in out.out, (stage, out)
+        assert len(err) == 1 and "no validation trials" in err[0] and str(ds) in err[0]
+        assert "2 trial(s): 2 train, 0 val, 0 test" in err[0]
+        assert not (tmp_path / f"{stage}.pt").exists()
+
+
+def test_evaluate_on_an_empty_test_split_names_split_all(tmp_path, capsys):
+    """Regression: evaluate failed on an empty test split without saying --split all."""
+    from aslip_ros.learn.synthetic import make_synthetic_dataset
+    big = make_synthetic_dataset(tmp_path / "big", n_trials=6, duration_s=2.0)
+    small = make_synthetic_dataset(tmp_path / "small", n_trials=3, duration_s=2.0, seed=5)
+    ckpt = tmp_path / "svm.pt"
+    assert cli.main(["train", "--dataset", str(big), "--stage", "svm", "--out", str(ckpt),
+                     "--no-progress", "--threads", "1"]) == 0
+    capsys.readouterr()
+    rc = cli.main(["evaluate", "--checkpoint", str(ckpt), "--dataset", str(small)])
+    err = _lines(capsys.readouterr().err)
+    assert rc == 1 and len(err) == 1 and "--split all" in err[0], err
+    assert "3 trial(s): 2 train, 1 val, 0 test" in err[0]
+    assert cli.main(["evaluate", "--checkpoint", str(ckpt), "--dataset", str(small),
+                     "--split", "all"]) == 0
+
+
+def test_exit_codes_are_one_rule_across_subcommands(tmp_path, capsys):
+    """1: the command refused its input (one line on stderr); 2: the command line is wrong.
+    Regression: simulate and export exited 1, train and evaluate 2, for the same failure."""
+    missing = str(tmp_path / "missing")
+    refused = {
+        "export": ["export", missing, "-o", str(tmp_path / "ds"), "--no-progress"],
+        "train": ["train", "--dataset", missing, "--out", str(tmp_path / "m.pt"),
+                  "--no-progress"],
+        "evaluate": ["evaluate", "--checkpoint", missing, "--dataset", missing],
+        "simulate": ["simulate", "--kind", "robot", "--duration", "-1", "-o",
+                     str(tmp_path / "b"), "--no-progress"],
+    }
+    for name, argv in refused.items():
+        rc = cli.main(argv)
+        err = _lines(capsys.readouterr().err)
+        assert rc == 1 and len(err) == 1 and err[0].startswith(f"aslip {name}: error:"), (
+            name, rc, err)
+    for name in ("export", "train", "evaluate", "simulate"):
+        with pytest.raises(SystemExit) as exc:
+            cli.main([name, "--no-such-option"])
+        assert exc.value.code == 2
+    capsys.readouterr()
+
+
+def test_a_refused_input_reaching_the_top_is_one_line(monkeypatch, capsys):
+    import types
+    fake = types.SimpleNamespace(add_arguments=lambda p: None,
+                                 run=lambda a: open("/nonexistent/dir/file", "w"))
+    monkeypatch.setattr(cli, "_load", lambda module: fake)
+    assert cli.main(["export"]) == 1
+    err = _lines(capsys.readouterr().err)
+    assert len(err) == 1 and "aslip export: error:" in err[0] and "/nonexistent" in err[0]
+    monkeypatch.setenv("ASLIP_DEBUG", "1")
+    with pytest.raises(OSError):
+        cli.main(["export"])

@@ -324,6 +324,16 @@ class Dataset:
 DEFAULT_FRACTIONS = {"train": 0.7, "val": 0.15, "test": 0.15}
 
 
+def split_summary(trials: Sequence[Mapping[str, Any]], seed: int = 0,
+                  fractions: Mapping[str, float] | None = None) -> str:
+    """How :func:`split_trials` shares ``trials`` out, for messages: "3 trials: 2 train,
+    1 val, 0 test (split seed 0)"."""
+    parts = split_trials(trials, fractions, seed)
+    return (f"{len(trials)} trial(s): "
+            + ", ".join(f"{len(v)} {k}" for k, v in parts.items())
+            + f" (split seed {seed})")
+
+
 def split_trials(trials: Sequence[Mapping[str, Any]],
                  fractions: Mapping[str, float] | None = None, seed: int = 0,
                  stratify: Sequence[str] = ("object", "condition")) -> dict[str, np.ndarray]:

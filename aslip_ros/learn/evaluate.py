@@ -100,7 +100,12 @@ def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str 
     idx = select_windows(ds, split, induced=induced, objects=objects, conditions=conditions,
                          seed=split_seed)
     if idx.size == 0:
-        raise ValueError(f"no windows in split {split!r} of {dataset} with these filters")
+        from aslip_ros.data.dataset import split_summary
+        hint = ("" if split == "all" else
+                f"; the split by trial gives {split_summary(ds.trials, split_seed)}: "
+                "--split all evaluates every trial (for a dataset held out from training)")
+        raise ValueError(f"no windows in split {split!r} of {dataset} with these filters"
+                         + hint)
     probs, raws = [], []
     for s in range(0, idx.size, 2048):
         b = pred.predict_batch(ds.window_audio(idx[s:s + 2048], cols), batch_size=batch_size)

@@ -243,8 +243,13 @@ def _split(ds: WindowSet, cfg: TrainConfig, log: Callable[[str], None]
     if tr.size == 0:
         raise ValueError(f"no training windows in {ds.root} with these filters")
     if va.size == 0:
-        log("warning: no validation trials; early stopping watches the training loss")
-        va = tr
+        # Validating on the training set would report training numbers as "val".
+        from aslip_ros.data.dataset import split_summary
+        raise ValueError(
+            f"no validation trials in {ds.root} with these filters: the split by trial gives "
+            f"{split_summary(ds.trials, cfg.split_seed)}; validation needs trials that are "
+            "not trained on: record and export more trials (of one object and condition, 3 "
+            "give a validation trial, 5 a test trial too) or loosen the filters")
     return tr, va
 
 
