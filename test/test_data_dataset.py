@@ -105,3 +105,37 @@ def test_rejects_non_datasets(tmp_path):
     (tmp_path / "manifest.json").write_text('{"format": "other"}')
     with pytest.raises(ValueError, match="format"):
         Dataset(tmp_path)
+
+
+@pytest.mark.parametrize("damage", ["windows_truncated", "audio_truncated", "audio_missing",
+                                    "audio_garbage", "manifest_keys", "manifest_types"])
+def test_damaged_dataset_files_are_named(tmp_path, damage):
+    """A truncated, missing or garbled file of a dataset is a ValueError naming that file
+    (a KeyError or a bare numpy/mmap error before)."""
+    import json
+    make_dataset(tmp_path / "ds")
+    root = tmp_path / "ds"
+    target = {"windows_truncated": root / "windows.npy",
+              "audio_truncated": root / "audio" / "1.npy",
+              "audio_missing": root / "audio" / "1.npy",
+              "audio_garbage": root / "audio" / "1.npy",
+              "manifest_keys": root / "manifest.json",
+              "manifest_types": root / "manifest.json"}[damage]
+    if damage.endswith("truncated"):
+        data = target.read_bytes()
+        target.write_bytes(data[:len(data) // 2])
+    elif damage == "audio_missing":
+        target.unlink()
+    elif damage == "audio_garbage":
+        target.write_bytes(b"\x93NUMPY\x01\x00" + b"garbage" * 40)
+    else:
+        doc = json.loads(target.read_text())
+        if damage == "manifest_keys":
+            del doc["trials"]
+        else:
+            doc["trials"] = [3, 4]
+        target.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=str(target.relative_to(tmp_path))):
+        ds = Dataset(root)
+        for k in range(len(ds.trials)):
+            ds.audio(k)

@@ -210,3 +210,12 @@ def test_evaluate_refuses_a_bad_checkpoint_in_one_line(tmp_path, capsys):
                        "--split", "all"])
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 1 and len(err) == 1 and str(path) in err[0], (case, err)
+
+
+def test_unwritable_checkpoint_path_is_one_error_naming_it(tmp_path, cnn_ckpt):
+    _, net = cnn_ckpt
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where a directory should be")
+    with pytest.raises(OSError, match=f"cannot write checkpoint {blocker / 'm.pt'}"):
+        save_checkpoint(blocker / "m.pt", _good_meta(), net.state_dict())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "m.pt"]

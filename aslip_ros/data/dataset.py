@@ -212,6 +212,17 @@ class DatasetWriter:
         return self.path
 
 
+def _load_array(path: Path, what: str) -> np.ndarray:
+    """Memory-map one ``.npy`` of a dataset; ValueError naming it when it is unreadable."""
+    try:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    except FileNotFoundError:
+        raise ValueError(f"{path}: {what} missing (dataset damaged? export it again)") from None
+    except (OSError, ValueError, EOFError) as exc:
+        raise ValueError(f"{path}: cannot read the {what} ({exc}); truncated or damaged? "
+                         "export the dataset again") from None
+
+
 class Dataset:
     """A dataset opened read-only with memory-mapped audio and windows.
 
@@ -234,16 +245,23 @@ class Dataset:
         if int(self.manifest.get("version", 0)) > VERSION:
             raise ValueError(f"{mf}: version {self.manifest.get('version')} is newer than "
                              f"this reader ({VERSION})")
-        self.trials: list[dict] = list(self.manifest["trials"])
-        self.sample_rate = float(self.manifest["sample_rate"])
-        self.channel_names: list[str] = list(self.manifest["channel_names"])
-        self.layout: str = self.manifest.get("layout", "")
-        self.window_s = float(self.manifest["window_s"])
-        self.hop_s = float(self.manifest["hop_s"])
-        self.epsilon_m_s = float(self.manifest["epsilon_m_s"])
-        self.n_window_samples = int(self.manifest.get(
-            "n_window_samples", round(self.window_s * self.sample_rate)))
-        self.windows = np.load(self.path / "windows.npy", mmap_mode="r")
+        try:
+            self.trials: list[dict] = [dict(t) for t in self.manifest["trials"]]
+            self.sample_rate = float(self.manifest["sample_rate"])
+            self.channel_names: list[str] = list(self.manifest["channel_names"])
+            self.layout: str = self.manifest.get("layout", "")
+            self.window_s = float(self.manifest["window_s"])
+            self.hop_s = float(self.manifest["hop_s"])
+            self.epsilon_m_s = float(self.manifest["epsilon_m_s"])
+            self.n_window_samples = int(self.manifest.get(
+                "n_window_samples", round(self.window_s * self.sample_rate)))
+            for t in self.trials:
+                str(t["file"])
+        except KeyError as exc:
+            raise ValueError(f"{mf}: lacks {exc} (damaged?)") from None
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise ValueError(f"{mf}: malformed ({exc})") from None
+        self.windows = _load_array(self.path / "windows.npy", "window table")
         if self.windows.dtype != WINDOW_DTYPE:
             raise ValueError(f"{self.path}/windows.npy has dtype {self.windows.dtype}, "
                              f"expected {WINDOW_DTYPE}")
@@ -267,7 +285,7 @@ class Dataset:
         if arr is None:
             if not 0 <= trial < len(self.trials):
                 raise IndexError(f"trial {trial} out of range (0..{len(self.trials) - 1})")
-            arr = np.load(self.path / self.trials[trial]["file"], mmap_mode="r")
+            arr = _load_array(self.path / self.trials[trial]["file"], "trial audio")
             self._audio[trial] = arr
         return arr
 

@@ -206,8 +206,12 @@ def save_checkpoint(path: str | os.PathLike, meta: dict[str, Any],
         clean[str(k)] = v.detach().cpu().contiguous()
     payload = {"format": FORMAT, "version": VERSION, "meta": doc, "tensors": clean}
     path = Path(path)
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    try:
+        with atomic_path(path) as tmp:
+            torch.save(payload, tmp)
+    except (OSError, RuntimeError) as exc:     # torch reports a failed write as either
+        raise OSError(f"cannot write checkpoint {path}: "
+                      f"{getattr(exc, 'strerror', None) or exc}") from None
     return path
 
 
