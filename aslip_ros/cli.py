@@ -82,7 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     if module is None:
         print(f"aslip {name}: not available in this version yet", file=sys.stderr)
         return EXIT_USAGE
-    p = argparse.ArgumentParser(prog=f"aslip {name}", description=SUBCOMMANDS[name][1])
+    # Every option's default shows in --help (a help text that states it keeps its own).
+    p = argparse.ArgumentParser(prog=f"aslip {name}", description=SUBCOMMANDS[name][1],
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     module.add_arguments(p)
     args = p.parse_args(argv[1:])
     try:
