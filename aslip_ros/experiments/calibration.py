@@ -138,7 +138,8 @@ MODES = ("raw", "calibrated", "calibrated_slip", "oracle")
 
 
 def model_rows(train: list[dict], test: list[dict], k, models=("svm", "cnn"),
-               epochs: int = 25, modes=MODES, cnn_stride: int = 1, log=print) -> dict[str, Any]:
+               epochs: int = 25, modes=MODES, cnn_stride: int = 1, save: Path | None = None,
+               log=print) -> dict[str, Any]:
     """Train and test each model on each input mode; ``cnn_stride`` thins the CNN's training
     windows (2: non-overlapping 200 ms windows), which halves its CPU time."""
     rows = {}
@@ -157,6 +158,8 @@ def model_rows(train: list[dict], test: list[dict], k, models=("svm", "cnn"),
                 model = baselines.fit_plain_cnn(xtr[sel], vtr[sel], str_[sel], epochs=epochs)
             p, vel = model.predict(xte)
             res = stats.bootstrap_metrics(tte, p, vel, vte, ste, WINDOW_S, n_boot=500)
+            if save is not None:
+                np.savez(f"{save}-{m}-{mode}.npz", p=p, vel=vel, v=vte, slip=ste, trial=tte)
             res["train_s"] = time.time() - t0
             for name, sel in (("first_10s", early), ("after_10s", ~early)):
                 res[f"direction_mae_deg_{name}"] = stats.compute_metrics(
@@ -172,6 +175,32 @@ def _fmt(r: dict) -> str:
         return f"{r[key] * scale:.1f} [{lo * scale:.1f}, {hi * scale:.1f}]"
     return (f"det {one('detection_accuracy', 100)} | dir {one('direction_mae_deg')} | "
             f"mag {one('magnitude_rmse_mm')}")
+
+
+def paired(out: Path, variant: str, model: str, a: str, b: str,
+           key: str = "direction_mae_deg") -> tuple[float, float, float] | None:
+    """Paired trial bootstrap of ``key`` between input modes ``a`` and ``b`` (a - b)."""
+    paths = [out / f"pred-{variant}-{model}-{m}.npz" for m in (a, b)]
+    if not all(p.is_file() for p in paths):
+        return None
+    za, zb = (dict(np.load(p)) for p in paths)
+
+    def metric(z):
+        return lambda idx: stats.compute_metrics(z["p"][idx], z["vel"][idx], z["v"][idx],
+                                                 z["slip"][idx], WINDOW_S)[key]
+    return stats.paired_difference(za["trial"], metric(za), metric(zb), n_boot=500)
+
+
+def summary(out: Path) -> None:
+    """Print the paired differences that decide the comparisons in docs/model.md."""
+    for variant in VARIANTS:
+        for model in ("svm", "cnn"):
+            for a, b in (("calibrated", "raw"), ("calibrated", "oracle"),
+                         ("calibrated_slip", "raw"), ("calibrated", "calibrated_slip")):
+                d = paired(out, variant, model, a, b)
+                if d is not None:
+                    print(f"{variant} {model}: direction MAE {a} - {b} = {d[0]:+.1f} deg "
+                          f"[{d[1]:+.1f}, {d[2]:+.1f}]")
 
 
 def one_sided_share(trials: list[dict]) -> float:
@@ -198,7 +227,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cnn-stride", type=int, default=1)
     ap.add_argument("--report", default="report.json")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--summary", action="store_true",
+                    help="only print paired differences from saved predictions")
     a = ap.parse_args(argv)
+    if a.summary:
+        summary(Path(a.out))
+        return 0
     import torch
     torch.set_num_threads(a.threads)
     out = Path(a.out)
@@ -219,7 +253,8 @@ def main(argv: list[str] | None = None) -> int:
         rep["models"] = model_rows(train, test, {"calibrated": consts["background"],
                                                  "calibrated_slip": consts["slip"]},
                                    tuple(a.models.split(",")), a.epochs,
-                                   tuple(a.modes.split(",")), a.cnn_stride)
+                                   tuple(a.modes.split(",")), a.cnn_stride,
+                                   save=out / f"pred-{variant}")
         report[variant] = rep
         (out / a.report).write_text(json.dumps(report, indent=1))
     return 0
