@@ -31,6 +31,8 @@ def test_audio_round_trip_is_frame_major():
     (lambda m: setattr(m, "data", [0.0] * 7), "ragged"),
     (lambda m: setattr(m, "data", [0.0, float("nan")] * 3), "non_finite"),
     (lambda m: setattr(m, "data", [0.0, float("inf")] * 3), "non_finite"),
+    (lambda m: setattr(m, "data", [0.0, 1e30] * 3), "out_of_range"),
+    (lambda m: setattr(m, "data", [0.0, -1.0001] * 3), "out_of_range"),
 ])
 def test_audio_from_msg_refuses_malformed_frames(mutate, reason):
     from aslip_ros.nodes import convert
@@ -39,6 +41,13 @@ def test_audio_from_msg_refuses_malformed_frames(mutate, reason):
     with pytest.raises(convert.AudioFrameError) as err:
         convert.audio_from_msg(msg)
     assert err.value.reason == reason
+
+
+def test_full_scale_samples_are_accepted():
+    from aslip_ros.nodes import convert
+    block = np.array([[1.0, -1.0], [0.5, 0.0]], np.float32)
+    msg = convert.audio_to_msg(0, 0, 48000.0, ["a", "b"], block)
+    np.testing.assert_array_equal(convert.audio_from_msg(msg).block, block)
 
 
 def test_audio_to_msg_refuses_wrong_shapes():

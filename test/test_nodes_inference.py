@@ -24,6 +24,10 @@ def known_ckpt(tmp_path_factory):
                            velocity=(0.02, -0.01))
 
 
+def _stamp_ns(m) -> int:
+    return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+
+
 def _listen(bus):
     from std_msgs.msg import String
     from visualization_msgs.msg import MarkerArray
@@ -125,6 +129,21 @@ class Feeder:
             self.stamp_ns += 10_000_000
             time.sleep(0.005)
 
+    def settle(self, timeout: float = 20.0) -> bool:
+        """Feed good blocks until the node has estimated on the newest one.
+
+        Delivery is best effort: under load a block can be lost, and a bad frame sent next
+        would then meet a stream anchored one block earlier than the test assumes.
+        """
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.good(1)
+            end = self.stamp_ns
+            if self.bus.wait(lambda: any(_stamp_ns(m) == end
+                                         for m in self.bus.messages(SLIP)), 1.0):
+                return True
+        return False
+
 
 def _nan_frame(f):
     m = f.frame()
@@ -138,11 +157,18 @@ def _inf_frame(f):
     return m
 
 
+def _huge_frame(f):
+    m = f.frame()
+    m.data[3] = 1e30
+    return m
+
+
 BAD_FRAMES = {
     "channels": lambda f: f.frame(names=SCENE_NAMES[:3]),
     "sample_rate": lambda f: f.frame(rate=44100.0),
     "non_finite": _nan_frame,
     "non_finite_inf": _inf_frame,
+    "out_of_range": _huge_frame,
     "empty": lambda f: f.frame(data=[]),
     "ragged": lambda f: f.frame(data=[0.0] * 1919),
     "repeated": lambda f: f.frame(index=f.index - 480, stamp_ns=f.stamp_ns - 10_000_000),
@@ -160,7 +186,9 @@ def test_bad_audio_frame_is_dropped_with_a_diagnostic(live_inference, case):
         docs = bus.diagnostics("slip_inference")
         return docs[-1]["values"].get(f"dropped_{reason}", 0) if docs else 0
 
-    bus.wait(lambda: bus.diagnostics("slip_inference"), 5)
+    assert feeder.settle(), proc.output
+    bus.clear(DIAG)
+    assert bus.wait(lambda: bus.diagnostics("slip_inference"), 5)
     before = dropped()
     bus.clear(SLIP)
     msg = BAD_FRAMES[case](feeder)
@@ -195,8 +223,47 @@ def test_forward_gap_restarts_the_window_and_is_counted(live_inference):
     assert bus.diagnostics("slip_inference")[-1]["values"]["frames_lost"] >= 4800
 
 
-def _stamp_ns(m) -> int:
-    return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+def _estimates_resume(bus, feeder, since_ns: int, within_s: float = 0.5) -> bool:
+    """Feed 0.6 s of good audio; True once an estimate covers audio in (since, since+within]."""
+    feeder.good(60)
+    return bus.wait(lambda: any(since_ns < _stamp_ns(m) <= since_ns + int(within_s * 1e9)
+                                for m in bus.messages(SLIP)), 10)
+
+
+def _diag_values(bus):
+    bus.clear(DIAG)
+    assert bus.wait(lambda: bus.diagnostics("slip_inference"), 5)
+    return bus.diagnostics("slip_inference")[-1]["values"]
+
+
+@pytest.mark.parametrize("restart", ["index_to_zero", "index_and_clock_to_start",
+                                     "index_2_63"])
+def test_a_restarted_or_jumped_stream_is_estimated_again_within_half_a_second(
+        live_inference, restart):
+    """A source whose sample index restarts (or leaps to 2**63) is a new stream, not
+    hundreds of seconds of out-of-order blocks; no absurd count of lost frames."""
+    bus, feeder, proc = live_inference
+    feeder.index += 48000 * 600              # ten minutes of stream before the restart
+    feeder.stamp_ns += 600 * 10**9
+    assert feeder.settle(), proc.output
+    before = _diag_values(bus)
+    bus.clear(SLIP)
+    since = feeder.stamp_ns
+    if restart == "index_to_zero":           # a reopened source counts from 0 again
+        feeder.index = 0
+    elif restart == "index_and_clock_to_start":
+        feeder.index, feeder.stamp_ns = 0, 1_000_000_000_000
+        since = feeder.stamp_ns
+    else:                                     # one block with an absurd index
+        feeder.pub.publish(feeder.frame(index=2**63))
+        feeder.index += 480
+        feeder.stamp_ns += 10_000_000
+    assert _estimates_resume(bus, feeder, since), \
+        f"{[_stamp_ns(m) - since for m in bus.messages(SLIP)][:5]}\n{proc.output[-3000:]}"
+    after = _diag_values(bus)
+    assert after["stream_restarts"] > before["stream_restarts"]
+    assert after["frames_lost"] - before["frames_lost"] < 48000
+    assert proc.proc.poll() is None
 
 
 def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inference):

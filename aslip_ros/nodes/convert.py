@@ -26,6 +26,8 @@ GRASP_FRAME = frames.GRASP_PLANE
 #: Default frame of audio blocks.
 SENSOR_FRAME = frames.GRIPPER
 NS_PER_S = 1_000_000_000
+#: Audio samples are float in full-scale units: a converter cannot deliver more than this.
+FULL_SCALE = 1.0
 
 
 class AudioFrameError(ValueError):
@@ -108,7 +110,9 @@ def audio_from_msg(msg: AudioFrame, require_finite: bool = True) -> AudioData:
     """Decode and validate an AudioFrame.
 
     :raises AudioFrameError: ``no_channels``, ``bad_rate``, ``empty``, ``ragged`` (length not
-        a multiple of the channel count) or ``non_finite`` (NaN/Inf samples).
+        a multiple of the channel count), ``non_finite`` (NaN/Inf samples) or
+        ``out_of_range`` (a sample beyond :data:`FULL_SCALE`: no converter produces it, so
+        the block is corrupt or mis-scaled, e.g. integer counts sent as float).
     """
     names = list(msg.channel_names)
     if not names:
@@ -123,8 +127,13 @@ def audio_from_msg(msg: AudioFrame, require_finite: bool = True) -> AudioData:
     if flat.size % len(names):
         raise AudioFrameError("ragged", f"AudioFrame has {flat.size} samples, not a multiple "
                                         f"of its {len(names)} channels")
-    if require_finite and not np.isfinite(flat).all():
+    finite = np.isfinite(flat)
+    if require_finite and not finite.all():
         raise AudioFrameError("non_finite", "AudioFrame contains NaN or Inf samples")
+    peak = float(np.max(np.abs(flat), where=finite, initial=0.0))
+    if peak > FULL_SCALE:
+        raise AudioFrameError("out_of_range", f"AudioFrame holds a sample of magnitude "
+                                              f"{peak:.3g}, beyond full scale {FULL_SCALE:g}")
     block = flat.reshape(-1, len(names))
     return AudioData(int(msg.first_sample_index), stamp_to_ns(msg.header.stamp), rate, names,
                      str(msg.layout), str(msg.header.frame_id), block)

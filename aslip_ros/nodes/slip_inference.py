@@ -6,12 +6,14 @@ latest full window; the estimate goes out on ``/aslip/slip`` stamped with the EN
 window, plus an rviz marker.
 
 Every incoming frame passes a gate first. A frame is dropped (counted per reason in the
-diagnostics, with a throttled warning) when it is empty or ragged, holds NaN/Inf, does not
-match the checkpoint (channel count or names, sample rate: the node refuses such a stream
-with a clear error), repeats or goes back in sample index, or jumps in time against its
-sample index. A forward gap in the sample index (blocks lost upstream) is counted and
-restarts the window: a window spliced across a gap is not what the model was trained on.
-Nothing that arrives can crash the node or put NaN on ``/aslip/slip``.
+diagnostics, with a throttled warning) when it is empty or ragged, holds NaN/Inf or samples
+beyond full scale, does not match the checkpoint (channel count or names, sample rate: the
+node refuses such a stream with a clear error), repeats or goes back in sample index, or
+jumps in time against its sample index. A forward gap in the sample index (blocks lost
+upstream) is counted and restarts the window: a window spliced across a gap is not what the
+model was trained on. A source that restarts (its index back at 0, or leaping far ahead,
+while its stamps run on) is a new stream: counted, and the window restarts on it at once
+(``StreamGate``). Nothing that arrives can crash the node or put NaN on ``/aslip/slip``.
 
 Dead microphones: before the model runs, each window is checked for a channel that looks
 dead or disconnected (``learn.channel_check.dead_channels``: digital silence, or more than
@@ -48,8 +50,8 @@ from aslip_ros.msg import AudioFrame, SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 
-DROP_REASONS = ("no_channels", "bad_rate", "empty", "ragged", "non_finite", "channels",
-                "sample_rate", "repeated", "out_of_order", "time_jump")
+DROP_REASONS = ("no_channels", "bad_rate", "empty", "ragged", "non_finite", "out_of_range",
+                "channels", "sample_rate", "repeated", "out_of_order", "time_jump")
 
 
 class RingBuffer:
@@ -95,32 +97,61 @@ class RingBuffer:
 
 
 class StreamGate:
-    """Continuity checks on a single audio stream (sample index and stamp)."""
+    """Continuity checks on a single audio stream (sample index and stamp).
 
-    def __init__(self, max_time_jump_s: float) -> None:
+    The stamp says which index a block should carry: ``expected = anchor stamp + index
+    offset / rate``. A block whose stamp agrees with its index (within ``max_time_jump_s``)
+    belongs to the stream: contiguous (ok), ahead (a gap: blocks lost upstream) or behind
+    (repeated / out of order: dropped). A block whose index disagrees with its stamp, away
+    from the expected index, is a new stream: a source that restarted its counter at 0, or
+    an index that leapt to 2**63. Waiting for the old index to come round again would
+    silence the node for as long as the old stream ran, so the gate re-anchors on it. A
+    source that restarts both its counter and its clock looks like a run of old blocks; once
+    such a run is contiguous for ``restart_after_s`` of audio, it too is a new stream.
+    """
+
+    def __init__(self, max_time_jump_s: float, restart_after_s: float = 0.1) -> None:
         self.max_time_jump_ns = int(max_time_jump_s * 1e9)
+        self.restart_after_s = float(restart_after_s)
         self.next_index: Optional[int] = None
         self.next_stamp_ns: Optional[int] = None
+        self._behind_next: Optional[int] = None     # a contiguous run of blocks behind
+        self._behind_frames = 0
 
     def check(self, a: convert.AudioData) -> tuple:
-        """``(verdict, detail)``; verdict one of ok, gap, repeated, out_of_order, time_jump."""
+        """``(verdict, detail)``; verdict one of ok, gap, repeated, out_of_order, time_jump,
+        new_stream."""
         if self.next_index is None:
             return "ok", ""
-        if a.first_sample_index < self.next_index:
-            expected_prev = self.next_index - a.frames
-            kind = "repeated" if a.first_sample_index == expected_prev else "out_of_order"
-            return kind, (f"sample index {a.first_sample_index} < expected {self.next_index}")
-        if a.first_sample_index == self.next_index:
+        offset = a.first_sample_index - self.next_index
+        if offset == 0:
             jump = a.stamp_ns - self.next_stamp_ns
             if abs(jump) > self.max_time_jump_ns:
                 return "time_jump", f"stamp off by {jump * 1e-9:+.3f} s at a contiguous index"
             return "ok", ""
-        return "gap", f"{a.first_sample_index - self.next_index} frames missing"
+        expected_ns = self.next_stamp_ns + offset * 1e9 / a.sample_rate
+        if abs(a.stamp_ns - expected_ns) > self.max_time_jump_ns:
+            return "new_stream", (f"sample index {a.first_sample_index} where "
+                                  f"{self.next_index} was expected, with a stamp that does "
+                                  f"not fit it ({(a.stamp_ns - expected_ns) * 1e-9:+.3f} s)")
+        if offset > 0:
+            return "gap", f"{offset} frames missing"
+        if self._behind_next == a.first_sample_index:
+            self._behind_frames += a.frames
+        else:
+            self._behind_frames = a.frames
+        self._behind_next = a.first_sample_index + a.frames
+        if self._behind_frames >= self.restart_after_s * a.sample_rate:
+            return "new_stream", (f"{self._behind_frames} contiguous frames behind the "
+                                  f"expected sample index {self.next_index}")
+        kind = "repeated" if offset == -a.frames else "out_of_order"
+        return kind, f"sample index {a.first_sample_index} < expected {self.next_index}"
 
     def accept(self, a: convert.AudioData) -> None:
-        """Take ``a`` as the newest block (also re-anchors after a time jump)."""
+        """Take ``a`` as the newest block (also re-anchors after a time jump or restart)."""
         self.next_index = a.first_sample_index + a.frames
         self.next_stamp_ns = a.end_stamp_ns
+        self._behind_next, self._behind_frames = None, 0
 
 
 class SlipInference(Node):
@@ -174,6 +205,7 @@ class SlipInference(Node):
         self.blocks_ok = 0
         self.frames_lost = 0
         self.gaps = 0
+        self.stream_restarts = 0
         self.published = 0
         self.latency = collections.deque(maxlen=2000)
         self.arrivals = collections.deque(maxlen=500)
@@ -280,6 +312,14 @@ class SlipInference(Node):
             self.ring.reset()
             self._since_hop = 0
             return
+        if verdict == "new_stream":
+            # A restarted or re-numbered source: its blocks are good audio, only the old
+            # anchor is void. No frames are counted lost (the index difference means nothing).
+            self.stream_restarts += 1
+            self.get_logger().warning(f"new audio stream: {detail}; window restarts",
+                                      throttle_duration_sec=1.0)
+            self.ring.reset()
+            self._since_hop = 0
         if verdict == "gap":
             self.gaps += 1
             self.frames_lost += a.first_sample_index - self.gate.next_index
@@ -377,6 +417,7 @@ class SlipInference(Node):
             arr = list(self.arrivals)
             values = {"blocks_received": self.blocks_in, "blocks_accepted": self.blocks_ok,
                       "blocks_dropped": sum(self.drops.values()), "gaps": self.gaps,
+                      "stream_restarts": self.stream_restarts,
                       "frames_lost": self.frames_lost, "estimates_published": self.published,
                       "hops_superseded": self.hops_superseded,
                       "dead_channel_windows": self.dead_windows,
