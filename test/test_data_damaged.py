@@ -174,3 +174,16 @@ def test_a_chunk_failing_its_crc_is_skipped_by_recovery(tmp_path, full_bag):
     (note,) = s.warnings
     assert "a damaged chunk from" in note and "crc validation failed" in note
     assert 0 < s.kept < full_kept and s.dropped["audio_gap"] > 0
+
+
+def test_a_damaged_summary_loses_nothing_with_recover(tmp_path, full_bag):
+    full, full_kept = full_bag
+    bag = tmp_path / "summary"
+    bag.mkdir()
+    data = bytearray(_mcap(full).read_bytes())
+    data[-200] ^= 0x01                            # inside the summary section
+    (bag / "summary.mcap").write_bytes(bytes(data))
+    with pytest.raises(bags.BagError, match="summary section CRC mismatch"):
+        export([bag], tmp_path / "ds", progress=False)
+    s = export([bag], tmp_path / "ds", progress=False, recover=True)
+    assert s.kept == full_kept and "damaged" in s.warnings[0]

@@ -151,7 +151,7 @@ class RecoveredBagReader(BagReader):
 
     def _records(self, schemas: dict, rep: RecoveryReport | None) -> Iterator[tuple[int, object]]:
         """(file index, Message record) of every readable message, chunks time-sorted."""
-        from mcap.records import Channel, Chunk, Message, Schema
+        from mcap.records import Channel, Chunk, DataEnd, Message, Schema
         from mcap.stream_reader import StreamReader, breakup_chunk
         for k, file in enumerate(_mcap_files(self.path)):
             size = file.stat().st_size
@@ -159,6 +159,8 @@ class RecoveredBagReader(BagReader):
                 good = 0
                 try:
                     for rec in StreamReader(f, emit_chunks=True).records:
+                        if isinstance(rec, DataEnd):
+                            break       # the summary repeats what was read, maybe damaged
                         inner = [rec]
                         if isinstance(rec, Chunk):
                             try:
