@@ -246,7 +246,7 @@ def _pose7(pose7: Sequence[float]) -> np.ndarray:
 
 # --------------------------------------------------------------------------------- twist
 
-def twist_to_msg(v_xyz: Sequence[float], stamp_ns: int, frame_id: str = "link_base"
+def twist_to_msg(v_xyz: Sequence[float], stamp_ns: int, frame_id: str = frames.BASE
                  ) -> TwistStamped:
     """A linear velocity [m/s] as TwistStamped (angular part zero)."""
     v = np.asarray(v_xyz, dtype=np.float64).reshape(-1)
