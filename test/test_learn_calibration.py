@@ -143,7 +143,7 @@ def test_constants_round_trip_and_refuse_a_mismatched_stream(fitted, tmp_path):
     assert doc["convergence_s"] == pytest.approx(k.convergence_s)
     assert cal.CalibrationConstants.from_dict(doc) == k
     meta = {"model_type": "svm", "model_config": SvmConfig().to_dict(),
-            "feature_config": FeatureConfig().to_dict(), "channel_names": list(NAMES),
+            "feature_config": FeatureConfig(n_mels=M).to_dict(), "channel_names": list(NAMES),
             "sample_rate": 16000.0, "window_s": 0.2, "window_samples": 3200,
             "epsilon_m_s": 0.005, "threshold": 0.5, "calibration": k.to_dict()}
     path = tmp_path / "c.pt"
@@ -159,6 +159,12 @@ def test_constants_round_trip_and_refuse_a_mismatched_stream(fitted, tmp_path):
         back.check_stream(list(NAMES), M, 0.016)
     with pytest.raises(ValueError, match="unknown calibration keys"):
         cal.CalibrationConstants.from_dict({**doc, "extra": 1})
+    # A checkpoint whose calibration does not fit its own channels or features is refused.
+    for bad in ({**meta, "feature_config": FeatureConfig(n_mels=M + 2).to_dict()},
+                {**meta, "channel_names": ["a", "b", "c", "e"]},
+                {**meta, "calibration": {**doc, "gate_coef": [0.0]}}):
+        with pytest.raises(ValueError, match="calibration"):
+            save_checkpoint(tmp_path / "bad.pt", bad, {})
 
 
 def test_bad_input_is_refused(fitted):

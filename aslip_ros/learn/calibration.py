@@ -114,6 +114,26 @@ class CalibrationConstants:
                                      f"at {hop_s * 1e3:g} ms")
 
 
+def meta_problems(doc: Any, channel_names: Sequence[str], n_mels: int | None,
+                  hop_s: float | None) -> list[str]:
+    """Problems of a checkpoint's ``calibration`` document against the checkpoint's own
+    channels and features (an empty list when it is sound)."""
+    if not isinstance(doc, dict):
+        return [f"calibration must be a JSON object, got {type(doc).__name__}"]
+    if not isinstance(channel_names, (list, tuple)):
+        return []                       # the checkpoint's own check reports channel_names
+    try:
+        k = CalibrationConstants.from_dict(doc)
+    except (TypeError, ValueError) as exc:
+        return [f"calibration: {exc}"]
+    try:
+        k.check_stream(channel_names, k.n_mels if n_mels is None else n_mels,
+                       k.hop_s if hop_s is None else hop_s)
+    except CheckpointMismatch as exc:
+        return [f"calibration does not match the checkpoint: {exc}"]
+    return []
+
+
 def frame_stats(frames: np.ndarray, k: CalibrationConstants
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per frame: level deviation ``(C, T)``, p(slip) ``(T,)`` and activity ``(T,)``.

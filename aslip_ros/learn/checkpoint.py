@@ -172,6 +172,11 @@ def validate_meta(meta: Any) -> list[str]:
                             f"{fcfg.n_mels}")
     elif isinstance(mcfg, SvmConfig) and mcfg.n_bands < 1:
         problems.append(f"model_config.n_bands must be >= 1, got {mcfg.n_bands}")
+    if "calibration" in meta:
+        from .calibration import meta_problems
+        problems += meta_problems(meta["calibration"], names,
+                                  None if fcfg is None else fcfg.n_mels,
+                                  None if fcfg is None else fcfg.hop / fcfg.sample_rate)
     return problems
 
 
