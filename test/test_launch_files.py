@@ -1,124 +1,460 @@
-"""Every launch file assembles the documented graph (runs without `launch` installed).
+"""Every launch file, evaluated by the real launch stack, against what each node declares.
 
-`launch` and `launch_ros` are not installable from PyPI, so the launch API is replaced by
-recording stand-ins: each launch file's generate_launch_description() runs for real and the
-test inspects what it asked for — which executables, with which parameters and config files,
-which processes (`ros2 bag record`, `aslip export`) and which launch arguments. Where the
-real launch_testing is available, test/launch/ runs the files end to end as well.
+Each launch description is walked the way ``ros2 launch`` would: launch arguments resolved
+(given or default; a required one missing is an error), conditions evaluated, opaque
+functions run, substitutions performed and every ``Node``'s parameters evaluated by
+launch_ros (YAML files and dicts alike). Then every parameter must be one the node declares
+(:mod:`aslip_ros.nodes.introspect`), of the declared type (rclpy refuses an int for a
+double), and pass the node's own validator. Without ``launch``/``launch_ros`` these tests
+skip with the reason; ``ros2 launch`` itself runs in the process tests at the end.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import runpy
+import signal
+import subprocess
 import sys
-import types
+import time
 from pathlib import Path
 
 import pytest
+import yaml
 
-from conftest import ROOT
+from conftest import HELPERS, ROOT
+
+try:
+    import launch  # noqa: F401
+    import launch_ros  # noqa: F401
+except ImportError as exc:
+    LAUNCH_MISSING = (f"{exc.name} is not importable (source a ROS 2 Jazzy install or "
+                      "build/ros2-launch/env.sh)")
+else:
+    LAUNCH_MISSING = None
 
 pytestmark = pytest.mark.ros   # needs the colcon install (ament index, share/aslip_ros)
+needs_launch = pytest.mark.skipif(LAUNCH_MISSING is not None, reason=str(LAUNCH_MISSING))
 
 
-class Rec:
-    """Records its constructor arguments."""
+class Evaluated:
+    """What a launch description starts, with every substitution performed."""
 
-    def __init__(self, *args, **kwargs):
-        self.args, self.kwargs = args, kwargs
-
-
-def _kind(name):
-    return type(name, (Rec,), {})
-
-
-@pytest.fixture
-def fake_launch(monkeypatch):
-    mods = {
-        "launch": {"LaunchDescription": _kind("LaunchDescription")},
-        "launch.actions": {"DeclareLaunchArgument": _kind("DeclareLaunchArgument"),
-                           "ExecuteProcess": _kind("ExecuteProcess")},
-        "launch.conditions": {"IfCondition": _kind("IfCondition"),
-                              "UnlessCondition": _kind("UnlessCondition")},
-        "launch.substitutions": {"LaunchConfiguration": _kind("LaunchConfiguration"),
-                                 "PythonExpression": _kind("PythonExpression")},
-        "launch_ros": {}, "launch_ros.actions": {"Node": _kind("Node")},
-    }
-    for name, attrs in mods.items():
-        mod = types.ModuleType(name)
-        for k, v in attrs.items():
-            setattr(mod, k, v)
-        monkeypatch.setitem(sys.modules, name, mod)
-    monkeypatch.delitem(sys.modules, "aslip_ros.nodes.closed_loop_launch", raising=False)
-    yield
-    sys.modules.pop("aslip_ros.nodes.closed_loop_launch", None)
+    def __init__(self) -> None:
+        self.nodes: list = []        # (executable, node name, {param: value}, action)
+        self.processes: list = []    # (cmd list, action)
+        self.logs: list = []         # LogInfo texts
+        self.shutdowns: list = []    # Shutdown reasons
+        self.exit_targets: list = []  # actions with their own on_exit
+        self.handlers: list = []      # registered event handlers
+        self.arguments: dict = {}
 
 
-def _describe(name):
-    ns = runpy.run_path(str(ROOT / "launch" / f"{name}.launch.py"))
-    desc = ns["generate_launch_description"]()
-    (entities,) = desc.args
-    by = {}
-    for e in entities:
-        by.setdefault(type(e).__name__, []).append(e)
-    return by
+def _yaml_params(path: str, node_name: str) -> dict:
+    doc = yaml.safe_load(Path(path).read_text()) or {}
+    section = doc.get(node_name, doc.get("/**", {})).get("ros__parameters", {})
+    flat: dict = {}
 
-
-def _subst(v):
-    """Plain value of a recorded LaunchConfiguration (its name) or a literal."""
-    return f"<{v.args[0]}>" if type(v).__name__ == "LaunchConfiguration" else v
-
-
-def _nodes(by):
-    out = {}
-    for n in by.get("Node", []):
-        params = {}
-        for p in n.kwargs.get("parameters", []):
-            if isinstance(p, str):
-                assert Path(p).is_file(), f"missing config file {p}"
-                params.setdefault("_files", []).append(Path(p).name)
+    def walk(prefix, d):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                walk(f"{prefix}{k}.", v)
             else:
-                params.update({k: _subst(v) for k, v in p.items()})
-        out[n.kwargs["executable"]] = params
+                flat[prefix + k] = v
+    walk("", section)
+    return flat
+
+
+def _node_params(node, context, name: str) -> dict:
+    from launch_ros.utilities import evaluate_parameters
+    params: dict = {}
+    for entry in evaluate_parameters(context, node._Node__parameters or []):
+        if isinstance(entry, dict):
+            params.update(entry)
+        else:                               # a parameter file
+            assert Path(entry).is_file(), f"missing parameter file {entry}"
+            params.update(_yaml_params(str(entry), name))
+    return params
+
+
+def evaluate(launch_file: str, args: dict) -> Evaluated:
+    """Walk ``launch/<launch_file>`` with ``args`` as ``ros2 launch`` would (no processes)."""
+    from launch import LaunchContext
+    from launch.actions import (DeclareLaunchArgument, ExecuteProcess, GroupAction, LogInfo,
+                                OpaqueFunction, RegisterEventHandler, Shutdown)
+    from launch.utilities import perform_substitutions
+    from launch_ros.actions import Node
+
+    ns = runpy.run_path(str(ROOT / "launch" / launch_file))
+    desc = ns["generate_launch_description"]()
+    context = LaunchContext()
+    out = Evaluated()
+
+    def sub(value):
+        return perform_substitutions(context, value) if isinstance(value, list) else value
+
+    def visit(entity) -> None:
+        condition = getattr(entity, "condition", None)
+        if condition is not None and not condition.evaluate(context):
+            return
+        if isinstance(entity, DeclareLaunchArgument):
+            if entity.name in args:
+                value = str(args[entity.name])
+            elif entity.default_value is not None:
+                value = perform_substitutions(context, entity.default_value)
+            else:
+                raise AssertionError(f"{launch_file}: required argument {entity.name!r} "
+                                     "not given")
+            context.launch_configurations[entity.name] = value
+            out.arguments[entity.name] = value
+        elif isinstance(entity, Node):
+            exe = sub(entity._Node__node_executable)
+            name = sub(entity._Node__node_name) if entity._Node__node_name else exe
+            out.nodes.append((exe, name, _node_params(entity, context, name), entity))
+            if getattr(entity, "_ExecuteLocal__on_exit", None) is not None:
+                out.exit_targets.append(entity)
+        elif isinstance(entity, ExecuteProcess):
+            out.processes.append(([sub(c) for c in entity.cmd], entity))
+        elif isinstance(entity, LogInfo):
+            out.logs.append(sub(entity.msg))
+        elif isinstance(entity, Shutdown):
+            out.shutdowns.append(entity)
+        elif isinstance(entity, RegisterEventHandler):
+            out.handlers.append(entity.event_handler)
+        elif isinstance(entity, OpaqueFunction):
+            for e in entity.execute(context) or []:
+                visit(e)
+        elif isinstance(entity, GroupAction):
+            for e in entity.get_sub_entities():
+                visit(e)
+        else:
+            for e in entity.describe_sub_entities():
+                visit(e)
+
+    for e in desc.entities:
+        visit(e)
     return out
 
 
-def _arguments(by):
-    return {a.args[0] for a in by.get("DeclareLaunchArgument", [])}
+def _type_error(spec, value):
+    """Why rclpy would refuse ``value`` for a parameter declared with ``spec.default``."""
+    want = spec.default
+
+    def same(a, b):
+        if isinstance(a, bool) or isinstance(b, bool):
+            return isinstance(a, bool) and isinstance(b, bool)
+        return type(a) is type(b)
+    if isinstance(want, (list, tuple)):
+        if not isinstance(value, (list, tuple)):
+            return f"is {type(value).__name__}, declared a list"
+        if want and value and not all(same(v, want[0]) for v in value):
+            return f"has items {[type(v).__name__ for v in value]}, declared " \
+                   f"{type(want[0]).__name__}"
+        return None
+    if not same(value, want):
+        return f"is {type(value).__name__} {value!r}, declared {type(want).__name__}"
+    return None
 
 
-@pytest.mark.parametrize("task,scenario,task_arg", [
-    ("slip_stop", "wall_push", "direction"), ("slip_track", "drag", "gain")])
-def test_closed_loop_launch_files(fake_launch, task, scenario, task_arg):
-    by = _describe(task)
-    nodes = _nodes(by)
-    assert set(nodes) == {"scene_sim", "audio_capture", "slip_inference", "mocap_bridge",
-                          task, "rviz2"}
-    assert nodes["scene_sim"]["scenario"] == scenario
-    assert nodes["slip_inference"]["checkpoint"] == "<checkpoint>"
-    assert nodes[task][task_arg] == f"<{task_arg}>"
-    assert nodes[task]["_files"] == [f"{task}.yaml"]
-    assert nodes["mocap_bridge"]["finger_topic"] == "<finger_topic>"
-    assert {"sim", "checkpoint", "xarm_ip", "audio_device", "finger_topic", "object_topic",
-            "rviz", task_arg} <= _arguments(by)
+def check_parameters(ev: Evaluated) -> None:
+    """Every node parameter is declared, of the declared type and valid."""
+    from aslip_ros.nodes.introspect import EXECUTABLES, declared_by_name
+    problems = []
+    for exe, name, params, _ in ev.nodes:
+        if exe not in EXECUTABLES:
+            continue                                   # rviz2: not ours
+        declared = declared_by_name(exe)
+        for key, value in params.items():
+            spec = declared.get(key)
+            if spec is None:
+                problems.append(f"{name}: {key} is not a parameter of {exe}")
+                continue
+            err = _type_error(spec, value)
+            if err is None and spec.check is not None:
+                err = spec.check(list(value) if isinstance(value, tuple) else value)
+            if err:
+                problems.append(f"{name}: {key} {err}")
+    assert not problems, "\n".join(problems)
 
 
-def test_data_collection_records_the_documented_topics(fake_launch):
-    by = _describe("data_collection")
-    cmd = " ".join(str(_subst(a)) for p in by["ExecuteProcess"]
-                   for a in p.kwargs.get("cmd", []))
-    assert "bag record" in cmd and "mcap" in cmd
-    for topic in ("/aslip/audio", "/aslip/mocap/finger", "/aslip/mocap/object",
-                  "/aslip/robot/tcp_pose", "/aslip/metadata"):
-        assert topic in cmd, topic
-    assert {"scene_sim", "audio_capture", "mocap_bridge"} <= set(_nodes(by))
+def handles_exit(ev: Evaluated, action) -> bool:
+    """Whether ``action``'s exit triggers something (its on_exit or a registered handler)."""
+    from launch.events.process import ProcessExited
+    if any(action is t for t in ev.exit_targets):
+        return True
+    event = ProcessExited(action=action, name="x", cmd=[], cwd=None, env=None, pid=0,
+                          returncode=0)
+    return any(h.matches(event) for h in ev.handlers)
 
 
-def test_export_and_rviz_launch_files(fake_launch):
-    cmd = " ".join(str(_subst(a)) for p in _describe("export")["ExecuteProcess"]
-                   for a in p.kwargs.get("cmd", []))
-    assert "export" in cmd and "<bag>" in cmd
-    rviz = _describe("rviz")["Node"][0]
-    assert rviz.kwargs["executable"] == "rviz2"
-    assert Path(rviz.kwargs["arguments"][-1]).name == "aslip.rviz"
-    assert Path(rviz.kwargs["arguments"][-1]).is_file()
+def _by_exe(ev: Evaluated) -> dict:
+    return {exe: params for exe, _, params, _ in ev.nodes}
+
+
+LAUNCHES = [
+    ("slip_stop.launch.py", {}),
+    ("slip_stop.launch.py", {"rviz": "true", "direction": "[1.0, 0.0, 0.0]"}),
+    ("slip_stop.launch.py", {"sim": "false", "audio_device": "0", "autostart": "false"}),
+    ("slip_track.launch.py", {}),
+    ("slip_track.launch.py", {"sim": "false", "audio_device": "UMC404HD", "gain": "1"}),
+    ("data_collection.launch.py", {}),
+    ("data_collection.launch.py", {"sim": "false", "record": "false", "audio_device": "0"}),
+    ("data_collection.launch.py", {"recorder": "aslip", "duration_s": "0"}),
+    ("export.launch.py", {"bag": "b", "out": "o"}),
+    ("rviz.launch.py", {}),
+]
+
+
+@needs_launch
+@pytest.mark.parametrize("launch_file,args", LAUNCHES,
+                         ids=[f"{f}-{'-'.join(a) or 'defaults'}" for f, a in LAUNCHES])
+def test_every_node_parameter_is_declared_typed_and_valid(launch_file, args):
+    check_parameters(evaluate(launch_file, args))
+
+
+@needs_launch
+def test_parameter_check_catches_a_wrong_type():
+    """The check itself fails on what rclpy refuses (an int for a double, an unknown name)."""
+    ev = evaluate("slip_track.launch.py", {})
+    exe, name, params, node = next(n for n in ev.nodes if n[0] == "slip_track")
+    ev.nodes = [(exe, name, dict(params, gain=1), node)]
+    with pytest.raises(AssertionError, match="gain is int"):
+        check_parameters(ev)
+    ev.nodes = [(exe, name, {"gian": 1.0}, node)]
+    with pytest.raises(AssertionError, match="not a parameter"):
+        check_parameters(ev)
+
+
+@needs_launch
+@pytest.mark.parametrize("launch_file", ["slip_stop.launch.py", "slip_track.launch.py"])
+def test_closed_loop_defaults_use_the_shipped_model(launch_file):
+    from ament_index_python.packages import get_package_share_directory
+    ev = evaluate(launch_file, {})
+    nodes = _by_exe(ev)
+    # A node of the loop that exits ends the launch rather than leaving a half graph.
+    assert all(handles_exit(ev, n[3]) for n in ev.nodes)
+    ckpt = nodes["slip_inference"]["checkpoint"]
+    share = get_package_share_directory("aslip_ros")
+    assert ckpt == os.path.join(share, "models", "aslip_cnn.pt")
+    assert Path(ckpt).is_file(), f"{ckpt} is not installed"
+    assert {"scene_sim", "slip_inference", "mocap_bridge", launch_file.split(".")[0]} == \
+        set(nodes)
+
+
+@needs_launch
+@pytest.mark.parametrize("launch_file,args", [
+    ("slip_stop.launch.py", {"sim": "false", "audio_device": "0"}),
+    ("data_collection.launch.py", {"sim": "false", "record": "false", "audio_device": "0"})])
+def test_a_numeric_audio_device_stays_a_string(launch_file, args):
+    capture = _by_exe(evaluate(launch_file, args))["audio_capture"]
+    assert capture["device"] == "0"
+
+
+@needs_launch
+def test_data_collection_metadata_is_json_text():
+    nodes = _by_exe(evaluate("data_collection.launch.py",
+                             {"sim": "false", "record": "false", "object": "pla_rod"}))
+    assert json.loads(nodes["audio_capture"]["metadata_json"]) == {"object": "pla_rod"}
+
+
+@needs_launch
+def test_data_collection_records_every_topic_and_ends_with_the_scene():
+    from aslip_ros.nodes import common as c
+    ev = evaluate("data_collection.launch.py", {"recorder": "aslip"})
+    nodes = _by_exe(ev)
+    topics = set(nodes["bag_recorder"]["topics"])
+    assert {c.AUDIO_TOPIC, c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC, c.METADATA_TOPIC,
+            c.SLIP_TRUTH_TOPIC, "/tf", "/tf_static"} <= topics
+    assert nodes["scene_sim"]["duration_s"] == 30.0
+    assert nodes["scene_sim"]["exit_when_done"] is True
+    # Their exits end the launch (the scene's run is over / nothing is recorded any more).
+    watched = {n[1] for n in ev.nodes if handles_exit(ev, n[3])}
+    assert {"scene_sim", "bag_recorder", "mocap_bridge"} <= watched, watched
+    endless = _by_exe(evaluate("data_collection.launch.py", {"duration_s": "0"}))
+    assert endless["scene_sim"]["exit_when_done"] is False
+
+
+@needs_launch
+def test_data_collection_refuses_a_missing_ros2bag_loudly():
+    ev = evaluate("data_collection.launch.py", {"recorder": "ros2bag"})
+    if not ev.shutdowns:
+        pytest.skip("rosbag2 is installed here")
+    assert any("rosbag2" in m and m.startswith("ERROR") for m in ev.logs), ev.logs
+    assert "bag_recorder" not in _by_exe(ev)
+
+
+@needs_launch
+def test_rviz_is_started_only_where_installed():
+    from aslip_ros.nodes.closed_loop_launch import rviz_found
+    for launch_file, args in (("rviz.launch.py", {}), ("slip_track.launch.py", {"rviz": "true"})):
+        ev = evaluate(launch_file, args)
+        started = "rviz2" in _by_exe(ev)
+        assert started == rviz_found()
+        if not rviz_found():
+            assert any("rviz2 is not installed" in m for m in ev.logs), ev.logs
+    assert "rviz2" not in _by_exe(evaluate("slip_track.launch.py", {}))
+
+
+@needs_launch
+def test_export_runs_the_cli_of_the_launching_interpreter():
+    ev = evaluate("export.launch.py", {"bag": "in", "out": "ds", "window": "0.1"})
+    (cmd, _), = ev.processes
+    assert cmd[:4] == [sys.executable, "-m", "aslip_ros.cli", "export"]
+    assert cmd[4:] == ["in", "-o", "ds", "--window", "0.1", "--hop", "0.1", "--no-progress"]
+
+
+@needs_launch
+def test_export_requires_its_arguments():
+    with pytest.raises(AssertionError, match="required argument 'bag'"):
+        evaluate("export.launch.py", {})
+
+
+# ------------------------------------------------------------------- process behaviour
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:    # a zombie has exited; only its parent has not reaped it yet
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def _wait_gone(pids, timeout: float) -> list:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        left = [p for p in pids if _alive(p)]
+        if not left:
+            return []
+        time.sleep(0.2)
+    return [p for p in pids if _alive(p)]
+
+
+def test_a_node_dies_with_its_parent(ros_env, tmp_path):
+    """A node whose parent is killed outright (SIGKILL: no chance to stop it) exits."""
+    from ament_index_python.packages import get_package_prefix
+    exe = Path(get_package_prefix("aslip_ros")) / "lib" / "aslip_ros" / "scene_sim"
+    log = tmp_path / "node.log"
+    parent = subprocess.Popen(
+        [sys.executable, "-c",
+         "import subprocess, sys, time\n"
+         f"p = subprocess.Popen([{str(exe)!r}], stdout=open({str(log)!r}, 'w'), "
+         "stderr=subprocess.STDOUT)\n"
+         "print(p.pid, flush=True)\n"
+         "time.sleep(600)\n"],
+        env=ros_env, stdout=subprocess.PIPE, text=True)
+    child = None
+    try:
+        child = int(parent.stdout.readline())
+        assert _wait_text(log, "ready", 120), log.read_text()
+        parent.kill()
+        parent.wait(timeout=10)
+        assert _wait_gone([child], 30.0) == [], "the node outlived its parent"
+    finally:
+        parent.kill()
+        if child is not None and _alive(child):
+            os.kill(child, signal.SIGKILL)
+
+
+def test_a_node_whose_cleanup_hangs_still_exits_after_a_signal(ros_env):
+    """Launch escalates to SIGKILL 10 s after SIGINT; a node exits well before that."""
+    code = (
+        "import time\n"
+        "from rclpy.node import Node\n"
+        "from aslip_ros.nodes import common as c\n"
+        "class Stuck(Node):\n"
+        "    def __init__(self):\n"
+        "        super().__init__('stuck')\n"
+        "        c.ready(self)\n"
+        "    def before_shutdown(self):\n"
+        "        time.sleep(60)\n"
+        "raise SystemExit(c.run_node(Stuck))\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], env=ros_env, cwd=str(HELPERS),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        end = time.monotonic() + 60
+        seen = ""
+        while "ready" not in seen and time.monotonic() < end:
+            seen += proc.stdout.readline()
+        assert "ready" in seen, seen
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        took = time.monotonic() - t0
+        assert "exiting now" in out
+        assert took < 9.0, f"exit took {took:.1f} s"
+    finally:
+        proc.kill()
+
+
+def _ros2_launch(args, env, out_path):
+    from shutil import which
+    ros2 = which("ros2", path=env.get("PATH"))
+    if LAUNCH_MISSING is not None or ros2 is None:
+        pytest.skip(LAUNCH_MISSING or "`ros2` is not on PATH")
+    # start_new_session: the launch gets SIGINT like a terminal's Ctrl-C would send it,
+    # not ignored as in a background job.
+    return subprocess.Popen([ros2, "launch", "aslip_ros", *args], env=env,
+                            stdout=open(out_path, "w"), stderr=subprocess.STDOUT,
+                            start_new_session=True)
+
+
+def _started_pids(log: Path) -> list:
+    import re
+    return [int(m) for m in re.findall(r"process started with pid \[(\d+)\]", log.read_text())]
+
+
+def _wait_text(log: Path, text: str, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if text in log.read_text():
+            return True
+        time.sleep(0.25)
+    return False
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_ros2_launch_leaves_no_node_behind(ros_env, tmp_path, sig):
+    """slip_stop with rviz:=true (rviz2 missing or not): the graph runs until the launch is
+    stopped, then no node of it is left, on SIGINT and on SIGTERM alike."""
+    log = tmp_path / "launch.log"
+    proc = _ros2_launch(["slip_stop.launch.py", "rviz:=true"], ros_env, log)
+    pids = []
+    try:
+        assert _wait_text(log, "slip-stop trial started", 150), log.read_text()[-3000:]
+        pids = _started_pids(log)
+        assert len(pids) >= 4
+        assert proc.poll() is None, "the launch ended by itself"
+        proc.send_signal(sig)
+        proc.wait(timeout=60)
+        left = _wait_gone(pids, 30.0)
+        assert left == [], f"nodes left running after {sig.name}: {left}\n" + \
+            log.read_text()[-3000:]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        for p in pids:
+            if _alive(p):
+                os.kill(p, signal.SIGKILL)
+
+
+@pytest.mark.slow
+def test_a_failing_recorder_shuts_data_collection_down(ros_env, tmp_path):
+    """The recorder refuses an existing bag: the launch must end by itself, saying why."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    log = tmp_path / "launch.log"
+    proc = _ros2_launch(["data_collection.launch.py", "recorder:=aslip", "duration_s:=0",
+                         f"bag:={bag}"], ros_env, log)
+    try:
+        proc.wait(timeout=150)
+        text = log.read_text()
+        assert "the recorder (aslip) exited with code 2" in text, text[-3000:]
+        assert _wait_gone(_started_pids(log), 30.0) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)

@@ -73,3 +73,21 @@ def test_bad_input_is_refused():
     x[0, 0, 0, 0] = np.inf
     with pytest.raises(ValueError, match="NaN or Inf"):
         baselines.svm_features(x)
+
+
+def test_baselines_run_on_an_exported_dataset_with_its_split(tmp_path):
+    from aslip_ros.learn.data_io import open_dataset
+    from aslip_ros.learn.synthetic import make_synthetic_dataset
+
+    path = make_synthetic_dataset(tmp_path / "ds", n_trials=12, duration_s=4.0)
+    ds = open_dataset(path)
+    res = baselines.run_on_dataset(ds, ("svm", "cnn"), epochs=3, cache_dir=tmp_path / "cache",
+                                   n_boot=50)
+    for name in ("plain_svm", "plain_cnn"):
+        r = res[name]
+        assert r["n_windows"] > 0 and 0.0 <= r["detection_accuracy"] <= 1.0
+        lo, hi = r["detection_accuracy_ci"]
+        assert lo <= r["detection_accuracy"] <= hi
+    assert res["plain_svm"]["detection_accuracy"] > 0.8
+    with pytest.raises(ValueError, match="unknown baseline"):
+        baselines.run_on_dataset(ds, ("knn",), cache_dir=tmp_path / "cache")

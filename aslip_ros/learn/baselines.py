@@ -187,3 +187,37 @@ def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: 
     svr_x = SVR(kernel="rbf").fit(f[s], tv[:, 0])
     svr_z = SVR(kernel="rbf").fit(f[s], tv[:, 1])
     return PlainSvmModel(scaler, svc, svr_x, svr_z, scale)
+
+
+def run_on_dataset(ds, kinds=("cnn", "svm"), *, split_seed: int = 0, test_split: str = "test",
+                   epochs: int = 25, seed: int = 0, cache_dir=None,
+                   n_boot: int = 500) -> dict[str, dict]:
+    """Train each baseline on an exported dataset's training trials and report the metrics
+    (with trial-bootstrap intervals) on ``test_split``; the same split and feature cache as
+    ``aslip train``. ``ds`` is a ``data_io.WindowSet``."""
+    from .data_io import select_windows
+    from .stats import bootstrap_metrics
+    from .train import feature_cache
+
+    feats = feature_cache(ds, baseline_features(ds.sample_rate), ds.channel_names,
+                          cache_dir=cache_dir)
+    tr = select_windows(ds, "train", seed=split_seed)
+    te = select_windows(ds, test_split, seed=split_seed)
+    if tr.size == 0 or te.size == 0:
+        raise ValueError(f"{ds.root}: the split (seed {split_seed}) leaves no training or no "
+                         f"{test_split} trials; use more trials")
+    x_tr = np.asarray(feats[tr], dtype=np.float32)
+    x_te = np.asarray(feats[te], dtype=np.float32)
+    out = {}
+    for kind in kinds:
+        if kind == "cnn":
+            model = fit_plain_cnn(x_tr, ds.velocity(tr), ds.slip(tr), epochs=epochs, seed=seed)
+        elif kind == "svm":
+            model = fit_plain_svm(x_tr, ds.velocity(tr), ds.slip(tr), seed=seed)
+        else:
+            raise ValueError(f"unknown baseline {kind!r}; choose cnn or svm")
+        p, vel = model.predict(x_te)
+        out[f"plain_{kind}"] = bootstrap_metrics(ds.windows["trial"][te], p, vel,
+                                                 ds.velocity(te), ds.slip(te), ds.window_s,
+                                                 n_boot=n_boot, seed=seed)
+    return out
