@@ -137,6 +137,49 @@ def windows(trials: list[dict], mode: str, k: calibration.CalibrationConstants |
 MODES = ("raw", "calibrated", "calibrated_slip", "oracle")
 
 
+class _SlipNetModel:
+    def __init__(self, net) -> None:
+        self.net = net.eval()
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        import torch
+        with torch.no_grad():
+            out = self.net(torch.from_numpy(np.asarray(x, dtype=np.float32)))
+            d = torch.nn.functional.normalize(out.direction, dim=1, eps=1e-8)
+            return (torch.sigmoid(out.logit).numpy().astype(np.float64),
+                    (d * out.magnitude[:, None]).numpy().astype(np.float64))
+
+
+def fit_slipnet(x: np.ndarray, v: np.ndarray, slip: np.ndarray, epochs: int = 25,
+                seed: int = 0) -> _SlipNetModel:
+    """The package's network (default size, 48 mels) trained from scratch with its losses
+    (no smoothness term), Adam 1e-3 / weight decay 1e-4, batch 128, a fixed number of epochs:
+    the architecture on equal terms with the plain CNN, not the documented two-stage recipe."""
+    import torch
+    from aslip_ros.learn.features import normalization_stats
+    from aslip_ros.learn.losses import slip_loss
+    from aslip_ros.learn.network import ModelConfig, SlipNet
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    speed = np.hypot(*v.T)
+    scale = float(np.median(speed[slip]))
+    net = SlipNet(ModelConfig(n_channels=x.shape[1], n_mels=x.shape[2], speed_scale=scale))
+    net.set_normalization(*normalization_stats(x))
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3, weight_decay=1e-4)
+    xt, vt, st = (torch.from_numpy(np.asarray(a)) for a in (x, v, slip))
+    net.train()
+    for _ in range(epochs):
+        order = torch.from_numpy(rng.permutation(x.shape[0]))
+        for s in range(0, x.shape[0] - 1, 128):
+            b = order[s:s + 128]
+            opt.zero_grad()
+            loss, _ = slip_loss(net(xt[b]), vt[b], st[b], speed_scale=scale)
+            loss.backward()
+            opt.step()
+    return _SlipNetModel(net)
+
+
 def model_rows(train: list[dict], test: list[dict], k, models=("svm", "cnn"),
                epochs: int = 25, modes=MODES, cnn_stride: int = 1, save: Path | None = None,
                log=print) -> dict[str, Any]:
@@ -153,6 +196,9 @@ def model_rows(train: list[dict], test: list[dict], k, models=("svm", "cnn"),
             t0 = time.time()
             if m == "svm":
                 model = baselines.fit_plain_svm(xtr, vtr, str_)
+            elif m == "slipnet":
+                sel = slice(None, None, cnn_stride)
+                model = fit_slipnet(xtr[sel], vtr[sel], str_[sel], epochs=epochs)
             else:
                 sel = slice(None, None, cnn_stride)
                 model = baselines.fit_plain_cnn(xtr[sel], vtr[sel], str_[sel], epochs=epochs)
