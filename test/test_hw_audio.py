@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from scipy.io import wavfile
 
-from aslip_ros.hw.audio import AudioError, SoundDeviceCapture, WavReplay
+from aslip_ros.hw.audio import AudioError, SoundDeviceCapture
+from aslip_ros.hw.wav import WavReplay
 
 ROOT = Path(__file__).resolve().parents[1]
 RATE = 48000
@@ -184,25 +185,93 @@ def test_callback_copies_counts_overflow_and_queue_full():
     assert kwargs['channels'] == 2 and kwargs['samplerate'] == RATE
     cb = kwargs['callback']
     buf = np.ones((4, 2), dtype=np.float32)
+    step = 4 / RATE
     cb(buf, 4, _times(10.0, 10.01), _status())
     buf[:] = 2.0                                   # the callback must have copied
-    cb(buf, 4, _times(10.0001, 10.0101), _status(overflow=True))
-    cb(buf, 4, _times(10.0002, 10.0102), _status())   # queue full: dropped, counted
+    # Overflow flagged while the ADC times show no hole: the loss is real, its size
+    # unknown; one block length goes into the index, so the consumer sees a gap.
+    cb(buf, 4, _times(10.0 + step, 10.0101), _status(overflow=True))
+    cb(buf, 4, _times(10.0 + 2 * step, 10.0102), _status())   # queue full: dropped, counted
     b0 = cap.read(0)
     assert b0.first_sample_index == 0 and np.all(b0.data == 1.0)
     assert b0.adc_time == 10.0
     assert time.time() - b0.host_time == pytest.approx(0.01, abs=0.05)
     b1 = cap.read(0)
-    assert b1.overflow and b1.first_sample_index == 4
+    assert b1.overflow and b1.first_sample_index == 8 and b1.frames_lost_before == 4
     cb(buf, 4, _times(0.0, 0.0), _status())      # driver without timestamps
     b3 = cap.read(0)
-    assert b3.first_sample_index == 12 and b3.frames_lost_before == 4
+    assert b3.first_sample_index == 16 and b3.frames_lost_before == 4
     assert cap.read(0) is None
     st = cap.stats()
     assert (st.blocks_produced, st.blocks_read, st.blocks_dropped, st.frames_dropped,
-            st.input_overflows) == (4, 3, 1, 4, 1)
+            st.input_overflows, st.frames_overflowed) == (4, 3, 1, 4, 1, 4)
     cap.stop()
     assert not cap.running
+
+
+def test_input_overflow_shows_as_a_gap_in_the_sample_index():
+    """PortAudio lost two blocks (flagged, ADC time 20 ms on): the index jumps by them."""
+    sd = FakeSD()
+    cap = SoundDeviceCapture('mic', 2, RATE, block_frames=BLOCK, sd_module=sd)
+    cap.start()
+    cb = sd.streams[0].kwargs['callback']
+    buf = np.zeros((BLOCK, 2), dtype=np.float32)
+    t = 100.0
+    dt = BLOCK / RATE
+    for adc, overflow in ((t, False), (t + dt, False), (t + 4 * dt, True),
+                          (t + 5 * dt + 0.0004, False),      # ADC jitter: no loss
+                          (t + 9 * dt + 0.0004, False)):     # unflagged 3-block hole
+        cb(buf, BLOCK, _times(adc, adc + 0.01), _status(overflow))
+    blocks = [cap.read(0) for _ in range(5)]
+    assert [b.first_sample_index for b in blocks] == [0, BLOCK, 4 * BLOCK, 5 * BLOCK,
+                                                      9 * BLOCK]
+    assert [b.frames_lost_before for b in blocks] == [0, 0, 2 * BLOCK, 0, 3 * BLOCK]
+    st = cap.stats()
+    assert st.frames_overflowed == 5 * BLOCK and st.input_overflows == 1
+    assert st.frames_produced == 5 * BLOCK           # frames delivered
+
+
+def test_adc_clock_drift_makes_no_phantom_losses():
+    sd = FakeSD()
+    cap = SoundDeviceCapture('mic', 1, RATE, block_frames=BLOCK, queue_blocks=20000,
+                             sd_module=sd)
+    cap.start()
+    cb = sd.streams[0].kwargs['callback']
+    buf = np.zeros((BLOCK, 1), dtype=np.float32)
+    step = BLOCK / RATE * (1 + 200e-6)               # ADC clock 200 ppm fast
+    for i in range(10000):
+        cb(buf, BLOCK, _times(50.0 + i * step, 50.0 + i * step + 0.01), _status())
+    assert cap.stats().frames_overflowed == 0
+    assert cap._next_index == 10000 * BLOCK
+
+
+def test_silent_device_and_callback_errors_are_visible():
+    sd = FakeSD()
+    cap = SoundDeviceCapture('mic', 2, RATE, block_frames=4, sd_module=sd)
+    cap.start()
+    assert cap.seconds_since_data() < 1.0
+    time.sleep(0.05)
+    assert cap.seconds_since_data() >= 0.05          # nothing delivered since start
+    cb = sd.streams[0].kwargs['callback']
+    cb(np.zeros((4, 2), np.float32), 4, _times(1.0, 1.01), _status())
+    assert cap.seconds_since_data() < 0.05
+    cb(None, 4, None, None)                           # garbage: refused, counted
+    cb(np.zeros((3, 2), np.float32), 4, None, None)   # not the frames it claims
+    assert cap.stats().callback_errors == 2
+    assert [b.frames for b in iter(lambda: cap.read(0), None)] == [4]
+
+
+def test_latency_is_validated_and_passed_to_portaudio():
+    sd = FakeSD()
+    cap = SoundDeviceCapture('mic', 2, RATE, sd_module=sd)
+    cap.start()
+    assert sd.streams[0].kwargs['latency'] == 'low'      # the default
+    for given, passed in (('high', 'high'), (' LOW ', 'low'), (0.02, 0.02), ('0.05', 0.05)):
+        SoundDeviceCapture('mic', 2, RATE, latency=given, sd_module=sd).start()
+        assert sd.streams[-1].kwargs['latency'] == passed
+    for bad in ('fast', '', 0.0, -1.0, float('nan'), 11.0, True, None):
+        with pytest.raises(ValueError, match='latency'):
+            SoundDeviceCapture('mic', 2, RATE, latency=bad, sd_module=sd)
 
 
 def test_callback_never_raises():
@@ -210,7 +279,7 @@ def test_callback_never_raises():
     cap = SoundDeviceCapture(None, 2, RATE, block_frames=4, sd_module=sd)
     cap.start()
     sd.streams[0].kwargs['callback'](None, 4, None, None)   # garbage in
-    assert cap.stats().blocks_produced == 1
+    assert cap.stats().callback_errors == 1 and cap.read(0) is None
 
 
 def test_device_resolution_and_validation():

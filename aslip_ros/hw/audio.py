@@ -1,16 +1,23 @@
 """Multi-channel audio sources: live capture through sounddevice/PortAudio, WAV replay.
 
-Both sources yield :class:`AudioBlock` objects through the same pull API (``read`` /
-iteration), so the capture node does not care where the audio comes from.
+Both sources (the WAV replay is in :mod:`aslip_ros.hw.wav`, re-exported here) yield
+:class:`AudioBlock` objects through the same pull API (``read`` / iteration), so the capture
+node does not care where the audio comes from.
 
 Live capture follows the one rule of real-time audio: the PortAudio callback runs on the
 audio thread and must never block, so it only copies the block, its ADC timestamp and the
 running sample counter into a bounded queue. Nothing is lost silently:
 
 - ``status.input_overflow`` (PortAudio lost samples before we saw them) is counted and
-  flagged on the block it arrived with;
+  flagged on the block it arrived with, and the lost frames are counted into the sample
+  index, so the consumer sees a gap there and never splices audio across the hole. Their
+  number comes from the ADC clock (``inputBufferAdcTime`` against the previous block's);
+  a driver without usable ADC times costs one block length (the loss is real, its size
+  unknown). A hole of more than a block in the ADC times is a loss even unflagged;
 - a block that finds the queue full is dropped and counted, and the consumer sees the gap
-  in ``first_sample_index`` (reported as :attr:`AudioBlock.frames_lost_before`).
+  in ``first_sample_index`` (reported as :attr:`AudioBlock.frames_lost_before`);
+- the time of the last delivery is kept (``seconds_since_data``), so a device that stops
+  delivering can be told from a quiet one, and callback errors are counted in the stats.
 
 ``sounddevice`` is imported lazily, so this module (and WAV replay) works on machines
 without ``libportaudio2``.
@@ -23,7 +30,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator, List, Optional, Sequence, Union
+from typing import Any, Iterator, List, Optional, Sequence, Union
 
 import numpy as np
 
@@ -40,7 +47,8 @@ class AudioBlock:
     """One block of multi-channel audio.
 
     :ivar first_sample_index: index of the block's first frame in the stream (a running
-        counter over every frame the source produced, including dropped blocks).
+        counter over every frame the source produced, including dropped blocks and frames
+        lost to input overflow).
     :ivar adc_time: acquisition time of the first frame on the source's clock [s]: PortAudio's
         ``inputBufferAdcTime`` for capture, file time for replay.
     :ivar host_time: estimated ``time.time()`` [s] of the first frame's acquisition, for
@@ -48,7 +56,7 @@ class AudioBlock:
     :ivar data: ``(frames, channels)`` float32 samples, full scale +-1.
     :ivar overflow: PortAudio reported an input overflow with this block.
     :ivar frames_lost_before: frames missing between the previous block read and this one
-        (queue overflow); 0 when contiguous.
+        (queue or input overflow); 0 when contiguous.
     """
 
     first_sample_index: int
@@ -79,6 +87,8 @@ class SourceStats:
     frames_dropped: int
     input_overflows: int
     queue_depth: int
+    frames_overflowed: int = 0     # frames PortAudio lost before the callback saw them
+    callback_errors: int = 0       # callbacks that failed (their block is lost)
 
 
 def _channel_names(names: Optional[Sequence[str]], channels: int) -> List[str]:
@@ -90,6 +100,24 @@ def _channel_names(names: Optional[Sequence[str]], channels: int) -> List[str]:
     if len(set(names)) != len(names) or any(not n for n in names):
         raise ValueError(f'channel names must be unique and non-empty: {names}')
     return names
+
+
+def check_latency(latency: Any) -> Union[str, float]:
+    """PortAudio suggested latency: ``'low'``, ``'high'`` or seconds in (0, 10]."""
+    if isinstance(latency, str):
+        text = latency.strip().lower()
+        if text in ('low', 'high'):
+            return text
+        try:
+            latency = float(text)
+        except ValueError:
+            raise ValueError(f"latency must be 'low', 'high' or seconds, got {latency!r}") \
+                from None
+    if isinstance(latency, bool) or not isinstance(latency, (int, float)) or \
+            not (math.isfinite(latency) and 0.0 < latency <= 10.0):
+        raise ValueError(f"latency must be 'low', 'high' or seconds in (0, 10], "
+                         f"got {latency!r}")
+    return float(latency)
 
 
 def _check_positive_int(name: str, value: Any) -> int:
@@ -127,14 +155,15 @@ class SoundDeviceCapture:
     :param block_frames: frames per block (PortAudio ``blocksize``).
     :param channel_names: one unique name per channel (default ``ch0``...).
     :param queue_blocks: capacity of the queue between the audio thread and the consumer.
-    :param latency: PortAudio suggested latency, ``'low'``, ``'high'`` or seconds.
+    :param latency: PortAudio suggested latency, ``'low'`` (default: the device's low-latency
+        setting, what a controller wants), ``'high'`` (robust to a busy host) or seconds.
     :param sd_module: the ``sounddevice`` module (tests may inject a fake); default: import.
     """
 
     def __init__(self, device: Union[str, int, None], channels: int, sample_rate: float,
                  block_frames: int = DEFAULT_BLOCK_FRAMES,
                  channel_names: Optional[Sequence[str]] = None,
-                 queue_blocks: int = 256, latency: Union[str, float] = 'high',
+                 queue_blocks: int = 256, latency: Union[str, float] = 'low',
                  sd_module: Any = None) -> None:
         """Validate the configuration and resolve the device (the stream opens in start)."""
         self._channels = _check_positive_int('channels', channels)
@@ -149,7 +178,7 @@ class SoundDeviceCapture:
             device = None
         if isinstance(device, bool) or not (device is None or isinstance(device, (str, int))):
             raise ValueError(f'device must be a name, an index or None, got {device!r}')
-        self._latency = latency
+        self._latency = check_latency(latency)
         self._sd = sd_module if sd_module is not None else self._import_sounddevice()
         self._device_index, self._device_name = self._resolve(device)
         self._queue: 'queue.Queue[AudioBlock]' = queue.Queue(maxsize=queue_blocks)
@@ -162,7 +191,11 @@ class SoundDeviceCapture:
         self._blocks_dropped = 0
         self._frames_dropped = 0
         self._overflows = 0
+        self._frames_overflowed = 0
         self._callback_errors = 0
+        self._next_index = 0               # index of the next frame, lost frames included
+        self._prev_adc_end: Optional[float] = None   # ADC time just after the last block
+        self._last_data = time.monotonic()
 
     # -- configuration ----------------------------------------------------------------------
 
@@ -203,6 +236,8 @@ class SoundDeviceCapture:
                     device=self._device_index, channels=self._channels,
                     samplerate=self._sample_rate, blocksize=self._block_frames,
                     dtype='float32', latency=self._latency, callback=self._callback)
+                self._prev_adc_end = None
+                self._last_data = time.monotonic()
                 stream.start()
             except Exception as exc:  # noqa: BLE001 - PortAudioError and friends
                 raise AudioError(f'cannot open audio input {self._device_name!r} '
@@ -221,6 +256,19 @@ class SoundDeviceCapture:
                 stream.close()
 
     close = stop
+
+    @property
+    def stream_latency(self) -> Optional[float]:
+        """The input latency PortAudio chose for the open stream [s] (None when closed)."""
+        stream = self._stream
+        try:
+            return float(stream.latency) if stream is not None else None
+        except (AttributeError, TypeError, ValueError):
+            return None
+
+    def seconds_since_data(self) -> float:
+        """Seconds since the last callback delivered a block (or since start)."""
+        return time.monotonic() - self._last_data
 
     @property
     def running(self) -> bool:
@@ -263,7 +311,8 @@ class SoundDeviceCapture:
             blocks_produced=self._blocks_produced, frames_produced=self._frames_produced,
             blocks_read=self._reader.blocks_read, blocks_dropped=self._blocks_dropped,
             frames_dropped=self._frames_dropped, input_overflows=self._overflows,
-            queue_depth=self._queue.qsize())
+            queue_depth=self._queue.qsize(), frames_overflowed=self._frames_overflowed,
+            callback_errors=self._callback_errors)
 
     # -- internals --------------------------------------------------------------------------
 
@@ -296,20 +345,26 @@ class SoundDeviceCapture:
     def _callback(self, indata: np.ndarray, frames: int, time_info: Any, status: Any) -> None:
         # Runs on PortAudio's thread: copy, count, enqueue; never block, never raise.
         try:
-            index = self._frames_produced
-            self._frames_produced = index + frames
-            self._blocks_produced += 1
+            self._last_data = time.monotonic()
+            data = np.array(indata, dtype=np.float32)
+            if data.shape != (frames, self._channels):
+                raise ValueError(f'callback block shaped {data.shape}')
             overflow = bool(getattr(status, 'input_overflow', False))
+            adc = float(getattr(time_info, 'inputBufferAdcTime', 0.0) or 0.0)
+            lost = self._frames_lost_before(adc, frames, overflow)
+            index = self._next_index + lost
+            self._next_index = index + frames
+            self._frames_produced += frames
+            self._blocks_produced += 1
             if overflow:
                 self._overflows += 1
-            adc = float(getattr(time_info, 'inputBufferAdcTime', 0.0) or 0.0)
+            self._frames_overflowed += lost
             current = float(getattr(time_info, 'currentTime', 0.0) or 0.0)
             now = time.time()
             # The block's first frame was acquired (current - adc) seconds ago when both
             # stamps are valid; some drivers report 0, then fall back to the block length.
             age = current - adc if adc > 0.0 and current >= adc else frames / self._sample_rate
-            block = AudioBlock(index, adc, now - age, np.array(indata, dtype=np.float32),
-                               overflow)
+            block = AudioBlock(index, adc, now - age, data, overflow)
             try:
                 self._queue.put_nowait(block)
             except queue.Full:
@@ -318,160 +373,27 @@ class SoundDeviceCapture:
         except Exception:  # noqa: BLE001 - an exception here would kill the stream
             self._callback_errors += 1
 
+    def _frames_lost_before(self, adc: float, frames: int, overflow: bool) -> int:
+        """Frames PortAudio lost between the previous block and this one (callback thread).
 
-class WavReplay:
-    """Replay a multi-channel WAV file as :class:`AudioBlock` objects.
+        Measured block to block (never against an accumulated expectation, which the ADC
+        clock's drift against the sample rate would turn into phantom losses).
+        """
+        prev, self._prev_adc_end = self._prev_adc_end, \
+            (adc + frames / self._sample_rate if adc > 0.0 else None)
+        hole = 0
+        if prev is not None and adc > 0.0:
+            hole = max(0, int(round((adc - prev) * self._sample_rate)))
+        if overflow:
+            return hole if hole > 0 else frames
+        # Unflagged: only a hole longer than a block is evidence (ADC times jitter).
+        return hole if hole > frames else 0
 
-    Reads int16, int32 (also 24-bit, which scipy returns as int32), uint8 and float WAV
-    files through :func:`scipy.io.wavfile.read` and scales them to float32 +-1.
 
-    :param path: the WAV file.
-    :param block_frames: frames per block; the last block may be shorter.
-    :param paced: deliver blocks in real time (a block becomes available when its last
-        frame would have been captured); ``False`` delivers as fast as read.
-    :param loop: start over at the end (the sample index keeps counting).
-    :param channel_names: one unique name per channel (default ``ch0``...).
-    :param clock: monotonic clock for pacing; ``sleep``: used while pacing.
-    """
-
-    def __init__(self, path: str, block_frames: int = DEFAULT_BLOCK_FRAMES,
-                 paced: bool = True, loop: bool = False,
-                 channel_names: Optional[Sequence[str]] = None,
-                 clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
-        """Read the file header and data (memory-mapped where scipy allows it)."""
-        from scipy.io import wavfile
-
-        self._block_frames = _check_positive_int('block_frames', block_frames)
-        try:
-            try:
-                rate, data = wavfile.read(path, mmap=True)
-            except ValueError:
-                # scipy cannot memory-map 24-bit files; read them into memory instead.
-                rate, data = wavfile.read(path)
-        except (OSError, ValueError) as exc:
-            raise AudioError(f'cannot read WAV file {path!r}: {exc}') from exc
-        if data.ndim == 1:
-            data = data[:, np.newaxis]
-        if data.shape[0] == 0:
-            raise AudioError(f'WAV file {path!r} has no samples')
-        self._raw = data
-        self._scale, self._offset = self._scaling(data.dtype, path)
-        self._sample_rate = float(rate)
-        self._names = _channel_names(channel_names, data.shape[1])
-        self._paced = bool(paced)
-        self._loop = bool(loop)
-        self._clock = clock
-        self._sleep = sleep
-        self._reader = _BlockReader()
-        self._index = 0
-        self._t0: Optional[float] = None
-        self._wall0 = 0.0
-        self._finished = False
-
-    @staticmethod
-    def _scaling(dtype: np.dtype, path: str) -> tuple:
-        if dtype == np.int16:
-            return 1.0 / 32768.0, 0.0
-        if dtype == np.int32:
-            return 1.0 / 2147483648.0, 0.0
-        if dtype == np.uint8:
-            return 1.0 / 128.0, -128.0
-        if dtype.kind == 'f':
-            return 1.0, 0.0
-        raise AudioError(f'unsupported WAV sample type {dtype} in {path!r}')
-
-    @property
-    def sample_rate(self) -> float:
-        """Sample rate from the file header [Hz]."""
-        return self._sample_rate
-
-    @property
-    def channel_names(self) -> List[str]:
-        """One name per channel."""
-        return list(self._names)
-
-    @property
-    def channels(self) -> int:
-        """Number of channels in the file."""
-        return int(self._raw.shape[1])
-
-    @property
-    def block_frames(self) -> int:
-        """Frames per block."""
-        return self._block_frames
-
-    @property
-    def n_frames(self) -> int:
-        """Frames in the file."""
-        return int(self._raw.shape[0])
-
-    @property
-    def finished(self) -> bool:
-        """True once the last block has been read (never, when looping)."""
-        return self._finished
-
-    def start(self) -> None:
-        """Start the replay clock (also done by the first read)."""
-        if self._t0 is None:
-            self._t0 = self._clock()
-            self._wall0 = time.time()
-
-    def stop(self) -> None:
-        """End the replay: further reads return ``None``."""
-        self._finished = True
-
-    close = stop
-
-    def __enter__(self) -> 'WavReplay':
-        """Start on entering a ``with`` block."""
-        self.start()
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        """Stop on leaving it."""
-        self.stop()
-
-    def read(self, timeout_s: Optional[float] = None) -> Optional[AudioBlock]:
-        """Next block; when paced, waits until it is due (``None`` if not due in time)."""
-        if self._finished:
-            return None
-        self.start()
-        n = self.n_frames
-        pos = self._index % n if self._loop else self._index
-        if pos >= n:
-            self._finished = True
-            return None
-        frames = min(self._block_frames, n - pos)
-        file_time = self._index / self._sample_rate
-        if self._paced:
-            due = self._t0 + (self._index + frames) / self._sample_rate
-            wait = due - self._clock()
-            if wait > 0.0:
-                if timeout_s is not None and wait > timeout_s:
-                    if timeout_s > 0.0:
-                        self._sleep(timeout_s)
-                    return None
-                self._sleep(wait)
-        raw = np.asarray(self._raw[pos:pos + frames])
-        data = ((raw.astype(np.float32) + np.float32(self._offset)) *
-                np.float32(self._scale)).astype(np.float32, copy=False)
-        block = AudioBlock(self._index, file_time, self._wall0 + file_time, data)
-        self._index += frames
-        if not self._loop and self._index >= n:
-            self._finished = True
-        return self._reader.mark(block)
-
-    def blocks(self, timeout_s: Optional[float] = None) -> Iterator[AudioBlock]:
-        """Yield blocks until the end of the file (forever when looping)."""
-        while not self._finished:
-            block = self.read(timeout_s)
-            if block is not None:
-                yield block
-
-    def stats(self) -> SourceStats:
-        """Counters (replay never drops)."""
-        return SourceStats(
-            blocks_produced=self._reader.blocks_read, frames_produced=self._index,
-            blocks_read=self._reader.blocks_read, blocks_dropped=0, frames_dropped=0,
-            input_overflows=0, queue_depth=0)
+def __getattr__(name: str) -> Any:
+    # WAV replay lives in its own module (this one is the PortAudio path); still importable
+    # from here, resolved lazily because aslip_ros.hw.wav imports this module.
+    if name == 'WavReplay':
+        from aslip_ros.hw.wav import WavReplay
+        return WavReplay
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

@@ -297,7 +297,7 @@ class AudioCapture(LifecycleNode):
                         layout=p["layout"], device=src.device_name)
             self.layout = p["layout"]
         elif p["source"] == "wav":
-            from aslip_ros.hw.audio import WavReplay
+            from aslip_ros.hw.wav import WavReplay
             # A first look at the header gives the rate (for the block length) and the
             # channel count (the configured names apply only when they fit the file).
             probe = WavReplay(p["wav_path"], paced=False)
