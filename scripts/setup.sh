@@ -103,6 +103,25 @@ build_key="$( (cat package.xml CMakeLists.txt msg/*.msg compat/tf2_msgs/msg/*.ms
   compat/tf2_msgs/package.xml compat/tf2_msgs/CMakeLists.txt; \
   { readlink .colcon/src/tf2_msgs || true; }; find aslip_ros launch config -type f \
   -not -name '*.pyc' | LC_ALL=C sort) | sha256sum | cut -d' ' -f1)"
+# A stale install keeps a matching build key: after .colcon/ was removed its symlinks dangle,
+# after the checkout moved they (and CMake's cache) name the old place. Then rebuild it.
+stale=""
+if [ -f install/setup.bash ]; then
+  init="$(ls install/lib/python3*/site-packages/aslip_ros/__init__.py 2>/dev/null | head -n 1)"
+  if [ -n "$(find install -xtype l -print -quit 2>/dev/null)" ]; then
+    stale="it holds dangling symlinks"
+  elif [ -z "$init" ] || [ "$(realpath "$init")" != "$(realpath "$ROOT")/aslip_ros/__init__.py" ]; then
+    stale="its aslip_ros is not this checkout's (${init:+$(realpath "$init")})"
+  elif ! grep -qs "CMAKE_HOME_DIRECTORY:INTERNAL=$ROOT/.colcon/src/aslip_ros$" \
+      build/aslip_ros/CMakeCache.txt; then
+    stale="its CMake build belongs to another checkout"
+  fi
+fi
+if [ -n "$stale" ]; then
+  say "the install in install/ is stale ($stale): rebuilding"
+  # build/ also holds other tools' folders (build/ros2-launch): only colcon's are removed.
+  rm -rf install build/aslip_ros build/tf2_msgs
+fi
 if [ "$(cat install/.aslip-build 2>/dev/null)" != "$build_key" ] || [ ! -f install/setup.bash ]; then
   say "building the package with colcon into install/"
   mkdir -p log
