@@ -84,11 +84,36 @@ class FakeXArmAPI:
         code = self._rec('get_err_warn_code')
         return code, list(self.err_warn)
 
+    def clean_warn(self):
+        self.err_warn[1] = 0
+        return self._rec('clean_warn')
+
     def names(self):
         return [c[0] for c in self.calls]
 
     def velocity_calls(self):
         return [c for c in self.calls if c[0] == 'vc_set_cartesian_velocity']
+
+
+class StreamingXArmAPI(FakeXArmAPI):
+    """Also has the SDK's report stream; the test calls ``report`` to deliver a pose."""
+
+    def __init__(self, ip, **kwargs):
+        super().__init__(ip, **kwargs)
+        self.report_cb = None
+
+    def register_report_location_callback(self, callback=None, report_cartesian=True,
+                                          report_joints=True):
+        self.report_cb = callback
+        return True
+
+    def release_report_location_callback(self, callback=None):
+        self.report_cb = None
+        return True
+
+    def report(self, position_mm=None, rpy=(math.pi, 0.0, 0.0)):
+        pose = list(position_mm or self.position[:3]) + list(rpy)
+        self.report_cb({'cartesian': pose})
 
 
 def make(api=None, **cfg):
@@ -465,3 +490,54 @@ def test_slip_stop_trial_through_the_adapter():
     assert 0.003 < res.stopping_distance_m < 0.01
     assert not arm.velocity_mode_enabled          # arm.stop() went through
     assert all(c[2]['duration'] > 0 for c in api.velocity_calls())
+
+
+def test_every_sdk_code_has_a_meaning():
+    for code in (-10, -11, -12, 20, 21, 22, 23, 31, 32, 33, 34, 41, 100, 101, 102, 103):
+        assert describe_code(code) != 'unknown code', code
+
+
+def test_controller_warning_while_streaming_stops_and_raises():
+    arm, api, clock = connected(status_period_s=0.1)
+    arm.send_velocity([0.01, 0, 0], 0.1)
+    # The SDK maps a warning to code 0 on motion commands, so only asking reveals it.
+    api.err_warn = [0, 14]
+    clock.t += 0.2
+    with pytest.raises(XArmError) as info:
+        arm.send_velocity([0.01, 0, 0], 0.1)
+    assert info.value.controller_warning == 14
+    assert 'controller warning 14' in str(info.value)
+    assert ('set_state', (STATE_STOP,), {}) in api.calls
+    assert not arm.velocity_mode_enabled
+
+
+def test_left_over_warning_is_cleared_before_motion_not_refused():
+    arm, api, _ = make()
+    api.err_warn = [0, 11]
+    arm.connect()
+    arm.enable_velocity_mode()
+    assert 'clean_warn' in api.names() and api.err_warn[1] == 0
+    assert arm.velocity_mode_enabled
+
+
+def test_report_stream_pose_replaces_the_round_trips():
+    api = StreamingXArmAPI('192.168.1.10')
+    arm, api, clock = connected(api=api, report_max_age_s=0.05)
+    seen = []
+    assert arm.set_pose_listener(lambda pose, t, ns: seen.append((pose, t, ns))) is True
+    api.report([410.0, 5.0, 300.0])
+    assert len(seen) == 1 and seen[0][1] == clock.t
+    assert seen[0][0][:3] == pytest.approx([0.41, 0.005, 0.3])
+    api.calls.clear()
+    assert arm.tcp_pose()[:3] == pytest.approx([0.41, 0.005, 0.3])
+    arm.send_velocity([0.01, 0, 0], 0.1)
+    # One round trip per command: the velocity itself; the pose came from the stream.
+    assert api.names() == ['vc_set_cartesian_velocity']
+    clock.t += 0.2                      # the stream went quiet: ask the arm again
+    api.calls.clear()
+    arm.tcp_pose()
+    assert api.names() == ['get_position']
+    api.report_cb({'cartesian': [float('nan')] * 6})
+    assert arm.reports_rejected == 1 and len(seen) == 1
+    arm.close()
+    assert api.report_cb is None

@@ -225,8 +225,11 @@ def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
                 for n in nodes:
                     executor.add_node(n)
                 outcome = _spin(ep, executor, sim, ctl, rec, t_wall0)
+                # Input arrival gaps and stop latency, as the controller saw them.
+                timing = dict(ctl.inputs.values(), **ctl.stop_latency())
                 ctl.before_shutdown()
                 out = _score(ep, sim, rec, length, outcome)
+                out["controller_timing"] = timing
                 if ep.task == "slip_track":
                     out["controller_reason"] = ctl.task.reason if ctl.task else "not started"
             finally:

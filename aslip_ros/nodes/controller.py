@@ -110,6 +110,7 @@ class ControllerNode(LifecycleNode):
         self.rejected_slip = 0
         self.slip_count = 0
         self.last_slip_t: Optional[float] = None
+        self.last_slip_wall_ns = 0
         self.last_pose_t: Optional[float] = None
         self.steady_slip = 0    # consecutive SlipVectors, each within slip_timeout_s
         self.inputs = ArrivalStats()
@@ -273,6 +274,7 @@ class ControllerNode(LifecycleNode):
                 self._stop_report = {"reason": command.reason,
                                      "last_slip_t": self.last_slip_t,
                                      "last_pose_t": self.last_pose_t,
+                                     "last_slip_wall_ns": self.last_slip_wall_ns,
                                      "posted_t": time.monotonic()}
             self.worker.post(command)
 
@@ -332,6 +334,7 @@ class ControllerNode(LifecycleNode):
             self.inputs.slip(now, self.last_slip_t,
                              msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
             self.last_slip_t = now
+            self.last_slip_wall_ns = time.time_ns()
             if self.task is not None:
                 self.feed_slip(slip, now)
                 self._task_fed = True
@@ -409,7 +412,7 @@ class ControllerNode(LifecycleNode):
         rep, worker = self._stop_report, self.worker
         if rep is None or worker is None or worker.last_stop_sent is None:
             return {}
-        out = {"stop_reason": rep["reason"]}
+        out = {"stop_reason": rep["reason"], "last_slip_wall_ns": rep["last_slip_wall_ns"]}
         for key in ("slip", "pose"):
             t = rep[f"last_{key}_t"]
             if t is not None:
