@@ -148,3 +148,10 @@ def test_scene_tf_agrees_with_its_pose_topics(rclpy_context, ros_env):
     s = next(s for s in finger if (frames.FINGER, s) in dynamic)
     plane_tf = compose(dynamic[(frames.FINGER, s)][1], static[frames.GRASP_PLANE][1])
     assert _same_pose(plane_tf, compose(finger[s], calib))
+
+
+def test_mocap_bridge_refuses_a_grasp_plane_that_is_its_own_parent(ros_env):
+    """finger_frame == frame_id would publish a transform from a frame to itself."""
+    proc = NodeProcess("mocap_bridge", ros_env, {"finger_frame": "aslip_grasp_plane"})
+    assert proc.proc.wait(30) == 2
+    assert "finger_frame and frame_id must differ" in proc.stop()

@@ -80,7 +80,7 @@ class MocapBridge(Node):
                     "TF frame of the finger rigid body (parent of frame_id on /tf_static)",
                     c.non_empty, read_only=True),
         ]
-        self.p = c.declare_params(self, specs, self.p_update)
+        self.p = c.declare_params(self, specs, self.p_update, cross_check=_frames_differ)
         from aslip_ros.data import labels
         self._labels = labels
         self._lock = threading.Lock()
@@ -253,6 +253,13 @@ class MocapBridge(Node):
         level = {"running": c.Diagnostics.OK, "stale": c.Diagnostics.STALE}.get(
             self.state, c.Diagnostics.WARN)
         self.diag.publish(level, self.state, values)
+
+
+def _frames_differ(values: dict) -> Optional[str]:
+    if values["finger_frame"] == values["frame_id"]:
+        return (f"finger_frame and frame_id must differ (both {values['frame_id']!r}): "
+                "the calibration is the transform between them")
+    return None
 
 
 def main(args: Optional[list] = None) -> int:
