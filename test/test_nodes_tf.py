@@ -95,6 +95,19 @@ def _by_stamp(msgs) -> dict:
     return {stamp: pose for stamp, _, pose in (convert.pose_from_msg(m) for m in msgs)}
 
 
+def _matched(bus) -> dict:
+    """Per moving frame: how many pose-topic stamps also came on /tf (best-effort poses
+    may be dropped under load, so the test waits for enough of both)."""
+    from aslip_ros import frames
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.tf_frames import transform_pose
+    on_tf = {(transform_pose(t)[2], transform_pose(t)[0])
+             for msg in bus.messages("/tf") for t in msg.transforms}
+    return {child: sum((child, s) in on_tf for s in _by_stamp(bus.messages(topic)))
+            for topic, child in ((c.FINGER_TOPIC, frames.FINGER),
+                                 (c.OBJECT_TOPIC, frames.OBJECT), (c.TCP_TOPIC, frames.TCP))}
+
+
 def test_scene_tf_agrees_with_its_pose_topics(rclpy_context, ros_env):
     """scene_sim + mocap_bridge: the published edges are exactly frames.TF_TREE; each /tf
     pose equals the PoseStamped of the same stamp; the grasp plane composed through TF is
@@ -116,8 +129,9 @@ def test_scene_tf_agrees_with_its_pose_topics(rclpy_context, ros_env):
             NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": calib}) as bridge:
         scene.wait_ready()
         bridge.wait_ready()
-        assert bus.wait(lambda: len(bus.messages("/tf")) >= 30
-                        and len(_static_edges(bus)) >= 3, 30), scene.output + bridge.output
+        assert bus.wait(lambda: len(_static_edges(bus)) >= 3
+                        and min(_matched(bus).values()) >= 10, 60), \
+            scene.output + bridge.output
     bus.close()
 
     dynamic = {}                     # (child, stamp) -> (parent, pose)
