@@ -44,43 +44,48 @@ from aslip_ros.nodes import convert
 IDENTITY = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
 
 
+def bridge_params() -> list:
+    """mocap_bridge's parameter specs."""
+    from aslip_ros.data.export import DEFAULT_EPSILON_M_S, DEFAULT_WINDOW_S
+    from aslip_ros.data.labels import DEFAULT_MAX_GAP_S
+    return [
+        c.Param("finger_topic", c.FINGER_TOPIC, "finger rigid-body PoseStamped topic",
+                c.non_empty, read_only=True),
+        c.Param("object_topic", c.OBJECT_TOPIC, "object rigid-body PoseStamped topic",
+                c.non_empty, read_only=True),
+        c.Param("window_s", DEFAULT_WINDOW_S, "slip is averaged over this window [s]",
+                c.in_range(0.005, 2.0)),
+        c.Param("rate_hz", 100.0, "evaluation rate [Hz]", c.in_range(1.0, 1000.0),
+                read_only=True),
+        c.Param("epsilon_m_s", DEFAULT_EPSILON_M_S,
+                "speeds above this count as slipping [m/s]", c.non_negative),
+        c.Param("max_gap_s", DEFAULT_MAX_GAP_S,
+                "longest pose dropout bridged by interpolation [s]", c.positive),
+        c.Param("stale_timeout_s", 0.1, "no pose for this long = stale [s]", c.positive),
+        c.Param("calibration", "param", "grasp-plane calibration: param, metadata, measure",
+                c.one_of("param", "metadata", "measure"), read_only=True),
+        c.Param("grasp_plane_in_finger", list(IDENTITY),
+                "grasp-plane pose in the finger body (x y z qx qy qz qw) [m]", c.pose7,
+                read_only=True),
+        c.Param("calibration_s", 0.5, "measure: averaging time at start [s]", c.positive,
+                read_only=True),
+        c.Param("frame_id", convert.GRASP_FRAME, "frame of the published slip",
+                c.non_empty, read_only=True),
+        c.Param("marker", True, "also publish a ground-truth rviz marker", read_only=True),
+        c.Param("publish_tf", True, "publish the calibration on /tf_static", read_only=True),
+        c.Param("finger_frame", frames.FINGER,
+                "TF frame of the finger rigid body (parent of frame_id on /tf_static)",
+                c.non_empty, read_only=True),
+    ]
+
+
 class MocapBridge(Node):
     """Ground-truth slip from motion capture."""
 
     def __init__(self) -> None:
         super().__init__("mocap_bridge")
-        from aslip_ros.data.export import DEFAULT_EPSILON_M_S, DEFAULT_WINDOW_S
-        from aslip_ros.data.labels import DEFAULT_MAX_GAP_S
-        specs = [
-            c.Param("finger_topic", c.FINGER_TOPIC, "finger rigid-body PoseStamped topic",
-                    c.non_empty, read_only=True),
-            c.Param("object_topic", c.OBJECT_TOPIC, "object rigid-body PoseStamped topic",
-                    c.non_empty, read_only=True),
-            c.Param("window_s", DEFAULT_WINDOW_S, "slip is averaged over this window [s]",
-                    c.in_range(0.005, 2.0)),
-            c.Param("rate_hz", 100.0, "evaluation rate [Hz]", c.in_range(1.0, 1000.0),
-                    read_only=True),
-            c.Param("epsilon_m_s", DEFAULT_EPSILON_M_S,
-                    "speeds above this count as slipping [m/s]", c.non_negative),
-            c.Param("max_gap_s", DEFAULT_MAX_GAP_S,
-                    "longest pose dropout bridged by interpolation [s]", c.positive),
-            c.Param("stale_timeout_s", 0.1, "no pose for this long = stale [s]", c.positive),
-            c.Param("calibration", "param", "grasp-plane calibration: param, metadata, measure",
-                    c.one_of("param", "metadata", "measure"), read_only=True),
-            c.Param("grasp_plane_in_finger", list(IDENTITY),
-                    "grasp-plane pose in the finger body (x y z qx qy qz qw) [m]", c.pose7,
-                    read_only=True),
-            c.Param("calibration_s", 0.5, "measure: averaging time at start [s]", c.positive,
-                    read_only=True),
-            c.Param("frame_id", convert.GRASP_FRAME, "frame of the published slip",
-                    c.non_empty, read_only=True),
-            c.Param("marker", True, "also publish a ground-truth rviz marker", read_only=True),
-            c.Param("publish_tf", True, "publish the calibration on /tf_static", read_only=True),
-            c.Param("finger_frame", frames.FINGER,
-                    "TF frame of the finger rigid body (parent of frame_id on /tf_static)",
-                    c.non_empty, read_only=True),
-        ]
-        self.p = c.declare_params(self, specs, self.p_update, cross_check=_frames_differ)
+        self.p = c.declare_params(self, bridge_params(), self.p_update,
+                                  cross_check=_frames_differ)
         from aslip_ros.data import labels
         self._labels = labels
         self._lock = threading.Lock()
