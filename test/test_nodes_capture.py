@@ -121,7 +121,9 @@ def test_missing_device_is_reported_and_bad_params_refused(rclpy_context, ros_en
         assert node.proc.poll() is None and bus.messages(AUDIO) == []
     bus.close()
     for bad, needle in (({"source": "microphone"}, "source"),
-                        ({"source": "wav", "block_s": 0.0}, "block_s")):
+                        ({"source": "wav", "block_s": 0.0}, "block_s"),
+                        ({"source": "device", "latency": "fast"}, "latency"),
+                        ({"source": "device", "stall_timeout_s": 0.0}, "stall_timeout_s")):
         proc = NodeProcess("audio_capture", ros_env, bad)
         assert proc.proc.wait(30) == 2
         out = proc.stop()
@@ -221,3 +223,122 @@ def test_bad_bag_is_reported_with_its_path(rclpy_context, ros_env, tmp_path, dam
     assert "Traceback" not in node.output and bus.messages(AUDIO) == []
     diag = [d for d in bus.diagnostics("audio_capture") if d["level"] == 2][-1]
     assert str(bag) in diag["message"]
+
+
+# ------------------------------------------------------------------------- real-hardware faults
+
+def _change_state(bus, transition_id: int, timeout: float = 20.0) -> bool:
+    import time as _time
+
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+    cli = bus.node.create_client(ChangeState, "/audio_capture/change_state")
+    assert cli.wait_for_service(timeout_sec=timeout)
+    fut = cli.call_async(ChangeState.Request(transition=Transition(id=transition_id)))
+    deadline = _time.monotonic() + timeout
+    while not fut.done() and _time.monotonic() < deadline:
+        _time.sleep(0.02)
+    return fut.done() and fut.result().success
+
+
+def test_a_reopened_source_never_sends_the_index_back(rclpy_context, ros_env):
+    """deactivate/activate, and cleanup/configure (a new source counting from 0): the
+    published index goes on after the last block, moved on by the pause, so index and stamp
+    stay consistent and a consumer sees one gap at each restart."""
+    import time
+
+    from lifecycle_msgs.msg import Transition
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    with NodeProcess("audio_capture", ros_env, {"source": "sim"}) as node:
+        node.wait_ready()
+        assert bus.wait(lambda: len(bus.messages(AUDIO)) >= 30, 20), node.output
+        for transitions in ([Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_ACTIVATE],
+                            [Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_CLEANUP,
+                             Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE]):
+            n = len(bus.messages(AUDIO))
+            for t in transitions:
+                assert _change_state(bus, t), (t, node.output)
+                time.sleep(0.3)
+            assert bus.wait(lambda: len(bus.messages(AUDIO)) >= n + 30, 20), node.output
+        counted = bus.wait(lambda: any(d["values"].get("stream_restarts") == 2
+                                       for d in bus.diagnostics("audio_capture")), 5)
+    bus.close()
+    frames = _decoded(bus)
+    idx = np.array([f.first_sample_index for f in frames], dtype=np.int64)
+    stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
+    step = np.diff(idx)
+    assert np.all(step > 0), idx                    # never back, never repeated
+    gaps = np.flatnonzero(step != 480)
+    assert len(gaps) >= 2, step                     # each restart is a gap
+    # Across every pair of blocks, the index advances with the stamp (to within 50 ms).
+    drift = (np.diff(stamps) * 1e-9 - step / 48000.0)
+    assert np.all(np.abs(drift) < 0.05), drift[np.abs(drift) >= 0.05]
+    assert counted, node.output
+
+
+@pytest.fixture
+def fifo_device(tmp_path):
+    """A PortAudio input (ALSA `file` PCM) that reads a FIFO: it delivers exactly what the
+    test writes and stops delivering when the test stops writing, like a hung device."""
+    import os
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)
+    conf = tmp_path / "asound.conf"
+    conf.write_text("pcm.!default { type null }\n"
+                    "pcm.aslip_fifo { type file\n slave.pcm { type null }\n"
+                    f' file "/dev/null"\n infile "{fifo}"\n format "raw"\n}}\n')
+    fd = os.open(fifo, os.O_RDWR)             # a writer that never blocks the open
+    yield fd, str(conf)
+    os.close(fd)
+
+
+def _feed(fd, seconds: float, stop_event=None) -> None:
+    """Write ``seconds`` of 4-channel float32 audio at real time, in 10 ms pieces."""
+    import os
+    import time
+    piece = (0.01 * np.ones((480, 4), "<f4")).tobytes()
+    t0 = time.monotonic()
+    for i in range(int(round(seconds / 0.01))):
+        if stop_event is not None and stop_event.is_set():
+            return
+        os.write(fd, piece)
+        time.sleep(max(0.0, t0 + (i + 1) * 0.01 - time.monotonic()))
+
+
+@pytest.mark.skipif(ctypes.util.find_library("portaudio") is None,
+                    reason="libportaudio2 is not installed")
+def test_a_device_that_stops_delivering_is_an_error_within_a_second(
+        rclpy_context, ros_env, fifo_device):
+    import threading
+    import time
+    fd, conf = fifo_device
+    env = dict(ros_env, ALSA_CONFIG_PATH=conf)
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    params = {"source": "device", "device": "aslip_fifo", "channels": 4,
+              "channel_names": NAMES, "latency": "high"}
+    stop = threading.Event()
+    feeder = threading.Thread(target=_feed, args=(fd, 60.0, stop), daemon=True)
+    feeder.start()
+    with NodeProcess("audio_capture", env, params) as node:
+        node.wait_ready()
+        assert bus.wait(lambda: len(bus.messages(AUDIO)) >= 30, 20), node.output
+        assert bus.wait(lambda: any(d["level"] == 0 for d in bus.diagnostics("audio_capture")),
+                        5), node.output
+        stop.set()                                   # the device stops delivering
+        feeder.join()
+        assert bus.wait(lambda: any(d["level"] == 2 and "no audio" in d["message"]
+                                    for d in bus.diagnostics("audio_capture")), 10), \
+            node.output
+        err = [d for d in bus.diagnostics("audio_capture") if d["level"] == 2][0]
+        # The node decided on its own clock: ERROR at its first check past the timeout.
+        assert 0.5 <= err["values"]["seconds_without_audio"] < 1.0, err
+        _feed(fd, 0.5)                               # it comes back
+        assert node.wait_for("audio is back", 10), node.output
+        t0 = time.monotonic()
+    # Stopped while hung again (nothing written any more): the node still exits promptly.
+    assert node.proc.returncode == 0 and time.monotonic() - t0 < 15, node.output
+    bus.close()
+    stats = [d["values"] for d in bus.diagnostics("audio_capture")]
+    assert stats[-1]["stream_latency_ms"] > 0 and "capture_latency_p50_ms" in stats[-1]

@@ -13,7 +13,8 @@ running sample counter into a bounded queue. Nothing is lost silently:
   index, so the consumer sees a gap there and never splices audio across the hole. Their
   number comes from the ADC clock (``inputBufferAdcTime`` against the previous block's);
   a driver without usable ADC times costs one block length (the loss is real, its size
-  unknown). A hole of more than a block in the ADC times is a loss even unflagged;
+  unknown). Unflagged jumps of the ADC times are not losses: drivers whose ADC times follow
+  the callback's wall clock jump whenever the host is busy or the device unpaced;
 - a block that finds the queue full is dropped and counted, and the consumer sees the gap
   in ``first_sample_index`` (reported as :attr:`AudioBlock.frames_lost_before`);
 - the time of the last delivery is kept (``seconds_since_data``), so a device that stops
@@ -25,6 +26,7 @@ without ``libportaudio2``.
 
 from __future__ import annotations
 
+import atexit
 import math
 import queue
 import threading
@@ -245,15 +247,41 @@ class SoundDeviceCapture:
                     from exc
             self._stream = stream
 
-    def stop(self) -> None:
-        """Stop and close the stream (blocks still queued can be read)."""
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop and close the stream (blocks still queued can be read).
+
+        A device that hangs (a driver blocked in its read) can hold ``stop`` forever; the
+        stream is closed on a helper thread and abandoned after ``timeout_s`` with an
+        :class:`AudioError`, so the caller's shutdown goes on.
+        """
         with self._lock:
             stream, self._stream = self._stream, None
-        if stream is not None:
+        if stream is None:
+            return
+        errors: list = []
+
+        def close() -> None:
             try:
-                stream.stop()
-            finally:
-                stream.close()
+                try:
+                    stream.abort()          # drop what is in flight: no wait on the device
+                finally:
+                    stream.close()
+            except Exception as exc:  # noqa: BLE001 - handed to the caller below
+                errors.append(exc)
+
+        closer = threading.Thread(target=close, name='audio-close', daemon=True)
+        closer.start()
+        closer.join(timeout_s)
+        if closer.is_alive():
+            # sounddevice's exit handler would stop and close this stream again and hang
+            # the process at exit: a hung stream is left to the OS.
+            handler = getattr(self._sd, '_exit_handler', None)
+            if handler is not None:
+                atexit.unregister(handler)
+            raise AudioError(f'audio input {self._device_name!r} did not stop within '
+                             f'{timeout_s:g} s (device hung); stream abandoned')
+        if errors:
+            raise errors[0]
 
     close = stop
 
@@ -372,6 +400,10 @@ class SoundDeviceCapture:
                 self._frames_dropped += frames
         except Exception:  # noqa: BLE001 - an exception here would kill the stream
             self._callback_errors += 1
+            try:
+                self._next_index += int(frames)     # the block is lost: leave its gap
+            except Exception:  # noqa: BLE001 - frames itself may be the garbage
+                pass
 
     def _frames_lost_before(self, adc: float, frames: int, overflow: bool) -> int:
         """Frames PortAudio lost between the previous block and this one (callback thread).
@@ -381,13 +413,12 @@ class SoundDeviceCapture:
         """
         prev, self._prev_adc_end = self._prev_adc_end, \
             (adc + frames / self._sample_rate if adc > 0.0 else None)
+        if not overflow:
+            return 0
         hole = 0
         if prev is not None and adc > 0.0:
             hole = max(0, int(round((adc - prev) * self._sample_rate)))
-        if overflow:
-            return hole if hole > 0 else frames
-        # Unflagged: only a hole longer than a block is evidence (ADC times jitter).
-        return hole if hole > frames else 0
+        return hole if hole > 0 else frames
 
 
 def __getattr__(name: str) -> Any:

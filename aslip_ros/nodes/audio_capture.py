@@ -15,10 +15,23 @@ A lifecycle node (it owns hardware): ``configure`` opens the source (a missing d
 the transition with the list of inputs), ``activate`` starts streaming, ``deactivate``
 stops it. With ``autostart`` (default) it does both at start. A reader thread pulls blocks
 from the source so the PortAudio callback never waits on ROS.
+
+Faults a real sound card meets are visible downstream, never spliced over:
+
+- A source that stops delivering for ``stall_timeout_s`` turns the diagnostics to ERROR at
+  once (not at the next period); failed audio callbacks are an ERROR too.
+- A reopened source (``activate`` again, or a new ``configure``) is a new stream, but the
+  published sample index never goes back: it continues after the last published block,
+  advanced by the time that passed, so index and stamp stay consistent and a consumer
+  sees one gap rather than a stream that went back in time.
+- ``latency`` is PortAudio's suggested input latency (default ``low``); the diagnostics
+  report the stream's actual input latency and the capture latency (acquisition of a
+  block's last sample to its publication).
 """
 
 from __future__ import annotations
 
+import collections
 import json
 import threading
 import time
@@ -36,123 +49,6 @@ from aslip_ros.nodes.scene_sim import build_world, scene_params, world_metadata
 
 SOURCES = ("sim", "device", "wav", "bag")
 DEFAULT_NAMES = ["left_front", "left_rear", "right_front", "right_rear"]
-
-
-class SimAudio:
-    """The scene's audio as a paced block source (same ``read`` API as the hw sources)."""
-
-    def __init__(self, world, block_frames: int) -> None:
-        self.world = world
-        self.block_frames = block_frames
-        self.sample_rate = world.fs
-        meta = world_metadata(world)
-        self.channel_names = list(meta["channel_names"])
-        self.metadata = meta
-        self._t0: Optional[float] = None
-        self._wall0 = 0.0
-
-    def start(self) -> None:
-        """Start the real-time clock."""
-        self._t0 = time.monotonic()
-        self._wall0 = time.time()
-
-    def stop(self) -> None:
-        """Nothing to release."""
-
-    def read(self, timeout_s: Optional[float] = None):
-        """Next block once it is due in real time (``None`` if not due within the timeout)."""
-        from aslip_ros.hw.audio import AudioBlock
-        if self._t0 is None:
-            self.start()
-        i = self.world.sample_index
-        due = self._t0 + (i + self.block_frames) / self.sample_rate
-        wait = due - time.monotonic()
-        if wait > 0:
-            if timeout_s is not None and wait > timeout_s:
-                time.sleep(timeout_s)
-                return None
-            time.sleep(wait)
-        chunk = self.world.step(self.block_frames)
-        return AudioBlock(chunk.first_sample_index, chunk.t0, self._wall0 + chunk.t0,
-                          chunk.audio)
-
-
-class BagAudio:
-    """AudioFrame messages of a bag as a paced block source; stamps restart at replay time.
-
-    Sample indices restart at 0 but keep the bag's gaps (blocks missing from the recording
-    are reported as frames lost before the next block, and their time is waited out), so a
-    consumer never splices audio across a gap. Each loop pass continues the index.
-    """
-
-    def __init__(self, path: str, topic: str, loop: bool) -> None:
-        from aslip_ros.data.bags import BagReader
-        self._path, self._topic, self._loop = path, topic, loop
-        self._reader = BagReader(path)
-        self._reader.open()
-        self._reader.require([topic], "audio replay")
-        self.metadata = self._reader.metadata or {}
-        first = next(iter(self._messages()), None)
-        if first is None:
-            raise ValueError(f"bag {path} has no messages on {topic}")
-        self.sample_rate = float(first.sample_rate)
-        self.channel_names = [str(n) for n in first.channel_names]
-        self.layout = str(first.layout)
-        self._it = None
-        self._t0: Optional[float] = None
-        self._index = 0
-        self._offset: Optional[int] = None   # bag sample index - replay index, this pass
-        self._wall0 = 0.0
-
-    def _messages(self):
-        for m in self._reader.messages([self._topic]):
-            yield m.msg
-
-    def start(self) -> None:
-        """Start the real-time clock."""
-        self._t0 = time.monotonic()
-        self._wall0 = time.time()
-        self._it = self._messages()
-        self._offset = None
-
-    def stop(self) -> None:
-        """Close the bag."""
-        self._reader.close()
-
-    def read(self, timeout_s: Optional[float] = None):
-        """Next block, paced by its sample count; ``None`` at the end (unless looping)."""
-        from aslip_ros.hw.audio import AudioBlock
-        if self._t0 is None:
-            self.start()
-        msg = next(self._it, None)
-        if msg is None:
-            if not self._loop:
-                return None
-            self._it = self._messages()
-            self._offset = None
-            msg = next(self._it, None)
-            if msg is None:
-                return None
-        n_ch = len(self.channel_names)
-        data = np.asarray(msg.data, dtype=np.float32)
-        if n_ch == 0 or data.size % n_ch or list(msg.channel_names) != self.channel_names:
-            return None
-        block = data.reshape(-1, n_ch)
-        bag_index = int(msg.first_sample_index)
-        if self._offset is None:
-            self._offset = bag_index - self._index
-        index = bag_index - self._offset
-        if index < self._index:
-            # A repeated or backwards index in the bag: continue contiguously from here.
-            self._offset, index = bag_index - self._index, self._index
-        lost = index - self._index
-        wait = self._t0 + (index + block.shape[0]) / self.sample_rate - time.monotonic()
-        if wait > 0:
-            time.sleep(wait)
-        t = index / self.sample_rate
-        out = AudioBlock(index, t, self._wall0 + t, block, frames_lost_before=lost)
-        self._index = index + block.shape[0]
-        return out
 
 
 def _device(value: str):
@@ -193,6 +89,11 @@ class AudioCapture(LifecycleNode):
             c.Param("frame_id", convert.SENSOR_FRAME, "audio frame id", c.non_empty,
                     read_only=True),
             c.Param("autostart", True, "configure and activate at start", read_only=True),
+            c.Param("latency", "low", "device: PortAudio input latency: low, high or seconds",
+                    _latency, read_only=True),
+            c.Param("stall_timeout_s", 0.5,
+                    "no block for this long is an ERROR (device stopped delivering) [s]",
+                    c.in_range(0.05, 10.0)),
         ] + scene_params("sim.")
         self.p = c.declare_params(self, specs, cross_check=self._cross_check)
         self.src = None
@@ -204,6 +105,12 @@ class AudioCapture(LifecycleNode):
         self.overflows = 0
         self.error = ""
         self.finished = False
+        self.stalled = 0.0                     # seconds without a block, once stalled
+        self.restarts = 0
+        self._next_index: Optional[int] = None     # after the last published block
+        self._next_time = 0.0                      # its host time [s]
+        self._base = 0                             # published index - source index
+        self.capture_latency = collections.deque(maxlen=1000)
         self.pub = self.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
         self.pub_meta = self.create_publisher(String, c.METADATA_TOPIC, c.LATCHED_QOS)
         self.diag = c.Diagnostics(self, "aslip: audio_capture", self.p["source"])
@@ -251,6 +158,7 @@ class AudioCapture(LifecycleNode):
             self.error = str(exc)
             self.get_logger().error(f"cannot start audio source: {exc}")
             return TransitionCallbackReturn.FAILURE
+        self.stalled = 0.0
         self._running.set()
         self._thread = threading.Thread(target=self._pump, name="audio-pump", daemon=True)
         self._thread.start()
@@ -283,8 +191,10 @@ class AudioCapture(LifecycleNode):
         block_s = p["block_s"]
         base = {"format": "aslip-metadata", "version": 1}
         if p["source"] == "sim":
+            from aslip_ros.hw.sources import SimAudio
             world = build_world(p, "sim.")
-            src = SimAudio(world, max(1, int(round(block_s * world.fs))))
+            src = SimAudio(world, max(1, int(round(block_s * world.fs))),
+                           world_metadata(world))
             meta = dict(src.metadata)
             self.layout = meta.get("layout", "")
         elif p["source"] == "device":
@@ -292,7 +202,8 @@ class AudioCapture(LifecycleNode):
             rate = float(p["sample_rate"])
             src = SoundDeviceCapture(_device(p["device"]), int(p["channels"]), rate,
                                      block_frames=max(1, int(round(block_s * rate))),
-                                     channel_names=list(p["channel_names"]))
+                                     channel_names=list(p["channel_names"]),
+                                     latency=p["latency"])
             meta = dict(base, sample_rate=rate, channel_names=src.channel_names,
                         layout=p["layout"], device=src.device_name)
             self.layout = p["layout"]
@@ -310,6 +221,7 @@ class AudioCapture(LifecycleNode):
                         layout=p["layout"], source_file=p["wav_path"])
             self.layout = p["layout"]
         else:
+            from aslip_ros.hw.sources import BagAudio
             src = BagAudio(p["bag_path"], p["bag_topic"], p["loop"])
             meta = dict(base, **src.metadata)
             meta.update(sample_rate=src.sample_rate, channel_names=src.channel_names)
@@ -321,38 +233,78 @@ class AudioCapture(LifecycleNode):
 
     def _pump(self) -> None:
         src = self.src
+        fresh = True                       # the first block of this activation
+        last_block = time.monotonic()
         while self._running.is_set():
             try:
-                block = src.read(0.2)
+                block = src.read(0.1)
             except Exception as exc:  # noqa: BLE001 - report and stop, never crash
                 self.error = f"{type(exc).__name__}: {exc}"
                 self.get_logger().error(f"audio source failed: {self.error}")
+                self._diagnose()
                 break
             if block is None:
                 if getattr(src, "finished", False) or (self.p["source"] == "bag"):
                     self.finished = True
                     self.get_logger().info("end of replay")
                     break
+                self._check_stall(time.monotonic() - last_block)
                 continue
-            if block.frames_lost_before:
-                self.frames_lost += block.frames_lost_before
-                self.get_logger().warning(f"{block.frames_lost_before} frames lost before "
-                                          f"sample {block.first_sample_index}",
-                                          throttle_duration_sec=1.0)
-            if block.overflow:
-                self.overflows += 1
-                self.get_logger().warning("input overflow", throttle_duration_sec=1.0)
-            try:
-                msg = convert.audio_to_msg(block.first_sample_index,
-                                           int(round(block.host_time * 1e9)), self.rate,
-                                           self.names, block.data, self.layout,
-                                           self.p["frame_id"])
-                self.pub.publish(msg)
-                self.published += 1
-            except Exception as exc:  # noqa: BLE001 - e.g. context shutting down
-                self.error = f"{type(exc).__name__}: {exc}"
-                self.get_logger().error(f"cannot publish audio: {self.error}",
-                                        throttle_duration_sec=1.0)
+            last_block = time.monotonic()
+            if self.stalled:
+                self.get_logger().info(f"audio is back after {self.stalled:.2f} s")
+                self.stalled = 0.0
+                self._diagnose()
+            if fresh:
+                self._rebase(block)
+                fresh = False
+            self._publish(block)
+
+    def _check_stall(self, silent_s: float) -> None:
+        if silent_s < self.p["stall_timeout_s"]:
+            return
+        first = not self.stalled
+        self.stalled = silent_s
+        if first:
+            self.get_logger().error(f"no audio from the source for {silent_s:.2f} s")
+            self._diagnose()
+
+    def _rebase(self, block) -> None:
+        """A new stream: publish its indices after the last one, advanced by the pause."""
+        if self._next_index is None:
+            self._base = 0
+            return
+        pause = max(0.0, block.host_time - self._next_time)
+        first = self._next_index + max(1, int(round(pause * self.rate)))
+        self._base = first - block.first_sample_index
+        self.restarts += 1
+        self.get_logger().warning(f"audio stream restarted: sample index continues at "
+                                  f"{first} after {pause:.3f} s")
+
+    def _publish(self, block) -> None:
+        if block.frames_lost_before:
+            self.frames_lost += block.frames_lost_before
+            self.get_logger().warning(f"{block.frames_lost_before} frames lost before "
+                                      f"sample {block.first_sample_index}",
+                                      throttle_duration_sec=1.0)
+        if block.overflow:
+            self.overflows += 1
+            self.get_logger().warning("input overflow", throttle_duration_sec=1.0)
+        index = block.first_sample_index + self._base
+        try:
+            msg = convert.audio_to_msg(index, int(round(block.host_time * 1e9)), self.rate,
+                                       self.names, block.data, self.layout,
+                                       self.p["frame_id"])
+            self.pub.publish(msg)
+            self.published += 1
+        except Exception as exc:  # noqa: BLE001 - e.g. context shutting down
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.get_logger().error(f"cannot publish audio: {self.error}",
+                                    throttle_duration_sec=1.0)
+            return
+        end_time = block.host_time + block.frames / self.rate
+        self.capture_latency.append(time.time() - end_time)
+        self._next_index, self._next_time = index + block.frames, end_time
 
     def _stop_pump(self) -> None:
         self._running.clear()
@@ -368,17 +320,32 @@ class AudioCapture(LifecycleNode):
     def _diagnose(self) -> None:
         values = {"source": self.p["source"], "blocks_published": self.published,
                   "frames_lost": self.frames_lost, "input_overflows": self.overflows,
-                  "streaming": self._running.is_set()}
+                  "streaming": self._running.is_set(), "stream_restarts": self.restarts,
+                  "seconds_without_audio": round(self.stalled, 3)}
+        errors = 0
         stats = getattr(self.src, "stats", None)
         if callable(stats):
             try:
                 s = stats()
+                errors = s.callback_errors
                 values.update(blocks_dropped=s.blocks_dropped, frames_dropped=s.frames_dropped,
-                              queue_depth=s.queue_depth)
+                              queue_depth=s.queue_depth, callback_errors=errors)
             except Exception:  # noqa: BLE001 - stats are best effort
                 pass
+        lat = np.array(self.capture_latency) * 1e3
+        if lat.size:
+            values.update(capture_latency_p50_ms=float(np.percentile(lat, 50)),
+                          capture_latency_max_ms=float(lat.max()))
+        stream_latency = getattr(self.src, "stream_latency", None)
+        if isinstance(stream_latency, float):
+            values["stream_latency_ms"] = stream_latency * 1e3
         if self.error:
             level, message = c.Diagnostics.ERROR, self.error
+        elif self.stalled and self._running.is_set():
+            level, message = c.Diagnostics.ERROR, (f"no audio for {self.stalled:.2f} s: the "
+                                                   "source stopped delivering")
+        elif errors:
+            level, message = c.Diagnostics.ERROR, f"{errors} audio callback errors (audio lost)"
         elif self.frames_lost or self.overflows:
             level, message = c.Diagnostics.WARN, "audio lost (overflow or dropped blocks)"
         elif self.finished:
@@ -388,6 +355,15 @@ class AudioCapture(LifecycleNode):
         else:
             level, message = c.Diagnostics.OK, "streaming"
         self.diag.publish(level, message, values)
+
+
+def _latency(v) -> Optional[str]:
+    from aslip_ros.hw.audio import check_latency
+    try:
+        check_latency(v)
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 def _json_object(v) -> Optional[str]:

@@ -1,0 +1,131 @@
+"""Paced block sources beside the live capture: the simulated scene's audio and a bag's
+AudioFrames, with the pull API of :mod:`aslip_ros.hw.audio` (``start``/``read``/``stop``).
+
+A restarted source resumes its clock where its sample index stands, so its first block after
+``start`` is due at once (not after as long as the earlier stream ran).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Optional
+
+import numpy as np
+
+from aslip_ros.hw.audio import AudioBlock
+
+
+class SimAudio:
+    """The scene's audio as a paced block source (same ``read`` API as the hw sources)."""
+
+    def __init__(self, world, block_frames: int, metadata: dict) -> None:
+        self.world = world
+        self.block_frames = block_frames
+        self.sample_rate = world.fs
+        self.channel_names = list(metadata["channel_names"])
+        self.metadata = metadata
+        self._t0: Optional[float] = None
+        self._wall0 = 0.0
+
+    def start(self) -> None:
+        """Start (or resume) the real-time clock: the next block is due now."""
+        elapsed = self.world.sample_index / self.sample_rate
+        self._t0 = time.monotonic() - elapsed
+        self._wall0 = time.time() - elapsed
+
+    def stop(self) -> None:
+        """Nothing to release."""
+
+    def read(self, timeout_s: Optional[float] = None):
+        """Next block once it is due in real time (``None`` if not due within the timeout)."""
+        if self._t0 is None:
+            self.start()
+        i = self.world.sample_index
+        due = self._t0 + (i + self.block_frames) / self.sample_rate
+        wait = due - time.monotonic()
+        if wait > 0:
+            if timeout_s is not None and wait > timeout_s:
+                time.sleep(timeout_s)
+                return None
+            time.sleep(wait)
+        chunk = self.world.step(self.block_frames)
+        return AudioBlock(chunk.first_sample_index, chunk.t0, self._wall0 + chunk.t0,
+                          chunk.audio)
+
+
+class BagAudio:
+    """AudioFrame messages of a bag as a paced block source; stamps restart at replay time.
+
+    Sample indices restart at 0 but keep the bag's gaps (blocks missing from the recording
+    are reported as frames lost before the next block, and their time is waited out), so a
+    consumer never splices audio across a gap. Each loop pass continues the index.
+    """
+
+    def __init__(self, path: str, topic: str, loop: bool) -> None:
+        from aslip_ros.data.bags import BagReader
+        self._path, self._topic, self._loop = path, topic, loop
+        self._reader = BagReader(path)
+        self._reader.open()
+        self._reader.require([topic], "audio replay")
+        self.metadata = self._reader.metadata or {}
+        first = next(iter(self._messages()), None)
+        if first is None:
+            raise ValueError(f"bag {path} has no messages on {topic}")
+        self.sample_rate = float(first.sample_rate)
+        self.channel_names = [str(n) for n in first.channel_names]
+        self.layout = str(first.layout)
+        self._it = None
+        self._t0: Optional[float] = None
+        self._index = 0
+        self._offset: Optional[int] = None   # bag sample index - replay index, this pass
+        self._wall0 = 0.0
+
+    def _messages(self):
+        for m in self._reader.messages([self._topic]):
+            yield m.msg
+
+    def start(self) -> None:
+        """Start (or restart from the bag's beginning) the real-time clock: due now."""
+        elapsed = self._index / self.sample_rate
+        self._t0 = time.monotonic() - elapsed
+        self._wall0 = time.time() - elapsed
+        self._it = self._messages()
+        self._offset = None
+
+    def stop(self) -> None:
+        """Close the bag."""
+        self._reader.close()
+
+    def read(self, timeout_s: Optional[float] = None):
+        """Next block, paced by its sample count; ``None`` at the end (unless looping)."""
+        if self._t0 is None:
+            self.start()
+        msg = next(self._it, None)
+        if msg is None:
+            if not self._loop:
+                return None
+            self._it = self._messages()
+            self._offset = None
+            msg = next(self._it, None)
+            if msg is None:
+                return None
+        n_ch = len(self.channel_names)
+        data = np.asarray(msg.data, dtype=np.float32)
+        if n_ch == 0 or data.size % n_ch or list(msg.channel_names) != self.channel_names:
+            return None
+        block = data.reshape(-1, n_ch)
+        bag_index = int(msg.first_sample_index)
+        if self._offset is None:
+            self._offset = bag_index - self._index
+        index = bag_index - self._offset
+        if index < self._index:
+            # A repeated or backwards index in the bag: continue contiguously from here.
+            self._offset, index = bag_index - self._index, self._index
+        lost = index - self._index
+        wait = self._t0 + (index + block.shape[0]) / self.sample_rate - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        t = index / self.sample_rate
+        out = AudioBlock(index, t, self._wall0 + t, block, frames_lost_before=lost)
+        self._index = index + block.shape[0]
+        return out
