@@ -130,3 +130,29 @@ def test_close_sends_the_pending_stop_first():
     assert w.close(5)
     assert arm.calls[-1] == ("stop",)
     assert not w.post(move(0.01))
+
+
+class TopicLikeArm(SlowArm):
+    blocking = False
+
+
+def test_non_blocking_arm_is_called_inline_with_the_same_mailbox_rules():
+    arm = TopicLikeArm(delay_s=0.0)
+    errors = []
+    w = ArmWorker(arm, on_error=errors.append)
+    assert w.inline
+    w.rearm()
+    w.post(move(0.01))
+    assert arm.calls == [("move", (0.01, 0.0, 0.0))]       # sent before post returned
+    assert arm.threads == {threading.get_ident()}
+    w.post(VelocityCommand.halt("stale"))
+    assert not w.post(move(0.02))
+    assert [c[0] for c in arm.calls] == ["move", "stop"]
+    w.rearm()
+    arm.fail_next = True
+    w.post(move(0.03))
+    deadline = time.monotonic() + 5
+    while not errors and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(errors) == 1 and w.latched and arm.calls[-1] == ("stop",)
+    assert w.close()

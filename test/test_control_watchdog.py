@@ -17,8 +17,8 @@ class FakeClock:
 
 
 def test_default_timeout_is_100_ms():
-    assert DEFAULT_TIMEOUT_S == pytest.approx(0.1)
-    assert Watchdog().timeout_s == pytest.approx(0.1)
+    assert DEFAULT_TIMEOUT_S == pytest.approx(0.05)
+    assert Watchdog().timeout_s == pytest.approx(0.05)
 
 
 def test_stale_before_first_feed():

@@ -6,7 +6,10 @@
   its own context and domain), scored from the scene's trajectory.
 
 Bounds are looser than the demo's targets: one episode on a shared 2-core machine is
-subject to scheduling noise that the 50-trial means average out.
+subject to scheduling noise that the 50-trial means average out. As in ``aslip demo``
+(``demo.MAX_RERUNS``), an episode that a watchdog ended on stale input, or whose scene fell
+behind real time, measured the machine rather than the loop and is repeated; the
+watchdog's own behaviour under load is tested in test_stale_input.py.
 """
 
 from __future__ import annotations
@@ -34,9 +37,17 @@ def _checkpoint() -> str:
 
 
 def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_path):
+    from aslip_ros.experiments.demo import MAX_RERUNS
+    for attempt in range(1 + MAX_RERUNS):
+        result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path / f"try{attempt}")
+        if not result["reason"].startswith("stale"):
+            break
+    _check_slip_stop(result, traj)
+
+
+def _slip_stop_episode(rclpy_context, ros_env, tmp_path):
     from std_msgs.msg import String
 
-    from aslip_ros.experiments import demo_metrics as dm
     from aslip_ros.experiments.demo_episode import StopSettings
     from aslip_ros.nodes import common as c
     from aslip_ros.nodes.slip_stop import RESULT_TOPIC
@@ -45,7 +56,8 @@ def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_pa
     s = StopSettings()
     obj = "chips_can"
     length = get_object(obj).length_m
-    bus = Bus(rclpy_context)
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    bus = Bus(rclpy_context, name=f"aslip_test_bus_{tmp_path.name}")
     bus.listen(String, RESULT_TOPIC, c.LATCHED_QOS)
     traj = tmp_path / "wall_push.npz"
     ctl_params = {"approach_speed_m_s": s.approach_speed_m_s,
@@ -70,7 +82,14 @@ def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_pa
             assert bus.wait(lambda: bool(final()), timeout=40.0), \
                 ctl.output[-3000:] + inf.output[-2000:]
             sim.stop()
-    result = final()[0]
+    bus.close()
+    return final()[0], traj
+
+
+def _check_slip_stop(result, traj):
+    from aslip_ros.experiments import demo_metrics as dm
+    from aslip_ros.scene.layouts import get_object
+    length = get_object("chips_can").length_m
     assert result["reason"] == "slip", result
     d = np.load(traj)
     meta = json.loads(str(d["metadata"]))
@@ -86,11 +105,16 @@ def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_pa
 
 
 def test_slip_track_episode_composed_in_one_process():
+    from aslip_ros.experiments.demo import MAX_RERUNS
     from aslip_ros.experiments.demo_episode import Episode, TrackSettings, run_episode
 
     ep = Episode("slip_track", "aslip", _checkpoint(), "cracker_box", 0, 2401,
                  track=TrackSettings(duration_s=4.0))
-    r = run_episode(ep)
+    for _ in range(1 + MAX_RERUNS):
+        r = run_episode(ep)
+        if not str(r.get("controller_reason", "")).startswith("stale") and \
+                r["skipped_blocks"] == 0:
+            break
     assert r["ended"] == "duration", r
     tr = r["trace"]
     assert r["n_slip_msgs"] > 200, r           # the model ran at its 100 Hz hop throughout

@@ -22,6 +22,8 @@ CMD = "/aslip/arm/cmd_vel"
 # Tests that are not about the watchdog tolerate a scene process that stalls on a loaded CI
 # machine (a stalled TCP stream otherwise latches a correct, but here unwanted, stop).
 POSE_TIMEOUT_S = 0.5
+# Likewise the test's own SlipVector thread: the longest slip timeout the node accepts.
+SLIP_TIMEOUT_S = 0.1
 TCP = "/aslip/robot/tcp_pose"
 
 
@@ -83,6 +85,7 @@ def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros
     src = SlipSource(bus, velocity=(0.02, 0.0))
     with NodeProcess("scene_sim", ros_env, {"scenario": "drag", "seed": 3}) as sim, \
             NodeProcess("slip_track", ros_env, {"max_speed_m_s": 0.02,
+                                                "slip_timeout_s": SLIP_TIMEOUT_S,
                                                 "pose_timeout_s": POSE_TIMEOUT_S}) as ctl:
         # A constant 2 cm/s slip while the arm moves means an object faster than the arm
         # (object velocity = TCP velocity + slip): the law accelerates to the speed limit.
@@ -172,7 +175,8 @@ def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env):
     src = SlipSource(bus, velocity=(0.0, 0.0))
     params = {"retract_distance_m": 0.01, "retract_speed_m_s": 0.05, "settle_s": 0.1,
               "approach_speed_m_s": 0.05, "max_approach_distance_m": 0.03,
-              "debounce_count": 2, "settle_result_s": 0.2, "pose_timeout_s": POSE_TIMEOUT_S}
+              "debounce_count": 2, "settle_result_s": 0.2, "pose_timeout_s": POSE_TIMEOUT_S,
+              "slip_timeout_s": SLIP_TIMEOUT_S}
     with NodeProcess("scene_sim", ros_env, {"scenario": "wall_push", "seed": 1}) as sim, \
             NodeProcess("slip_stop", ros_env, params) as ctl:
         sim.wait_ready()

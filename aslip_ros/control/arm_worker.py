@@ -13,6 +13,10 @@ can follow a stop, whatever order the callers' threads run in.
 An arm without a pose stream of its own can be polled here too (``poll_period_s``), so
 the pose query is also off the callers' threads; each pose is reported with the moment
 it was measured, not when someone later publishes it.
+
+An arm whose calls never block (``blocking = False``, e.g. commands published on a topic)
+is called from the posting thread instead (``inline``): a thread hand-over would only add
+a scheduling delay to the stop on a busy machine. The mailbox rules stay the same.
 """
 
 from __future__ import annotations
@@ -39,12 +43,15 @@ class ArmWorker:
         failed call, after the worker has latched and tried a plain stop.
     :param on_pose: with ``poll_period_s``, receives each polled pose.
     :param poll_period_s: poll ``arm.tcp_pose()`` this often; ``None``: never.
+    :param inline: send on the posting thread (for arms that never block); default: the
+        arm's ``blocking`` attribute is False.
     """
 
     def __init__(self, arm, on_error: Callable[[ArmError], None],
                  on_pose: Optional[PoseCallback] = None,
                  poll_period_s: Optional[float] = None, name: str = "arm-io",
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 inline: Optional[bool] = None) -> None:
         self._arm = arm
         self._on_error = on_error
         self._on_pose = on_pose
@@ -61,8 +68,12 @@ class ArmWorker:
         self.errors = 0
         self.last_stop_sent: Optional[float] = None   # clock time the last stop went out
         self.io_thread_id: Optional[int] = None
+        self.inline = (not getattr(arm, "blocking", True)) if inline is None else inline
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
+        if self.inline and self._poll is not None:
+            raise ValueError("an inline arm cannot be polled")
+        if not self.inline:
+            self._thread.start()
 
     # -- callers -------------------------------------------------------------------------
 
@@ -85,6 +96,11 @@ class ArmWorker:
                 self.superseded += 1
             if self._pending is None or not self._pending.stop or command.stop:
                 self._pending = command
+            if self.inline:
+                # Under the mailbox lock: two posting threads cannot reorder a stop and
+                # a velocity on the way to the arm.
+                command, self._pending = self._pending, None
+                self._send(command, locked=True)
             self._cv.notify_all()
         return True
 
@@ -116,7 +132,7 @@ class ArmWorker:
         with self._cv:
             self._closing = True
             self._cv.notify_all()
-        if self._thread is not threading.current_thread():
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout)
         return not self._thread.is_alive()
 
@@ -151,11 +167,11 @@ class ArmWorker:
                     self._busy = False
                     self._cv.notify_all()
 
-    def _send(self, command: VelocityCommand) -> None:
+    def _send(self, command: VelocityCommand, locked: bool = False) -> None:
         try:
             apply_command(self._arm, command)
         except ArmError as exc:
-            self._fail(exc)
+            self._fail(exc, locked)
             return
         self.sent += 1
         if command.stop:
@@ -169,15 +185,24 @@ class ArmWorker:
             return
         self._on_pose(pose, self._clock(), time.time_ns())
 
-    def _fail(self, exc: ArmError) -> None:
+    def _fail(self, exc: ArmError, locked: bool = False) -> None:
         self.errors += 1
-        with self._cv:
+        if not locked:
+            self._cv.acquire()
+        try:
             self._latched = True
             if self._pending is not None and not self._pending.stop:
                 self._pending = None
+        finally:
+            if not locked:
+                self._cv.release()
         try:
             self._arm.stop()
             self.last_stop_sent = self._clock()
         except Exception:  # noqa: BLE001 - the arm may be gone; the owner hears of exc
             pass
-        self._on_error(exc)
+        if locked:
+            # The poster may hold its own locks, which the error handler will want.
+            threading.Thread(target=self._on_error, args=(exc,), daemon=True).start()
+        else:
+            self._on_error(exc)

@@ -7,8 +7,8 @@ ROS domain of its own. Two kinds:
 
 - ``fault``: ``slip_inference`` is killed (SIGKILL) during the approach. Measured: when the
   stop left after the last valid slip estimate (the controller's own clock), when the
-  scene's arm was at rest (below 1 mm/s, from the scene's true trajectory, against the wall
-  time of that last estimate), and any velocity command after the stop.
+  scene's arm was at rest (that plus the braking time to below 1 mm/s in the scene's true
+  trajectory), and any velocity command after the stop.
 - ``load``: no fault, ``--hogs`` CPU-busy processes (``yes >/dev/null``) beside the loop; a
   stale-input stop is a false stop.
 
@@ -146,16 +146,24 @@ def _wait(pred, timeout: float) -> bool:
     return bool(pred())
 
 
-def at_rest_wall_ns(traj_path: Path, after_ns: int) -> Optional[int]:
-    """Wall time [ns] from which the scene's TCP stays below :data:`REST_M_S`, looking only
-    at samples after ``after_ns``; None if it never comes to rest."""
+def stop_to_rest_s(traj_path: Path) -> Optional[float]:
+    """Scene time from the arm starting to brake to below :data:`REST_M_S` [s].
+
+    From the scene's true trajectory: the final rest, and before it the last sample still at
+    95 % of the speed the arm had in the half second before. Scene time, so a scene that
+    lags the wall clock does not distort it; None if the arm never came to rest.
+    """
     d = np.load(traj_path)
     t, tcp = d["t"], d["tcp"][:, :3]
-    wall = int(d["start_ns"]) + np.round(t * 1e9).astype(np.int64)
     v = np.linalg.norm(np.diff(tcp, axis=0), axis=1) / np.maximum(np.diff(t), 1e-9)
-    moving = np.nonzero((v >= REST_M_S) | (wall[1:] <= after_ns))[0]
-    k = 0 if moving.size == 0 else int(moving[-1]) + 1
-    return int(wall[k]) if k < len(wall) - 1 else None
+    moving = np.nonzero(v >= REST_M_S)[0]
+    if moving.size == 0 or moving[-1] + 1 >= len(v):
+        return None
+    rest = int(moving[-1]) + 1
+    window = np.nonzero(t[:rest] >= t[rest] - 0.5)[0]
+    peak = float(v[window].max())
+    braking = window[v[window] >= 0.95 * peak]
+    return float(t[rest] - t[int(braking[-1])])
 
 
 def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
@@ -217,10 +225,14 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
         first_stop = stops[0] if stops else None
         out["moves_after_stop"] = 0 if first_stop is None else \
             sum(1 for t, v in probe.cmds if t > first_stop and np.any(v))
-        last_ns = res.get("last_slip_wall_ns") or 0
-        if traj.is_file() and last_ns:
-            rest = at_rest_wall_ns(traj, last_ns)
-            out["at_rest_after_slip_s"] = None if rest is None else (rest - last_ns) * 1e-9
+        if "killed_t" in out:
+            after = [t for t in stops if t > out["killed_t"]]
+            out["stop_after_kill_s"] = after[0] - out["killed_t"] if after else None
+        braking = stop_to_rest_s(traj) if traj.is_file() else None
+        if braking is not None and out["stop_after_slip_s"] is not None:
+            # The scene brakes from the moment the stop reaches it (a local topic: well
+            # under a millisecond, neglected here).
+            out["at_rest_after_slip_s"] = out["stop_after_slip_s"] + braking
     return out
 
 

@@ -37,7 +37,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import String
 
-from aslip_ros.control.watchdog import ArrivalStats
+from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, ArrivalStats
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
@@ -62,9 +62,9 @@ def arm_params() -> list:
                 c.vector3(allow_empty=True), read_only=True),
         c.Param("control_rate_hz", 100.0, "control loop rate [Hz]", c.in_range(1.0, 250.0),
                 read_only=True),
-        c.Param("slip_timeout_s", 0.1, "stop when no SlipVector for this long [s]",
+        c.Param("slip_timeout_s", DEFAULT_TIMEOUT_S, "stop when no SlipVector for this long [s]",
                 c.in_range(1e-3, 0.1)),
-        c.Param("pose_timeout_s", 0.1, "stop when no TCP pose for this long [s]",
+        c.Param("pose_timeout_s", DEFAULT_TIMEOUT_S, "stop when no TCP pose for this long [s]",
                 c.in_range(1e-3, 1.0)),
         c.Param("command_duration_s", 0.1,
                 "each velocity command expires on the arm after this long [s]",
@@ -110,7 +110,6 @@ class ControllerNode(LifecycleNode):
         self.rejected_slip = 0
         self.slip_count = 0
         self.last_slip_t: Optional[float] = None
-        self.last_slip_wall_ns = 0
         self.last_pose_t: Optional[float] = None
         self.steady_slip = 0    # consecutive SlipVectors, each within slip_timeout_s
         self.inputs = ArrivalStats()
@@ -274,7 +273,6 @@ class ControllerNode(LifecycleNode):
                 self._stop_report = {"reason": command.reason,
                                      "last_slip_t": self.last_slip_t,
                                      "last_pose_t": self.last_pose_t,
-                                     "last_slip_wall_ns": self.last_slip_wall_ns,
                                      "posted_t": time.monotonic()}
             self.worker.post(command)
 
@@ -334,7 +332,6 @@ class ControllerNode(LifecycleNode):
             self.inputs.slip(now, self.last_slip_t,
                              msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
             self.last_slip_t = now
-            self.last_slip_wall_ns = time.time_ns()
             if self.task is not None:
                 self.feed_slip(slip, now)
                 self._task_fed = True
@@ -412,7 +409,7 @@ class ControllerNode(LifecycleNode):
         rep, worker = self._stop_report, self.worker
         if rep is None or worker is None or worker.last_stop_sent is None:
             return {}
-        out = {"stop_reason": rep["reason"], "last_slip_wall_ns": rep["last_slip_wall_ns"]}
+        out = {"stop_reason": rep["reason"]}
         for key in ("slip", "pose"):
             t = rep[f"last_{key}_t"]
             if t is not None:

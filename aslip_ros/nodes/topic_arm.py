@@ -23,6 +23,9 @@ class TopicArm:
     plays the role of ``duration_s``; a zero twist is a stop.
     """
 
+    #: Publishing never waits for the receiver: no need for an arm thread.
+    blocking = False
+
     def __init__(self, node, topic: str = c.CMD_VEL_TOPIC, frame_id: str = "link_base"):
         self._node = node
         self._pub = node.create_publisher(TwistStamped, topic, c.RELIABLE_QOS)
