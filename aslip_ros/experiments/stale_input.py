@@ -254,8 +254,16 @@ def summarize(episodes: list) -> dict:
                     "max": max([v for v in vals if v is not None], default=None)}
     out["fault_not_stale"] = [e for e in fault if e.get("reason") not in STALE]
     out["moves_after_stop"] = sum(e.get("moves_after_stop", 0) for e in episodes)
-    out["false_stops"] = sum(1 for e in load if e.get("reason") in STALE)
-    out["load_reasons"] = sorted({str(e.get("reason")) for e in load})
+
+    def early(e) -> bool:       # stopped on a stale input before the approach (no fault yet)
+        return e.get("error") == "no approach" and \
+            (e.get("result") or {}).get("reason") in STALE
+    loaded = [e for e in episodes if e["kind"] == "load"]
+    out["false_stops"] = sum(1 for e in loaded if e.get("reason") in STALE or early(e))
+    out["false_stops_before_fault"] = sum(1 for e in episodes
+                                          if e["kind"] == "fault" and early(e))
+    out["load_reasons"] = sorted({str(e.get("reason") or (e.get("result") or {}).get("reason"))
+                                  for e in loaded})
     return out
 
 
