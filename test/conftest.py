@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-HELPERS = Path(__file__).resolve().parent / "helpers"
+HERE = Path(__file__).resolve().parent
+HELPERS = HERE / "helpers"
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -33,6 +34,7 @@ def _ros_available() -> str | None:
 
 
 def pytest_collection_modifyitems(config, items):
+    _launch_case().skip_unlaunched(config, items)
     reason = _ros_available()
     if reason is None:
         return
@@ -42,6 +44,17 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "ros" in item.keywords:
             item.add_marker(skip)
+
+
+def _launch_case():
+    """test/launch/launch_case.py (it decides how launch tests are skipped)."""
+    name = "launch_case"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, HERE / "launch" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
 
 
 @pytest.fixture
