@@ -2,10 +2,15 @@
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 VENV := .venv
-ROS := source install/setup.bash &&
+# ASLIP_LAUNCH_ENV: an env.sh that adds the ROS 2 launch stack (.ci/run sets it to
+# build/ros2-launch/env.sh); a shell with ROS 2 Jazzy sourced has the stack already.
+ROS := source install/setup.bash && $(if $(ASLIP_LAUNCH_ENV),source $(ASLIP_LAUNCH_ENV) &&)
 # Tests run with the colcon install first on PYTHONPATH (generated messages) and never with
-# the repository root on sys.path (it would shadow the built package).
-PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 $(VENV)/bin/pytest
+# the repository root on sys.path (it would shadow the built package). The whole run has a
+# deadline: a hung launch test (upstream WaitForTopics leaves a thread behind) must not hang
+# CI; `timeout -k` kills it.
+TEST_TIMEOUT ?= 2400
+PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/pytest
 ASLIP := $(ROS) $(VENV)/bin/aslip
 
 .PHONY: help setup build test test-fast demo datasets ablation bench stability lint clean
