@@ -266,6 +266,30 @@ def test_a_restarted_or_jumped_stream_is_estimated_again_within_half_a_second(
     assert proc.proc.poll() is None
 
 
+def test_a_node_starved_of_cpu_loses_no_audio(live_inference):
+    """Frozen for 0.3 s (as a busy host does to it), the node catches up on the audio that
+    queued meanwhile instead of losing blocks: no gap, so no window restart and no
+    estimate-free stretch for the controllers' stale-input watchdog."""
+    import signal
+    bus, feeder, proc = live_inference
+    assert feeder.settle(), proc.output
+    before = _diag_values(bus)
+    bus.clear(SLIP)
+    since = feeder.stamp_ns
+    proc.proc.send_signal(signal.SIGSTOP)
+    try:
+        feeder.good(30)
+    finally:
+        proc.proc.send_signal(signal.SIGCONT)
+    last = feeder.stamp_ns
+    assert bus.wait(lambda: any(_stamp_ns(m) == last for m in bus.messages(SLIP)), 10), \
+        proc.output
+    after = _diag_values(bus)
+    assert after["gaps"] == before["gaps"], (before, after)
+    # Estimates resumed on the first blocks, not a window after a restart.
+    assert min(_stamp_ns(m) for m in bus.messages(SLIP)) <= since + 100_000_000
+
+
 def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inference):
     """A window with an all-zero channel: no SlipVector, an ERROR naming the channel."""
     bus, feeder, proc = live_inference

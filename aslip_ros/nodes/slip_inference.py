@@ -42,6 +42,7 @@ from typing import Optional
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
@@ -49,6 +50,14 @@ from aslip_ros.learn.channel_check import DEAD_MARGIN_DB, dead_channels
 from aslip_ros.msg import AudioFrame, SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
+
+#: The audio subscription: the sensor QoS (best effort, volatile) with a 1 s queue at 10 ms
+#: blocks. With the default 10-deep queue, a process starved of CPU for 100 ms (two busy
+#: processes on a 2-core host do it) lost blocks, and each gap restarts the window: a 200 ms
+#: model then published nothing for 200 ms, tripping the controllers' stale-input stop. A
+#: backlog is cheap to catch up with (a hop supersedes the waiting one); lost audio is not.
+AUDIO_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                       reliability=c.SENSOR_QOS.reliability, durability=c.SENSOR_QOS.durability)
 
 DROP_REASONS = ("no_channels", "bad_rate", "empty", "ragged", "non_finite", "out_of_range",
                 "channels", "sample_rate", "repeated", "out_of_order", "time_jump")
@@ -235,7 +244,7 @@ class SlipInference(Node):
         self._worker.start()
         # The audio callback only gates, buffers and hands over: its own group, so neither
         # diagnostics nor metadata ever wait behind it (or it behind them).
-        self.create_subscription(AudioFrame, c.AUDIO_TOPIC, self._on_audio, c.SENSOR_QOS,
+        self.create_subscription(AudioFrame, c.AUDIO_TOPIC, self._on_audio, AUDIO_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
