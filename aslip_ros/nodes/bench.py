@@ -10,7 +10,9 @@ one DDS hop on each side (which cancel to first order). The node's own measureme
 same interval comes from its diagnostics. CPU use is read from ``/proc/<pid>/stat``.
 
 ``measure_capture_stream``: ``audio_capture`` alone for ``duration_s`` (10 minutes in
-``make bench``), every block's ``first_sample_index`` checked for continuity on loopback.
+``make bench``), every block's ``first_sample_index`` checked for continuity on loopback,
+and the capture latency: from the acquisition of a block's last sample (its stamp plus its
+duration) to its arrival here, one DDS hop included.
 """
 
 from __future__ import annotations
@@ -94,6 +96,7 @@ def _listen(domain: int, duration_s: float, want_slip: bool, on_start=None) -> d
     node = rclpy.create_node("aslip_bench_listener", context=ctx)
     audio_end: dict[int, float] = {}
     indices: list[tuple[int, int]] = []
+    ages: list[float] = []
     slips: list[tuple[int, float]] = []
     diags: list[dict] = []
 
@@ -101,7 +104,9 @@ def _listen(domain: int, duration_s: float, want_slip: bool, on_start=None) -> d
         now = time.perf_counter()
         frames = len(msg.data) // max(1, len(msg.channel_names))
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-        audio_end[stamp + int(round(frames / msg.sample_rate * 1e9))] = now
+        end_ns = stamp + int(round(frames / msg.sample_rate * 1e9))
+        audio_end[end_ns] = now
+        ages.append(time.time() - end_ns * 1e-9)
         indices.append((int(msg.first_sample_index), frames))
 
     node.create_subscription(AudioFrame, "/aslip/audio", on_audio,
@@ -131,7 +136,19 @@ def _listen(domain: int, duration_s: float, want_slip: bool, on_start=None) -> d
         ex.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
-    return {"audio_end": audio_end, "indices": indices, "slips": slips, "diags": diags}
+    return {"audio_end": audio_end, "indices": indices, "slips": slips, "diags": diags,
+            "ages": ages}
+
+
+def _capture_latency(ages: list[float]) -> dict:
+    """p50 / p99 / max of block ages on arrival [ms] (None without blocks)."""
+    a = np.asarray(ages, dtype=float) * 1e3
+    if not a.size:
+        return {"capture_latency_p50_ms": None, "capture_latency_p99_ms": None,
+                "capture_latency_max_ms": None}
+    return {"capture_latency_p50_ms": float(np.percentile(a, 50)),
+            "capture_latency_p99_ms": float(np.percentile(a, 99)),
+            "capture_latency_max_ms": float(a.max())}
 
 
 def _dropped_blocks(indices: list[tuple[int, int]]) -> int:
@@ -214,6 +231,7 @@ def measure_capture_stream(duration_s: float = 600.0) -> dict:
     return {"duration_s": duration_s, "blocks_received": blocks,
             "audio_s_received": frames / 48000.0,
             "blocks_dropped": _dropped_blocks(got["indices"]),
+            **_capture_latency(got["ages"]),
             "load_average": list(os.getloadavg())}
 
 
