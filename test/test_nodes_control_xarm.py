@@ -203,3 +203,89 @@ def test_arm_io_never_holds_up_slip_and_pose_callbacks(ros_domain, monkeypatch):
             peer.destroy_node()
         finally:
             rclpy.try_shutdown()
+
+
+def test_stale_slip_stop_leaves_at_the_deadline_not_at_the_next_control_tick(
+        ros_domain, monkeypatch):
+    """At 1 Hz control ticks, the stop must still leave about slip_timeout_s after the last
+    estimate: the deadline is a timer of its own, re-armed by every estimate."""
+    import rclpy
+    from rclpy.experimental.events_executor import EventsExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    from aslip_ros.hw import xarm
+    from aslip_ros.msg import SlipVector
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes import convert
+    from aslip_ros.nodes.slip_track import SlipTrackNode
+
+    sdks = []
+    monkeypatch.setattr(xarm, "default_api_factory", lambda ip: sdks.append(FakeSDK(ip))
+                        or sdks[-1])
+    args = ["--ros-args", "-p", "arm:=xarm", "-p", "xarm_ip:=192.0.2.7",
+            "-p", "control_rate_hz:=1.0", "-p", "slip_timeout_s:=0.05",
+            "-p", "pose_timeout_s:=1.0", "-p", "start_after_messages:=1",
+            "-p", "position_gain_1_s:=0.0"]
+    rclpy.init(args=args, domain_id=ros_domain,
+               signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+    slipping = threading.Event()
+    slipping.set()
+    last_sent = []
+    threads = []
+    try:
+        node = SlipTrackNode()
+        sdk = sdks[0]
+        peer = rclpy.create_node("aslip_test_peer")
+        pub = peer.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
+        ex = EventsExecutor()
+        ex.add_node(node)
+        ex.add_node(peer)
+
+        def spin():
+            while not stop.is_set():
+                ex.spin_once(timeout_sec=0.05)
+
+        def slip_source():
+            while not stop.is_set():
+                if slipping.is_set():
+                    pub.publish(convert.slip_to_msg(0.0, -0.02, 0.9, True, 0.5,
+                                                    time.time_ns(), 0.1, "test"))
+                    last_sent.append(time.monotonic())
+                time.sleep(0.01)
+
+        def reports():
+            while not stop.is_set():
+                sdk.report([400.0, 0.0, 300.0, np.pi, 0.0, 0.0])
+                time.sleep(0.01)
+
+        for fn in (spin, slip_source, reports):
+            threads.append(threading.Thread(target=fn, daemon=True))
+            threads[-1].start()
+        # Wait for a moving command (a control tick), then silence the slip stream at once:
+        # the next tick is a whole second away.
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any(any(m[1][0]) for m in sdk.moves()):
+            time.sleep(0.002)
+        assert any(any(m[1][0]) for m in sdk.moves()), "the task never moved the arm"
+        slipping.clear()
+        silent_at = last_sent[-1]
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and not any(
+                c[0] == "set_state" and c[1] == (xarm.STATE_STOP,) for c in sdk.calls):
+            time.sleep(0.002)
+        stopped_at = time.monotonic()
+        assert "stale slip" in (node.task.reason or ""), node.task.reason
+        # 50 ms deadline + a 5 ms SDK call; the next control tick would be ~1 s away.
+        assert stopped_at - silent_at < 0.5, stopped_at - silent_at
+    finally:
+        stop.set()
+        for t in threads:
+            t.join(5)
+        try:
+            node.before_shutdown()
+            ex.shutdown(timeout_sec=2.0)
+            node.destroy_node()
+            peer.destroy_node()
+        finally:
+            rclpy.try_shutdown()
