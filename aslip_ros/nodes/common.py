@@ -215,7 +215,7 @@ def _executor(threads: int):
 
 
 def run_node(factory: Callable[[], Any], args: Optional[list] = None,
-             threads: int = 2) -> int:
+             threads: int = 2, exit_process: bool = True) -> int:
     """Init, build the node, spin it (see ``_executor``), shut down cleanly.
 
     SIGINT and SIGTERM are handled here rather than by rclpy: rclpy's own handler shuts the
@@ -226,7 +226,11 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     dies without stopping it, the node gets SIGTERM and shuts down the same way. Once a signal
     came, the process exits within ``EXIT_GRACE_S`` even if a cleanup step hangs, so a launch
     never has to escalate to SIGKILL (which would skip the controllers' stop command).
-    Returns the process exit code (``EXIT_CONFIG`` when the node refused its configuration).
+    With ``exit_process`` (node executables) the process ends here once the node is shut
+    down, without the interpreter's finalization: by then Python has restored the default
+    signal handlers, and C++ destructors of DDS and torch threads could block for seconds
+    (seen under load: the launch escalated to SIGTERM, which then killed the node, -15).
+    Otherwise returns the exit code (``EXIT_CONFIG`` when the node refused its configuration).
     """
     _tie_to_parent()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -269,11 +273,26 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if exit_process:
+        _leave(code)
     return code
 
 
 def _name(factory) -> str:
     return getattr(factory, "__name__", "aslip node")
+
+
+def _leave(code: int) -> None:
+    """Flush Python's and C's output buffers (rcutils logs through C stdio), then exit."""
+    import ctypes
+    import os
+    sys.stdout.flush()
+    sys.stderr.flush()
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
+    os._exit(code)
 
 
 #: Seconds from SIGINT/SIGTERM to a forced exit; below launch's 5 s SIGINT->SIGTERM step.
