@@ -3,9 +3,8 @@
     launch_test test/launch/test_slip_track_launch.py        (or through pytest)
 
 The controller must track the slip, commanding the arm (moving commands come only while
-tracking),
-and the scene's arm must execute the commands and move; every node must exit cleanly on
-the launch's SIGINT, the controller's last command being a stop.
+tracking), and the scene's arm must execute the commands and move; every node must exit
+cleanly on the launch's SIGINT, the controller's last command being a stop.
 """
 
 import os
