@@ -15,6 +15,7 @@ watchdog's own behaviour under load is tested in test_stale_input.py.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,15 @@ STOP_ERROR_BOUND_M = 0.015
 TRACK_RMSE_BOUND_M = 0.015
 
 
+def _skip_if_far_beyond_real_time(why: str) -> None:
+    """Every attempt measured the machine: skip, but only when it is loaded far beyond the
+    two CPU-busy processes the loop must hold beside (the rule of test_stale_input.py)."""
+    load = os.getloadavg()[0]
+    if load > 3 * (os.cpu_count() or 1):
+        pytest.skip(f"machine at load {load:.1f} on {os.cpu_count()} cores; every episode "
+                    f"ended on stale input or behind real time ({why})")
+
+
 def _checkpoint() -> str:
     assert CNN.is_file(), f"shipped checkpoint missing: {CNN} (aslip demo --train-models)"
     return str(CNN)
@@ -42,6 +52,8 @@ def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_pa
         result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path / f"try{attempt}")
         if not result["reason"].startswith("stale"):
             break
+    else:
+        _skip_if_far_beyond_real_time(result["reason"])
     _check_slip_stop(result, traj)
 
 
@@ -115,6 +127,9 @@ def test_slip_track_episode_composed_in_one_process():
         if not str(r.get("controller_reason", "")).startswith("stale") and \
                 r["skipped_blocks"] == 0:
             break
+    else:
+        _skip_if_far_beyond_real_time(f"{r.get('controller_reason')}, "
+                                      f"{r['skipped_blocks']} scene blocks skipped")
     assert r["ended"] == "duration", r
     tr = r["trace"]
     assert r["n_slip_msgs"] > 200, r           # the model ran at its 100 Hz hop throughout
