@@ -240,7 +240,7 @@ def paired(out: Path, variant: str, model: str, a: str, b: str,
 def summary(out: Path) -> None:
     """Print the paired differences that decide the comparisons in docs/model.md."""
     for variant in VARIANTS:
-        for model in ("svm", "cnn"):
+        for model in ("svm", "cnn", "slipnet"):
             for a, b in (("calibrated", "raw"), ("calibrated", "oracle"),
                          ("calibrated_slip", "raw"), ("calibrated", "calibrated_slip")):
                 d = paired(out, variant, model, a, b)
