@@ -317,7 +317,7 @@ def test_a_device_that_stops_delivering_is_an_error_within_a_second(
     bus = Bus(rclpy_context)
     _listen(bus)
     params = {"source": "device", "device": "aslip_fifo", "channels": 4,
-              "channel_names": NAMES, "latency": "high"}
+              "channel_names": NAMES}
     stop = threading.Event()
     feeder = threading.Thread(target=_feed, args=(fd, 60.0, stop), daemon=True)
     feeder.start()

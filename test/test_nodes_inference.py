@@ -288,8 +288,9 @@ def test_a_node_starved_of_cpu_loses_no_audio(live_inference):
         proc.output
     after = _diag_values(bus)
     assert after["gaps"] == before["gaps"], (before, after)
-    # Estimates resumed on the first blocks, not a window after a restart.
-    assert min(_stamp_ns(m) for m in bus.messages(SLIP)) <= since + 100_000_000
+    assert after["blocks_accepted"] - before["blocks_accepted"] >= 30
+    # (Which of the queued hops get an estimate is not asserted: the newest supersedes.)
+    assert all(_stamp_ns(m) > since for m in bus.messages(SLIP))
 
 
 def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inference):
