@@ -29,8 +29,10 @@ setup:
 
 build: setup
 
+# CI passes TEST_ARGS="-ra -v" so its log names every test file and test with its outcome.
+TEST_ARGS ?= -q -ra
 test: setup
-	$(PYTEST) test -q -ra
+	$(PYTEST) test $(TEST_ARGS)
 
 test-fast: setup
 	$(PYTEST) test -q -ra -m "not slow"
