@@ -412,3 +412,28 @@ def test_invalid_parameters_refused_at_run_time(rclpy_context, ros_env, known_ck
         ok = bus.set_params("slip_inference", {"threshold": 0.7, "hop_s": 0.02})
         assert all(r.successful for r in ok)
     bus.close()
+
+
+@pytest.mark.parametrize("edit", [{"window_samples": -5}, {"model_config": None}])
+def test_checkpoint_with_bad_metadata_is_refused_at_start(ros_env, known_ckpt, tmp_path,
+                                                          edit):
+    """A checkpoint whose metadata passes the safe unpickler but not its contract (the node
+    once crashed on window_samples -5 with a traceback) is refused with exit 2, naming it."""
+    import json
+
+    import torch
+    payload = torch.load(known_ckpt, weights_only=True)
+    meta = json.loads(payload["meta"])
+    meta.update(edit)
+    meta = {k: v for k, v in meta.items() if v is not None}
+    payload["meta"] = json.dumps(meta)
+    bad = tmp_path / "bad.pt"
+    torch.save(payload, bad)
+    proc = NodeProcess("slip_inference", ros_env, {"checkpoint": str(bad)})
+    try:
+        code = proc.proc.wait(60)
+    finally:
+        out = proc.stop()
+    assert code == 2, out
+    assert "refused to start" in out and str(bad) in out, out
+    assert "Traceback" not in out, out
