@@ -21,6 +21,7 @@ try:
     import launch
     import launch_ros  # noqa: F401 - the launch files need it
     import launch_testing.actions
+    import launch_testing.util
     from launch.launch_description_sources import PythonLaunchDescriptionSource
 except ImportError as exc:
     MISSING = (f"{exc.name} is not importable: source a ROS 2 Jazzy install or "
@@ -41,9 +42,14 @@ def reserve_domain() -> int:
     return int(did)
 
 
-def description(launch_file: str, args: dict):
+def description(launch_file: str, args: dict, keep_alive: bool = False):
     """``generate_test_description`` result: ``launch_file`` of the installed package,
-    with ``args``, on a domain of its own; the tests get that ``domain``."""
+    with ``args``, on a domain of its own; the tests get that ``domain``.
+
+    ``keep_alive``: for a launch whose processes all end by themselves. Without a process
+    that outlives them, a quick run (an export of a few seconds) can end the launch before
+    the active tests have started waiting, which launch_testing reports as a failure
+    ("Processes under test stopped before tests completed")."""
     import os
 
     from ament_index_python.packages import get_package_share_directory
@@ -58,7 +64,8 @@ def description(launch_file: str, args: dict):
         IncludeLaunchDescription(PythonLaunchDescriptionSource(path),
                                  launch_arguments=[(k, str(v)) for k, v in args.items()]),
     ])
-    return (launch.LaunchDescription([group, launch_testing.actions.ReadyToTest()]),
+    extra = [launch_testing.util.KeepAliveProc()] if keep_alive else []
+    return (launch.LaunchDescription([group, *extra, launch_testing.actions.ReadyToTest()]),
             {"domain": did})
 
 

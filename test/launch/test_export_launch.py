@@ -28,7 +28,8 @@ def generate_test_description():
     summary = simulate(OUT / "bags", "external", duration_s=3.0, progress=False)
     assert summary["bags"], summary
     return lc.description("export.launch.py", {"bag": OUT / "bags", "out": OUT / "ds",
-                                               "window": "0.2", "hop": "0.1"})
+                                               "window": "0.2", "hop": "0.1"},
+                          keep_alive=True)
 
 
 class TestExport(unittest.TestCase):
