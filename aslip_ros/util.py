@@ -66,3 +66,44 @@ def die_with_parent() -> None:
         libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)    # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
+
+
+#: Niceness the node processes ask for: the sensor-to-arm loop keeps its deadlines (the
+#: 50 ms stale-input watchdogs) beside other CPU-bound work. ``ASLIP_NICE`` overrides it;
+#: 0 leaves the priority alone.
+DEFAULT_NICE = -10
+
+
+def raise_cpu_priority(nice: int | None = None) -> str | None:
+    """Lower the niceness of this process's threads to ``nice`` (default ``ASLIP_NICE`` or
+    DEFAULT_NICE).
+
+    Linux keeps niceness per thread and new threads inherit their creator's, so call this
+    before the node starts its threads (DDS, torch, executors). Returns None when the process runs at that
+    priority (or better), else why it does not: raising priority needs CAP_SYS_NICE or an
+    RLIMIT_NICE of at least ``20 - nice`` (``ulimit -e``; ``nice`` in limits.conf).
+    """
+    if nice is None:
+        raw = os.environ.get("ASLIP_NICE", str(DEFAULT_NICE))
+        try:
+            nice = int(raw)
+        except ValueError:
+            return f"ASLIP_NICE must be an integer niceness in [-20, 19], got {raw!r}"
+    if not -20 <= nice <= 19:
+        return f"niceness must lie in [-20, 19], got {nice}"
+    try:
+        # Every thread of the process (Linux: PRIO_PROCESS with a thread id), including
+        # those that imports already started (BLAS pools); later threads inherit it.
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    for tid in tids:
+        try:
+            if os.getpriority(os.PRIO_PROCESS, tid) > nice:
+                os.setpriority(os.PRIO_PROCESS, tid, nice)
+        except ProcessLookupError:     # a thread that ended meanwhile
+            continue
+        except OSError as exc:
+            return (f"CPU priority not raised to nice {nice} ({exc.strerror}): it needs "
+                    f"CAP_SYS_NICE or an RLIMIT_NICE of at least {20 - nice}")
+    return None
