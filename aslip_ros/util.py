@@ -79,9 +79,10 @@ def raise_cpu_priority(nice: int | None = None) -> str | None:
     DEFAULT_NICE).
 
     Linux keeps niceness per thread and new threads inherit their creator's, so call this
-    before the node starts its threads (DDS, torch, executors). Returns None when the process runs at that
-    priority (or better), else why it does not: raising priority needs CAP_SYS_NICE or an
-    RLIMIT_NICE of at least ``20 - nice`` (``ulimit -e``; ``nice`` in limits.conf).
+    before the node starts its threads (DDS, torch, executors). Returns None when the
+    process runs at that priority (or better), else why it does not: raising priority needs
+    CAP_SYS_NICE or an RLIMIT_NICE of at least ``20 - nice`` (``ulimit -e``; ``nice`` in
+    limits.conf).
     """
     if nice is None:
         raw = os.environ.get("ASLIP_NICE", str(DEFAULT_NICE))
