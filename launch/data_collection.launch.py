@@ -18,7 +18,7 @@ import shutil
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, ExecuteProcess, LogInfo, OpaqueFunction,
-                            RegisterEventHandler, Shutdown)
+                            RegisterEventHandler, Shutdown, TimerAction)
 from launch.conditions import IfCondition, UnlessCondition
 from launch.event_handlers import OnProcessExit
 from launch.substitutions import LaunchConfiguration as LC
@@ -30,6 +30,8 @@ from aslip_ros.nodes.bag_recorder import DEFAULT_TOPICS
 from aslip_ros.nodes.closed_loop_launch import fail, required, share_dir
 
 RECORDERS = ("auto", "ros2bag", "aslip")
+#: Seconds between the end of a finite scene run and the end of the launch.
+END_GRACE_S = 1.0
 
 
 def ros2bag_found() -> bool:
@@ -76,7 +78,10 @@ def _scene_ended(event, ctx):
     if event.returncode != 0:
         return fail(f"scene_sim exited with code {event.returncode}")
     why = "the scene ran its duration_s: collection finished"
-    return [LogInfo(msg=why), Shutdown(reason=why)]
+    # The recorder still receives what was in flight when the scene ended; then the launch
+    # ends. (A launch test can also finish its checks before the launch is gone.)
+    return [LogInfo(msg=why),
+            TimerAction(period=END_GRACE_S, actions=[Shutdown(reason=why)])]
 
 
 def generate_launch_description():

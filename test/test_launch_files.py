@@ -458,3 +458,24 @@ def test_a_failing_recorder_shuts_data_collection_down(ros_env, tmp_path):
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+@pytest.mark.slow
+def test_a_finite_data_collection_ends_by_itself_with_its_bag(ros_env, tmp_path):
+    """duration_s:=3: the launch ends once the scene has run, leaving a complete bag."""
+    from aslip_ros.data.bags import BagReader
+    bag = tmp_path / "bag"
+    log = tmp_path / "launch.log"
+    proc = _ros2_launch(["data_collection.launch.py", "recorder:=aslip", "duration_s:=3",
+                         f"bag:={bag}"], ros_env, log)
+    try:
+        proc.wait(timeout=150)
+        text = log.read_text()
+        assert "collection finished" in text, text[-3000:]
+        assert _wait_gone(_started_pids(log), 30.0) == []
+        with BagReader(bag) as reader:
+            audio = dict(reader.info.counts).get("/aslip/audio", 0)
+        assert audio >= 150, f"{audio} audio blocks for 3 s of scene\n" + text[-3000:]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)

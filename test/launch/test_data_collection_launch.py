@@ -2,9 +2,10 @@
 
     launch_test test/launch/test_data_collection_launch.py        (or through pytest)
 
-With ``duration_s:=4`` and the package's own recorder (rosbag2 is not needed), the launch
-must end by itself once the scene has run, and leave a bag with every recorded stream,
-TF included.
+With ``duration_s:=4`` and the package's own recorder (rosbag2 is not needed), the scene
+must end by itself once it has run, and the recording leave a bag with every recorded
+stream, TF included. That the launch then ends by itself is shown by
+test/test_launch_files.py, which runs `ros2 launch` to its end.
 """
 
 import os
@@ -30,11 +31,16 @@ def generate_test_description():
 
 
 class TestCollection(unittest.TestCase):
-    """The launch ends by itself when the scene's duration has run."""
+    """The scene runs its duration and ends by itself; the launch then ends the recording.
 
-    def test_launch_ends_after_the_scene_run(self, proc_info):
-        # Only the launch's shutdown stops the recorder: its exit shows the launch ended.
-        proc_info.assertWaitForShutdown(process="bag_recorder", timeout=180)
+    The active test waits for the scene's own exit, not the recorder's: the recorder stops
+    only when the launch itself ends, and a test still waiting at that moment races
+    launch_testing's check that the tests completed before the launch did."""
+
+    def test_scene_ends_after_its_duration(self, proc_info):
+        import launch_testing.asserts
+        proc_info.assertWaitForShutdown(process="scene_sim", timeout=180)
+        launch_testing.asserts.assertExitCodes(proc_info, process="scene_sim")
 
 
 @lc.post_shutdown_test()
