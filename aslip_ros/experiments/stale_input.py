@@ -26,7 +26,6 @@ import os
 import random
 import signal
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -41,42 +40,6 @@ ROOT = Path(__file__).resolve().parents[2]
 #: Below this TCP speed the arm counts as at rest [m/s] (the issue's 1 mm/s).
 REST_M_S = 1e-3
 STALE = ("stale_slip", "stale_pose")
-
-
-def _exe(name: str) -> str:
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        path = Path(prefix) / "lib" / "aslip_ros" / name
-        if prefix and path.is_file():
-            return str(path)
-    raise FileNotFoundError(f"node executable {name} not found: source install/setup.bash")
-
-
-class _Proc:
-    def __init__(self, name: str, params: dict, env: dict) -> None:
-        cmd = [sys.executable, _exe(name), "--ros-args"]
-        for k, v in params.items():
-            cmd += ["-p", f"{k}:={json.dumps(v) if isinstance(v, (list, str)) else v}"]
-        self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True,
-                                     preexec_fn=die_with_parent)
-        self.lines: list = []
-        self.ready = threading.Event()
-        threading.Thread(target=self._drain, daemon=True).start()
-
-    def _drain(self) -> None:
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip())
-            if "ready" in line:
-                self.ready.set()
-
-    def stop(self, sig=signal.SIGINT) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
 
 
 class _Probe:
@@ -171,6 +134,8 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
     """One ``fault`` or ``load`` episode; returns its measurements."""
     from domain_coordinator import domain_id
 
+    from aslip_ros.nodes.bench import NodeChild
+
     from aslip_ros.experiments.demo_episode import StopSettings
     from aslip_ros.scene.layouts import get_object
     s = StopSettings()
@@ -189,14 +154,15 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
                    PYTHONUNBUFFERED="1")
         traj = Path(tmp) / "traj.npz"
         probe = _Probe(did)
-        inf = _Proc("slip_inference", {"checkpoint": checkpoint}, env)
-        stop = _Proc("slip_stop", ctl, env)
+        inf = NodeChild("slip_inference", {"checkpoint": checkpoint}, env)
+        stop = NodeChild("slip_stop", ctl, env)
         procs = [inf, stop]
         try:
             if not (inf.ready.wait(60) and stop.ready.wait(60)):
                 return dict(out, error="nodes did not start")
-            sim = _Proc("scene_sim", {"scenario": "wall_push", "seed": seed, "object": obj,
-                                      "wall_distance_m": 0.0, "trajectory_out": str(traj)}, env)
+            scene = {"scenario": "wall_push", "seed": seed, "object": obj,
+                     "wall_distance_m": 0.0, "trajectory_out": str(traj)}
+            sim = NodeChild("scene_sim", scene, env)
             procs.append(sim)
             if not _wait(lambda: probe.meta is not None, 30):
                 return dict(out, error="no scene metadata")
@@ -210,10 +176,10 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
                 out["killed_t"] = time.monotonic()
             _wait(lambda: probe.final() is not None, 30)
             time.sleep(0.5)     # commands after the stop, if any, have had time to arrive
-            sim.stop()
+            sim.stop(signal.SIGINT)
         finally:
             for p in procs:
-                p.stop()
+                p.stop(signal.SIGINT)
             probe.close()
         res = probe.final()
         if res is None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -32,7 +33,8 @@ from aslip_ros.util import die_with_parent
 _CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 
-def _launcher(name: str) -> str:
+def launcher(name: str) -> str:
+    """The installed launcher of node ``name`` (``<prefix>/lib/aslip_ros/<name>``)."""
     for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
         path = Path(prefix) / "lib" / "aslip_ros" / name
         if prefix and path.is_file():
@@ -45,13 +47,15 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / _CLK_TCK  # utime + stime
 
 
-class _Node:
-    """A node executable in a child process; output drained by a thread."""
+class NodeChild:
+    """A node executable in a child process tied to this one; output drained by a thread
+    (``lines``), ``ready`` set at the node's readiness line. Benchmarks use it."""
 
     def __init__(self, name: str, params: dict, env: dict) -> None:
-        args = [sys.executable, _launcher(name), "--ros-args"]
+        args = [sys.executable, launcher(name), "--ros-args"]
         for k, v in params.items():
-            args += ["-p", f"{k}:={v}"]
+            value = json.dumps(v) if isinstance(v, (list, str)) else v
+            args += ["-p", f"{k}:={value}"]
         self.proc = subprocess.Popen(args, env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True,
                                      preexec_fn=die_with_parent)
@@ -65,13 +69,15 @@ class _Node:
             if "ready" in line:
                 self.ready.set()
 
-    def stop(self) -> None:
+    def stop(self, sig: int = signal.SIGTERM) -> None:
+        """Signal the node, wait for it (kill it after 10 s)."""
         if self.proc.poll() is None:
-            self.proc.terminate()
+            self.proc.send_signal(sig)
             try:
                 self.proc.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
+                self.proc.wait(5)
 
 
 def _env(domain: int) -> dict:
@@ -168,8 +174,8 @@ def measure_node_latency(checkpoint: str, duration_s: float = 30.0,
 
     with domain_id() as dom:
         env = _env(dom)
-        capture = _Node("audio_capture", {"source": "sim"}, env)
-        infer = _Node("slip_inference", {"checkpoint": str(checkpoint)}, env)
+        capture = NodeChild("audio_capture", {"source": "sim"}, env)
+        infer = NodeChild("slip_inference", {"checkpoint": str(checkpoint)}, env)
         cpu0: list[float] = []
         try:
             for n in (capture, infer):
@@ -218,7 +224,7 @@ def measure_capture_stream(duration_s: float = 600.0) -> dict:
 
     with domain_id() as dom:
         env = _env(dom)
-        capture = _Node("audio_capture", {"source": "sim"}, env)
+        capture = NodeChild("audio_capture", {"source": "sim"}, env)
         try:
             if not capture.ready.wait(120):
                 raise RuntimeError("audio_capture did not start:\n"
