@@ -11,9 +11,14 @@ from typing import Optional
 
 import numpy as np
 from geometry_msgs.msg import TwistStamped
+from rclpy.duration import Duration
 
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
+
+
+#: How long :meth:`TopicArm.close` waits for the readers to acknowledge the final stop [s].
+ACK_TIMEOUT_S = 1.0
 
 
 class TopicArm:
@@ -67,6 +72,14 @@ class TopicArm:
         return self._pose.copy()
 
     def close(self) -> None:
-        """Stop; the publisher goes with the node."""
-        self.stop()
+        """Stop, and wait (at most ``ACK_TIMEOUT_S``) until the readers have the stop.
+
+        The publisher goes with the node, and the node is destroyed right after this at
+        process exit: a reliable sample that no reader has acknowledged by then is lost.
+        Without this wait, the launch's receivers last saw a moving command in 1 of 2 runs
+        of a loaded machine."""
         self._enabled = False
+        self.stop()
+        if not self._pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S)):
+            self._node.get_logger().warning(
+                f"the final stop was not acknowledged by every reader within {ACK_TIMEOUT_S} s")
