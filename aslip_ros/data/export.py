@@ -44,6 +44,7 @@ from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
 from aslip_ros.data.export_bench import measure_export_speed  # noqa: F401 (public name)
 from aslip_ros.data.labels import (DEFAULT_MAX_GAP_S, IDENTITY_POSE, OK, REASONS,
                                    PoseTrack, mocap_window_velocity, robot_window_velocity)
+from aslip_ros.learn.streaming_labels import export_track, write_track
 
 DEFAULT_WINDOW_S = 0.2
 DEFAULT_HOP_S = 0.1
@@ -348,6 +349,10 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
                                        cfg.max_gap_s)
         rate = finger.rate_hz
 
+    # The object-relative pose track on the audio file's sample axis: streaming labels.
+    track = export_track(source, pose_track(topics.tcp if source == "robot" else topics.finger),
+                         calib, None if source == "robot" else pose_track(topics.object),
+                         intercept, slope, float(s_first - idx[0]))
     dropped = Counter()
     dropped["audio_gap"] = int((~audio_ok).sum())
     for code, name in REASONS.items():
@@ -381,7 +386,7 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
         "first_sample_index": s_first,
         "start_stamp_ns": int(ref_ns + round((intercept + (s_first - idx[0]) * slope) * 1e9)),
     }
-    return res, {"info": info, "rows": rows}
+    return res, {"info": info, "rows": rows, "track": track}
 
 
 def _bag_name(path: Path) -> str:
@@ -470,7 +475,7 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
                 writer.abort_trial()
                 raise BagError(f"bag {p}: layouts differ within one dataset: "
                                + ", ".join(f"{k!r} ({v})" for k, v in layouts.items()))
-            writer.end_trial(info, trial["rows"])
+            write_track(writer.root, writer.end_trial(info, trial["rows"]), trial["track"])
             summary.bags.append(res)
         if stream.sample_rate is None:
             raise ValueError("no bag could be exported")

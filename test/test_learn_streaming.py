@@ -1,0 +1,79 @@
+"""Incremental log-mel features: block-size invariance, reference decimation, refusals."""
+
+import numpy as np
+import pytest
+from scipy import signal as sps
+
+from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.streaming import (StreamingLogMel, decimation_factor, decimation_filter,
+                                       stream_logmel)
+
+
+def noisy_trial(n=24000, c=3, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)[:, None] / 48000.0
+    tone = np.sin(2 * np.pi * np.array([300.0, 2500.0, 7000.0][:c]) * t)
+    return (0.05 * rng.standard_normal((n, c)) + 0.1 * tone).astype(np.float32)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_blocks_give_the_offline_frames(seed):
+    cfg = FeatureConfig()
+    audio = noisy_trial(seed=seed)
+    offline = stream_logmel(audio, cfg, 48000.0)
+    assert offline.shape == (1 + (audio.shape[0] // 3 - cfg.n_fft) // cfg.hop, 3, cfg.n_mels)
+    live = StreamingLogMel(cfg, 48000.0, 3)
+    rng = np.random.default_rng(seed + 10)
+    out, i = [], 0
+    while i < audio.shape[0]:
+        n = int(rng.choice([1, 2, 7, 160, 479, 480, 481, 3000]))
+        out.append(live.push(audio[i:i + n]))
+        i += n
+    got = np.concatenate(out)
+    assert got.shape == offline.shape
+    np.testing.assert_allclose(got, offline, atol=1e-4, rtol=0)
+    assert live.n_frames == offline.shape[0]
+
+
+def test_frames_match_an_independent_causal_filter_and_stft():
+    cfg = FeatureConfig(n_mels=20)
+    audio = noisy_trial(n=9600, c=2)
+    got = stream_logmel(audio, cfg, 48000.0)
+    h = decimation_filter(3)
+    pcm = sps.lfilter(h.astype(np.float64), [1.0], audio.astype(np.float64), axis=0)[2::3]
+    k = np.arange(got.shape[0])
+    win = sps.get_window("hann", cfg.n_fft, fftbins=True)
+    frames = np.stack([pcm[j * cfg.hop:j * cfg.hop + cfg.n_fft] for j in k])   # (K, N, C)
+    power = np.abs(np.fft.rfft(frames * win[None, :, None], axis=1)) ** 2     # (K, F, C)
+    from aslip_ros.learn.features import mel_filterbank
+    ref = np.log(np.maximum(np.einsum("mf,kfc->kcm", mel_filterbank(cfg), power),
+                            cfg.log_floor))
+    np.testing.assert_allclose(got, ref, atol=2e-3, rtol=0)
+
+
+def test_frame_ends_and_reset():
+    cfg = FeatureConfig()
+    f = StreamingLogMel(cfg, 48000.0, 1)
+    assert f.frame_samples == 1536 and f.frame_step_samples == 480
+    assert f.push(np.zeros((1535, 1), np.float32)).shape[0] == 0
+    assert f.push(np.zeros((1, 1), np.float32)).shape[0] == 1
+    assert list(f.frame_end_samples([0, 1])) == [1536, 2016]
+    f.push(np.zeros((479, 1), np.float32))
+    f.reset()
+    assert f.n_frames == 0 and f.push(np.zeros((1535, 1), np.float32)).shape[0] == 0
+    x = noisy_trial(n=4800, c=1)
+    f.reset()
+    np.testing.assert_allclose(f.push(x), stream_logmel(x, cfg, 48000.0), atol=1e-5)
+
+
+def test_unsupported_rate_ratios_are_refused_with_a_clear_error():
+    assert decimation_factor(48000.0, 16000.0) == 3
+    assert decimation_factor(16000.0, 16000.0) == 1
+    for rate in (44100.0, 8000.0, 40000.0):
+        with pytest.raises(ValueError, match="integer multiple"):
+            StreamingLogMel(FeatureConfig(), rate, 2)
+    with pytest.raises(ValueError, match="positive"):
+        decimation_factor(float("nan"), 16000.0)
+    f = StreamingLogMel(FeatureConfig(), 48000.0, 2)
+    with pytest.raises(ValueError, match=r"\(n, 2\)"):
+        f.push(np.zeros((10, 3), np.float32))
