@@ -1,7 +1,10 @@
 """aslip_ros.hw: adapters for real hardware, without ROS.
 
 - :mod:`.xarm`: :class:`~.xarm.XArmAdapter`, the xArm as a ``control.arm.Arm``.
-- :mod:`.audio`: PortAudio capture (:class:`~.audio.SoundDeviceCapture`) and WAV replay.
+- :mod:`.audio_source`: the :class:`~.audio_source.AudioSource` protocol and the sources by
+  name (device, wav, bag, sim); :mod:`.audio`: PortAudio capture
+  (:class:`~.audio.SoundDeviceCapture`); :mod:`.wav`: WAV replay; :mod:`.sources`: the
+  scene's and a bag's audio.
 - :mod:`.mocap`: NatNet rigid-body poses (:class:`~.mocap.NatNetMocap`).
 
 The driver libraries (xarm-python-sdk, sounddevice, natnet) are imported lazily, inside

@@ -1,6 +1,9 @@
 """Paced block sources beside the live capture: the simulated scene's audio and a bag's
 AudioFrames, with the pull API of :mod:`aslip_ros.hw.audio` (``start``/``read``/``stop``).
 
+Also the scene built from parameter values (:func:`build_world`), shared by the
+``scene_sim`` node and the ``sim`` audio source.
+
 A restarted source resumes its clock where its sample index stands, so its first block after
 ``start`` is due at once (not after as long as the earlier stream ran).
 """
@@ -13,6 +16,49 @@ from typing import Optional
 import numpy as np
 
 from aslip_ros.hw.audio import AudioBlock
+
+#: Task names accepted by the ``scenario`` parameter -> scene scenario builders.
+SCENARIOS = ("external_induced", "robot_induced", "wall_push", "drag")
+CONDITIONS = ("robot_off", "robot_stationary", "robot_moving")
+
+
+def build_world(values: dict, prefix: str = ""):
+    """A :class:`aslip_ros.scene.World` from scene parameter values (open-ended duration).
+
+    ``values`` holds ``<prefix>scenario``, ``seed``, ``object``, ``layout``, ``pad``,
+    ``condition``, ``sample_rate``, ``wall_distance_m`` and ``drag_speed_m_s``; an unusable
+    combination raises ValueError.
+    """
+    from aslip_ros.scene import World, scenarios
+    g = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
+    common = dict(seed=int(g["seed"]), object=g["object"], layout=g["layout"], pad=g["pad"],
+                  sample_rate=float(g["sample_rate"]))
+    kind = g["scenario"]
+    try:
+        if kind == "external_induced":
+            scn = scenarios.external_induced(condition=g["condition"], duration_s=None,
+                                             **common)
+        elif kind == "robot_induced":
+            scn = scenarios.robot_induced(duration_s=None, **common)
+        elif kind == "wall_push":
+            scn = scenarios.wall_push(wall_distance_m=float(g["wall_distance_m"]), **common)
+        else:
+            scn = scenarios.external_drag(drag_speed_m_s=float(g["drag_speed_m_s"]), **common)
+    except ValueError as exc:
+        raise ValueError(f"cannot build the {kind} scenario: {exc}") from exc
+    return World(scn)
+
+
+def world_metadata(world) -> dict:
+    """The scene's metadata plus the task geometry a controller may need (``task``)."""
+    meta = world.metadata()
+    task = {"kind": world.scenario.kind}
+    if world.scenario.kind == "wall_push":
+        task.update(push_direction=world.wall_normal().tolist(),
+                    wall_point=world.wall_position().tolist(),
+                    object_length_m=float(world.object.length_m))
+    meta["task"] = task
+    return meta
 
 
 class SimAudio:

@@ -1,6 +1,8 @@
 """``audio_capture``: multi-channel audio -> ``/aslip/audio`` (AudioFrame) + ``/aslip/metadata``.
 
-Sources (``source`` parameter):
+Sources (``source`` parameter; each an :class:`~aslip_ros.hw.audio_source.AudioSource`
+opened by its factory in :data:`aslip_ros.hw.audio_source.SOURCES`, or by
+``module.path:factory`` for one outside the package):
 
 - ``device``: a PortAudio input through :class:`aslip_ros.hw.audio.SoundDeviceCapture`
   (device by name or index, channel count, sample rate, channel names), stamped with the
@@ -10,6 +12,8 @@ Sources (``source`` parameter):
 - ``wav``: a multi-channel WAV file, replayed in real time (:class:`~aslip_ros.hw.audio.
   WavReplay`).
 - ``bag``: the AudioFrame messages of a rosbag2 bag, replayed in real time and restamped.
+- ``topic``: another driver's AudioFrames on ``input_topic`` (:mod:`.topic_audio`), checked
+  against ``sample_rate`` and ``channel_names``.
 
 A lifecycle node (it owns hardware): ``configure`` opens the source (a missing device fails
 the transition with the list of inputs), ``activate`` starts streaming, ``deactivate``
@@ -42,21 +46,25 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import String
 
+from aslip_ros.hw import audio_source
 from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
-from aslip_ros.nodes.scene_sim import build_world, scene_params, world_metadata
+from aslip_ros.nodes.scene_params import scene_params
+from aslip_ros.nodes.topic_audio import open_topic
 
-SOURCES = ("sim", "device", "wav", "bag")
+#: Sources by name: the ROS-free ones of hw/ and the topic bridge.
+SOURCES = dict(audio_source.SOURCES, topic=open_topic)
+_SOURCE_CHOICES = f"one of {', '.join(SOURCES)}, or module.path:factory"
 DEFAULT_NAMES = ["left_front", "left_rear", "right_front", "right_rear"]
 
 
-def _device(value: str):
-    """A device given as text: digits are an index, anything else a (sub)name, '' default."""
-    value = value.strip()
-    if not value:
-        return None
-    return int(value) if value.isdigit() else value
+def _source(v) -> Optional[str]:
+    try:
+        audio_source.resolve_source(str(v), SOURCES)
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 class AudioCapture(LifecycleNode):
@@ -65,18 +73,19 @@ class AudioCapture(LifecycleNode):
     def __init__(self) -> None:
         super().__init__("audio_capture")
         specs = [
-            c.Param("source", "sim", f"audio source: {', '.join(SOURCES)}", c.one_of(*SOURCES),
+            c.Param("source", "sim", "audio source", c.Rule(_source, _SOURCE_CHOICES),
                     read_only=True),
             c.Param("block_s", 0.01, "block length [s]", c.in_range(0.001, 0.2),
                     read_only=True),
             c.Param("device", "", "device: PortAudio name (substring) or index; '' = default",
                     read_only=True),
+            c.Param("input_topic", "", "topic: AudioFrame topic to bridge", read_only=True),
             c.Param("channels", 4, "device: channel count",
                     c.int_range(1, 64), read_only=True),
-            c.Param("sample_rate", 48000.0, "device: sample rate [Hz]",
+            c.Param("sample_rate", 48000.0, "device, topic: sample rate [Hz]",
                     c.in_range(1000.0, 384000.0), read_only=True),
             c.Param("channel_names", list(DEFAULT_NAMES),
-                    "channel names in column order (device, wav)", read_only=True),
+                    "channel names in column order (device, wav, topic)", read_only=True),
             c.Param("layout", "4mic", "microphone layout name ('' = unknown)", read_only=True),
             c.Param("wav_path", "", "wav: file to replay", read_only=True),
             c.Param("bag_path", "", "bag: rosbag2 to replay", read_only=True),
@@ -97,6 +106,7 @@ class AudioCapture(LifecycleNode):
         ] + scene_params("sim.")
         self.p = c.declare_params(self, specs, cross_check=self._cross_check)
         self.src = None
+        self.finite = False                    # the source's end is the end of the stream
         self.meta: dict = {}
         self._thread: Optional[threading.Thread] = None
         self._running = threading.Event()
@@ -133,6 +143,8 @@ class AudioCapture(LifecycleNode):
             return "source wav needs wav_path"
         if v["source"] == "bag" and not v["bag_path"]:
             return "source bag needs bag_path"
+        if v["source"] == "topic" and not v["input_topic"]:
+            return "source topic needs input_topic"
         return None
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -187,46 +199,12 @@ class AudioCapture(LifecycleNode):
     # -- internals ------------------------------------------------------------------------------
 
     def _open(self):
-        p = self.p
-        block_s = p["block_s"]
-        base = {"format": "aslip-metadata", "version": 1}
-        if p["source"] == "sim":
-            from aslip_ros.hw.sources import SimAudio
-            world = build_world(p, "sim.")
-            src = SimAudio(world, max(1, int(round(block_s * world.fs))),
-                           world_metadata(world))
-            meta = dict(src.metadata)
-            self.layout = meta.get("layout", "")
-        elif p["source"] == "device":
-            from aslip_ros.hw.audio import SoundDeviceCapture
-            rate = float(p["sample_rate"])
-            src = SoundDeviceCapture(_device(p["device"]), int(p["channels"]), rate,
-                                     block_frames=max(1, int(round(block_s * rate))),
-                                     channel_names=list(p["channel_names"]),
-                                     latency=p["latency"])
-            meta = dict(base, sample_rate=rate, channel_names=src.channel_names,
-                        layout=p["layout"], device=src.device_name)
-            self.layout = p["layout"]
-        elif p["source"] == "wav":
-            from aslip_ros.hw.wav import WavReplay
-            # A first look at the header gives the rate (for the block length) and the
-            # channel count (the configured names apply only when they fit the file).
-            probe = WavReplay(p["wav_path"], paced=False)
-            names = list(p["channel_names"])
-            src = WavReplay(p["wav_path"],
-                            block_frames=max(1, int(round(block_s * probe.sample_rate))),
-                            paced=True, loop=p["loop"],
-                            channel_names=names if len(names) == probe.channels else None)
-            meta = dict(base, sample_rate=src.sample_rate, channel_names=src.channel_names,
-                        layout=p["layout"], source_file=p["wav_path"])
-            self.layout = p["layout"]
-        else:
-            from aslip_ros.hw.sources import BagAudio
-            src = BagAudio(p["bag_path"], p["bag_topic"], p["loop"])
-            meta = dict(base, **src.metadata)
-            meta.update(sample_rate=src.sample_rate, channel_names=src.channel_names)
-            self.layout = src.layout or meta.get("layout", "")
-        meta.update(json.loads(p["metadata_json"]))
+        opened = audio_source.resolve_source(self.p["source"], SOURCES)(self.p, self)
+        src = opened.source
+        meta = dict(opened.metadata)
+        meta.update(json.loads(self.p["metadata_json"]))
+        self.layout = opened.layout
+        self.finite = opened.finite
         self.names = list(src.channel_names)
         self.rate = float(src.sample_rate)
         return src, meta
@@ -244,7 +222,7 @@ class AudioCapture(LifecycleNode):
                 self._diagnose()
                 break
             if block is None:
-                if getattr(src, "finished", False) or (self.p["source"] == "bag"):
+                if getattr(src, "finished", False) or self.finite:
                     self.finished = True
                     self.get_logger().info("end of replay")
                     break

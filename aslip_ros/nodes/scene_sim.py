@@ -30,73 +30,21 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from aslip_ros import frames
+from aslip_ros.hw import sources
+from aslip_ros.hw.sources import world_metadata
 from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
-
-#: Task names accepted by the ``scenario`` parameter -> scene scenario builders.
-SCENARIOS = ("external_induced", "robot_induced", "wall_push", "drag")
-CONDITIONS = ("robot_off", "robot_stationary", "robot_moving")
-
-
-def scene_params(prefix: str = "") -> list:
-    """Parameter specs describing a scene (shared with audio_capture's ``sim`` source)."""
-    from aslip_ros.scene import LAYOUTS, OBJECTS, PADS
-    return [
-        c.Param(prefix + "scenario", "external_induced",
-                f"scene task: {', '.join(SCENARIOS)}", c.one_of(*SCENARIOS), read_only=True),
-        c.Param(prefix + "seed", 0, "scenario seed (deterministic)",
-                c.at_least(0), read_only=True),
-        c.Param(prefix + "object", "chips_can", "grasped object",
-                c.one_of(*OBJECTS), read_only=True),
-        c.Param(prefix + "layout", "4mic", "microphone layout", c.one_of(*LAYOUTS),
-                read_only=True),
-        c.Param(prefix + "pad", "textured", "finger pad", c.one_of(*PADS), read_only=True),
-        c.Param(prefix + "condition", "robot_stationary",
-                "robot condition (external_induced only; the others imply robot_moving)",
-                c.one_of(*CONDITIONS), read_only=True),
-        c.Param(prefix + "sample_rate", 48000.0, "audio sample rate [Hz]",
-                c.in_range(8000.0, 192000.0), read_only=True),
-        c.Param(prefix + "wall_distance_m", 0.0,
-                "wall_push: wall distance ahead of the object [m] (0 = start in contact)",
-                c.non_negative, read_only=True),
-        c.Param(prefix + "drag_speed_m_s", 0.04, "drag: agent drag speed [m/s]", c.positive,
-                read_only=True),
-    ]
+from aslip_ros.nodes.scene_params import scene_params
 
 
 def build_world(values: dict, prefix: str = ""):
-    """A :class:`aslip_ros.scene.World` from scene parameter values (open-ended duration)."""
-    from aslip_ros.scene import World, scenarios
-    g = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
-    common = dict(seed=int(g["seed"]), object=g["object"], layout=g["layout"], pad=g["pad"],
-                  sample_rate=float(g["sample_rate"]))
-    kind = g["scenario"]
+    """A :class:`aslip_ros.scene.World` from scene parameter values; unusable ones are a
+    :class:`~aslip_ros.nodes.common.ConfigError` (the node refuses to start)."""
     try:
-        if kind == "external_induced":
-            scn = scenarios.external_induced(condition=g["condition"], duration_s=None,
-                                             **common)
-        elif kind == "robot_induced":
-            scn = scenarios.robot_induced(duration_s=None, **common)
-        elif kind == "wall_push":
-            scn = scenarios.wall_push(wall_distance_m=float(g["wall_distance_m"]), **common)
-        else:
-            scn = scenarios.external_drag(drag_speed_m_s=float(g["drag_speed_m_s"]), **common)
+        return sources.build_world(values, prefix)
     except ValueError as exc:
-        raise c.ConfigError(f"cannot build the {kind} scenario: {exc}") from exc
-    return World(scn)
-
-
-def world_metadata(world) -> dict:
-    """The scene's metadata plus the task geometry a controller may need (``task``)."""
-    meta = world.metadata()
-    task = {"kind": world.scenario.kind}
-    if world.scenario.kind == "wall_push":
-        task.update(push_direction=world.wall_normal().tolist(),
-                    wall_point=world.wall_position().tolist(),
-                    object_length_m=float(world.object.length_m))
-    meta["task"] = task
-    return meta
+        raise c.ConfigError(str(exc)) from exc
 
 
 class PacedScene:
