@@ -131,3 +131,73 @@ def test_metrics_definitions():
     e = np.array([0.0, 0.01]) * 0.2 * 1e3                         # mm per window
     assert m["magnitude_rmse_mm"] == pytest.approx(np.sqrt((e ** 2).mean()))
     assert m["magnitude_std_mm"] == pytest.approx(e.std())
+
+
+# ------------------------------------------------------------------ per-grasp calibration
+
+def test_calibrated_checkpoint_round_trips_and_evaluate_applies_it(work, tmp_path):
+    """`aslip train` (default --calibration background) stores the constants fitted on the
+    training trials; evaluate reads windows with each trial's causal offsets removed."""
+    from aslip_ros.learn.calibration import CalibrationConstants
+    from aslip_ros.learn.calibration_frames import dataset_offsets
+    from aslip_ros.learn.checkpoint import save_checkpoint
+    from aslip_ros.learn.predictor import Predictor
+    root, _, _ = work
+    robot = make_synthetic_dataset(root / "coupled", n_trials=9, seed=3, coupling_db=3.0,
+                                   background=0.02)
+    path = tmp_path / "svm.pt"
+    assert cli(train, ["--dataset", str(robot), "--stage", "svm", "--out", str(path),
+                       "--no-progress"]) == 0
+    ck = load_checkpoint(path)
+    k = CalibrationConstants.from_dict(ck.meta["calibration"])
+    assert k.method == "background" and k.channel_names == tuple(ck.channel_names)
+    assert ck.meta["calibration"]["convergence_s"] == pytest.approx(k.convergence_s)
+    assert k.convergence_s > 0
+    assert CalibrationConstants.from_dict(k.to_dict()) == k
+    assert ck.meta["train_config"]["calibration"] == "background"
+    p = Predictor(ck)
+    assert p.calibrated and p.calibration == k
+    ds = open_dataset(robot)
+    idx = select_windows(ds, "test")
+    off = dataset_offsets(ds, ck.channel_names, p.feature_config, k, idx)[idx]
+    assert np.abs(off).max() > 0.1           # +-3 dB per microphone and trial
+    res = evaluate.evaluate_checkpoint(path, robot, "test")
+    assert res["calibration"] == "background"
+    want = p.predict_batch(ds.window_audio(idx, ds.channel_indices(p.channel_names)),
+                           offsets=off)
+    raw = p.predict_batch(ds.window_audio(idx, ds.channel_indices(p.channel_names)))
+    # The same checkpoint without its calibration key evaluates the raw windows.
+    meta = {key: v for key, v in ck.meta.items() if key != "calibration"}
+    save_checkpoint(tmp_path / "raw.pt", meta, ck.tensors)
+    res_raw = evaluate.evaluate_checkpoint(tmp_path / "raw.pt", robot, "test")
+    assert res_raw["calibration"] is None
+    m = evaluate.compute_metrics(want.probability, want.raw_velocity, ds.velocity(idx),
+                                 ds.slip(idx), p.window_s)
+    m_raw = evaluate.compute_metrics(raw.probability, raw.raw_velocity, ds.velocity(idx),
+                                     ds.slip(idx), p.window_s)
+    assert res["overall"]["direction_mae_deg"] == pytest.approx(m["direction_mae_deg"])
+    assert res_raw["overall"]["direction_mae_deg"] == pytest.approx(m_raw["direction_mae_deg"])
+    assert not np.allclose(want.raw_velocity, raw.raw_velocity)
+
+
+def test_calibration_off_writes_no_calibration_key(work, tmp_path):
+    _, robot, _ = work
+    assert cli(train, ["--dataset", str(robot), "--stage", "svm", "--calibration", "off",
+                       "--out", str(tmp_path / "svm.pt"), "--no-progress"]) == 0
+    ck = load_checkpoint(tmp_path / "svm.pt")
+    assert "calibration" not in ck.meta
+    assert evaluate.evaluate_checkpoint(tmp_path / "svm.pt", robot)["calibration"] is None
+
+
+def test_finetune_keeps_the_init_calibration(work, tmp_path):
+    root, _, ext = work
+    pre = load_checkpoint(root / "pre.pt")
+    assert "calibration" in pre.meta                   # the fixture trained with the default
+    out = tmp_path / "ft.pt"
+    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                       str(root / "pre.pt"), "--out", str(out), "--epochs", "2"] + SMALL) == 0
+    assert load_checkpoint(out).meta["calibration"] == pre.meta["calibration"]
+    # Raw features into an encoder trained on calibrated ones: refused.
+    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                       str(root / "pre.pt"), "--out", str(tmp_path / "x.pt"), "--epochs", "2",
+                       "--calibration", "off"] + SMALL) == 1

@@ -106,9 +106,16 @@ def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str 
                 "--split all evaluates every trial (for a dataset held out from training)")
         raise ValueError(f"no windows in split {split!r} of {dataset} with these filters"
                          + hint)
+    offsets = None
+    if pred.calibration is not None:
+        # The checkpoint's causal per-grasp calibration, each trial a grasp from its start.
+        from .calibration_frames import dataset_offsets
+        offsets = dataset_offsets(ds, pred.channel_names, pred.feature_config,
+                                  pred.calibration, idx)
     probs, raws = [], []
     for s in range(0, idx.size, 2048):
-        b = pred.predict_batch(ds.window_audio(idx[s:s + 2048], cols), batch_size=batch_size)
+        b = pred.predict_batch(ds.window_audio(idx[s:s + 2048], cols), batch_size=batch_size,
+                               offsets=None if offsets is None else offsets[idx[s:s + 2048]])
         probs.append(b.probability)
         raws.append(b.raw_velocity)
     prob, raw = np.concatenate(probs), np.concatenate(raws)
@@ -118,6 +125,7 @@ def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str 
         "checkpoint": str(checkpoint), "dataset": str(dataset), "split": split,
         "model_type": pred.model_type, "layout": pred.layout,
         "channel_names": pred.channel_names,
+        "calibration": None if pred.calibration is None else pred.calibration.method,
         "overall": compute_metrics(*args),
         "per_object": grouped_metrics(ds.trial_field("object", idx), *args),
         "per_condition": grouped_metrics(ds.trial_field("condition", idx), *args),

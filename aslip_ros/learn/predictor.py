@@ -10,6 +10,11 @@ evaluation. The predictor is the one holder of the decision threshold: a live us
 it with ``set_threshold`` and every estimate carries the threshold it was decided at, so a
 published decision and its reported threshold cannot disagree.
 
+A checkpoint with a per-grasp ``calibration`` (docs/model.md, "Per-grasp calibration") gets
+window offsets from the caller: offline ``calibration_frames.dataset_offsets``; live, feed
+every accepted audio block to ``push_audio`` and pass ``calibration_offsets()`` with the
+window that ends with it (``reset_calibration()`` when a new grasp starts).
+
 A model fed a window with a dead or disconnected microphone under-reports slip: live users
 check each window first with ``aslip_ros.learn.channel_check.dead_channels``.
 """
@@ -24,7 +29,9 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from .checkpoint import Checkpoint, check_compatible, load_checkpoint
+from .calibration import CalibrationConstants
+from .calibration_frames import FrameCutter, StreamCalibration, remove_from_audio
+from .checkpoint import Checkpoint, CheckpointMismatch, check_compatible, load_checkpoint
 from .features import FeatureConfig, LogMel
 from .network import ModelConfig, SlipNet, fuse_for_inference
 from .svm import SvmArrays, SvmFeaturizer
@@ -111,6 +118,13 @@ class Predictor:
             self._cnn, self._svm = None, _SvmBackend(ckpt, self.feature_config)
         else:
             raise ValueError(f"unsupported model type {ckpt.model_type!r}")
+        self.calibration: CalibrationConstants | None = None
+        self._stream_cal: StreamCalibration | None = None
+        if meta.get("calibration") is not None:
+            self.calibration = CalibrationConstants.from_dict(meta["calibration"])
+            self._check_calibration(ckpt.sample_rate, ckpt.channel_names)
+            self._stream_cal = StreamCalibration(self.calibration, self.feature_config,
+                                                 ckpt.sample_rate)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike,
@@ -166,6 +180,44 @@ class Predictor:
     def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
         """Raise CheckpointMismatch (a ValueError) unless the stream matches the training."""
         check_compatible(self.meta, sample_rate, channel_names)
+        if self.calibration is not None:
+            self._check_calibration(sample_rate, channel_names)
+
+    def _check_calibration(self, sample_rate: float, channel_names: Sequence[str]) -> None:
+        try:
+            hop_s = FrameCutter(self.feature_config, sample_rate).hop_s
+        except ValueError as exc:
+            raise CheckpointMismatch(str(exc)) from exc
+        self.calibration.check_stream(channel_names, self.feature_config.n_mels, hop_s)
+
+    # --- per-grasp calibration, live ------------------------------------------------------
+    @property
+    def calibrated(self) -> bool:
+        """True when the checkpoint carries a per-grasp calibration."""
+        return self.calibration is not None
+
+    def push_audio(self, block: np.ndarray) -> None:
+        """Feed one accepted block ``(n, C)`` of the stream to the calibration (no-op
+        without one). Every sample of the grasp, in order, exactly once."""
+        if self._stream_cal is not None:
+            self._stream_cal.push(block)
+
+    def reset_calibration(self) -> None:
+        """A new grasp (gap, restart, request): the estimate starts again from zero gain."""
+        if self._stream_cal is not None:
+            self._stream_cal.reset()
+
+    def calibration_offsets(self) -> np.ndarray | None:
+        """A copy of the current per-channel offsets (None without calibration)."""
+        return None if self._stream_cal is None else self._stream_cal.offsets.copy()
+
+    @property
+    def calibration_converged(self) -> bool:
+        return self._stream_cal is not None and self._stream_cal.state.converged
+
+    def calibration_summary(self) -> dict[str, Any] | None:
+        """Converged, per-channel gain [dB], accepted and seen frames, resets (or None)."""
+        return None if self._stream_cal is None else self._stream_cal.summary()
 
     # --- inference ------------------------------------------------------------------------
     def _validate(self, windows: np.ndarray) -> np.ndarray:
@@ -180,25 +232,40 @@ class Predictor:
             raise ValueError("audio window contains NaN or Inf")
         return x
 
-    def predict(self, window: np.ndarray) -> Prediction:
-        """One window, shaped (window_samples, n_channels)."""
+    def predict(self, window: np.ndarray, offsets: np.ndarray | None = None) -> Prediction:
+        """One window, shaped (window_samples, n_channels); ``offsets`` ``(C,)`` or None."""
         w = np.asarray(window)
         if w.ndim != 2:
             raise ValueError(f"expected a window shaped ({self.window_samples}, "
                              f"{self.n_channels}), got {w.shape}")
-        return self.predict_batch(w[None])[0]
+        return self.predict_batch(w[None], offsets=None if offsets is None
+                                  else np.asarray(offsets)[None])[0]
 
-    def predict_batch(self, windows: np.ndarray, batch_size: int = 256) -> BatchPrediction:
-        """Windows shaped (B, window_samples, n_channels)."""
+    def predict_batch(self, windows: np.ndarray, batch_size: int = 256,
+                      offsets: np.ndarray | None = None) -> BatchPrediction:
+        """Windows shaped (B, window_samples, n_channels). ``offsets`` ``(B, C)``: the
+        per-grasp calibration of each window (natural-log power removed per channel)."""
         x = self._validate(windows)
+        if offsets is not None:
+            offsets = np.asarray(offsets, dtype=np.float32)
+            if offsets.shape != (x.shape[0], self.n_channels) or \
+                    not np.isfinite(offsets).all():
+                raise ValueError(f"offsets must be finite, shaped ({x.shape[0]}, "
+                                 f"{self.n_channels}), got {offsets.shape}")
         probs, vels = [], []
         for s in range(0, max(x.shape[0], 1), batch_size):
             chunk = x[s:s + batch_size]
             if chunk.shape[0] == 0:
                 break
+            off = None if offsets is None else offsets[s:s + batch_size]
             if self._cnn is not None:
-                p, v = self._cnn.infer_features(self.logmel(chunk))
+                feats = self.logmel(chunk)
+                if off is not None:
+                    feats = feats - off[:, :, None, None]
+                p, v = self._cnn.infer_features(feats)
             else:
+                if off is not None:
+                    chunk = remove_from_audio(chunk, off)
                 p, v = self._svm.arrays.predict(self._svm.featurizer(chunk))
             probs.append(p)
             vels.append(v)

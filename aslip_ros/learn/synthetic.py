@@ -40,8 +40,15 @@ def make_synthetic_dataset(path: str | os.PathLike, *, n_trials: int = 12,
                            window_s: float = 0.2, hop_s: float = 0.1,
                            epsilon_m_s: float = 0.005, objects: Sequence[str] = ("box", "can"),
                            induced: str = "external", layout: str = "4mic",
-                           seed: int = 0) -> Path:
-    """Write a dataset to ``path`` (atomically) and return the path."""
+                           seed: int = 0, coupling_db: float = 0.0,
+                           background: float = 0.0) -> Path:
+    """Write a dataset to ``path`` (atomically) and return the path.
+
+    ``coupling_db`` > 0: each trial (grasp) scales each microphone by its own gain, uniform
+    in +-coupling_db; ``background`` > 0: a common-mode noise of that amplitude (the hand on
+    the object), on about half the time, reaches every microphone through that gain: what
+    per-grasp calibration measures.
+    """
     rng = np.random.default_rng(seed)
     sr = float(sample_rate)
     n = int(round(duration_s * sr))
@@ -58,7 +65,14 @@ def make_synthetic_dataset(path: str | os.PathLike, *, n_trials: int = 12,
             level = rng.uniform(0.8, 1.25)
             gains = 3.0 * level * speed[:, None] * (1 + 0.7 * np.cos(ang[:, None] - mic_angle))
             src = sps.sosfilt(sos, rng.standard_normal((n, n_ch)), axis=0)
-            audio = (gains * src + 0.003 * rng.standard_normal((n, n_ch))).astype(np.float32)
+            sound = gains * src
+            if background > 0:        # on in about half of 0.5 s stretches
+                on = np.repeat(rng.random(n // int(0.5 * sr) + 1) < 0.5, int(0.5 * sr))[:n]
+                sound = sound + (background * on)[:, None] * sps.sosfilt(
+                    sos, rng.standard_normal((n, 1)), axis=0)
+            if coupling_db > 0:
+                sound = sound * 10.0 ** (rng.uniform(-coupling_db, coupling_db, n_ch) / 20.0)
+            audio = (sound + 0.003 * rng.standard_normal((n, n_ch))).astype(np.float32)
             writer.begin_trial(n_ch).append(audio)
             csum = np.concatenate([np.zeros((1, 2)), np.cumsum(v, axis=0, dtype=np.float64)])
             rows = []
