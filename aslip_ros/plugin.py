@@ -8,7 +8,7 @@ package (docs/design.md, "Extending").
 from __future__ import annotations
 
 import importlib
-from typing import Callable
+from typing import Any, Callable, Optional
 
 
 def is_reference(name: str) -> bool:
@@ -17,11 +17,13 @@ def is_reference(name: str) -> bool:
     return bool(sep and module and attr)
 
 
-def load(name: str, choices: str) -> Callable:
-    """The callable at ``module.path:attribute``.
+def load(name: str, choices: str,
+         accept: Optional[Callable[[Any], bool]] = callable) -> Any:
+    """The object at ``module.path:attribute``.
 
     Raises ValueError saying that ``name`` is none of ``choices`` (the registry's names)
-    when it has another form, and why when it cannot be imported or is not callable.
+    when it has another form, and why when it cannot be imported or ``accept`` refuses it
+    (by default anything not callable).
     """
     if not is_reference(name):
         raise ValueError(f"{name!r} is not {choices} nor a module.path:attribute")
@@ -30,6 +32,6 @@ def load(name: str, choices: str) -> Callable:
         obj = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError) as exc:
         raise ValueError(f"cannot import {name!r}: {exc}") from exc
-    if not callable(obj):
-        raise ValueError(f"{name!r} is not callable")
+    if accept is not None and not accept(obj):
+        raise ValueError(f"{name!r} is not what is expected here ({type(obj).__name__})")
     return obj

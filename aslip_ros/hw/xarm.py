@@ -5,15 +5,16 @@ forgets one check keeps driving an arm that has already refused. This adapter ch
 code: a non-zero code stops the arm (best effort) and raises :class:`XArmError`, a subclass
 of :class:`~aslip_ros.control.arm.ArmError` carrying the code and its meaning.
 
-Safety properties, all enforced here rather than trusted to callers:
+Safety properties:
 
 - every velocity command carries the controller-side ``duration`` (the arm stops by itself
   if the commands stop), and firmware too old to honour it is refused at connect;
-- commands are clipped to the configured speed and acceleration, and no faster than
-  ``max_rate_hz`` (the controller drops commands above 250 Hz);
-- each command checks the TCP against the workspace box: a component that would leave the
-  box within the command's duration is clipped to reach the wall, and a TCP already outside
-  the box stops the arm and raises;
+- the speed, acceleration, rate and workspace limits are those of every arm
+  (:class:`~aslip_ros.control.limits.LimitedArm`): :class:`XArmAdapter` is a ``LimitedArm``
+  around :class:`XArmDriver`, which only talks to the SDK; the rate limit is at most 250 Hz
+  (the controller drops faster commands);
+- while streaming, the controller's error and warning codes are checked, and a warning
+  (a command not executed as sent) stops the arm;
 - connecting happens in a worker thread with a deadline, so an unreachable arm raises
   instead of hanging the caller.
 
@@ -21,18 +22,12 @@ SI units at the interface; millimetres appear only in the SDK calls below.
 
 The pose comes from the SDK's report stream when it is current, so a command costs one
 round trip, not three; the SDK's return codes are explained in :mod:`aslip_ros.hw.xarm_codes`.
-This module is longer than the project's 450-line guideline because the speed,
-acceleration, rate and workspace limits still live here, not in a wrapper shared by every
-arm.
 """
 
 from __future__ import annotations
 
-import contextlib
-import io
 import logging
 import math
-import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -43,9 +38,13 @@ from scipy.spatial.transform import Rotation
 
 from aslip_ros.control.arm import ArmError
 from aslip_ros.control.frames import as_vector3
+from aslip_ros.control.limits import ArmLimits, LimitedArm
 from aslip_ros.hw.xarm_codes import controller_error_text as _controller_error_text
 from aslip_ros.hw.xarm_codes import controller_warn_text as _controller_warn_text
 from aslip_ros.hw.xarm_codes import describe_code
+from aslip_ros.hw.xarm_sdk import code_of as _code_of
+from aslip_ros.hw.xarm_sdk import default_api_factory  # noqa: F401 - tests replace it here
+from aslip_ros.hw.xarm_sdk import socket_default_timeout_restored as _timeout_restored
 
 _LOG = logging.getLogger(__name__)
 
@@ -71,10 +70,6 @@ class XArmError(ArmError):
         self.code = code
         self.controller_error = controller_error
         self.controller_warning = controller_warning
-
-
-def _tuple3(name: str, value: Sequence[float]) -> Tuple[float, float, float]:
-    return tuple(float(x) for x in as_vector3(value, name))  # type: ignore[return-value]
 
 
 def _check_positive(name: str, value: float) -> None:
@@ -129,117 +124,28 @@ class XArmConfig:
                              f'drops faster commands), got {self.max_rate_hz}')
         if not math.isfinite(self.mode_settle_s) or self.mode_settle_s < 0.0:
             raise ValueError(f'mode_settle_s must be finite and >= 0, got {self.mode_settle_s}')
-        lo = _tuple3('workspace_min_m', self.workspace_min_m)
-        hi = _tuple3('workspace_max_m', self.workspace_max_m)
-        if not all(a < b for a, b in zip(lo, hi)):
-            raise ValueError(f'workspace_min_m {lo} must be below workspace_max_m {hi} on '
-                             'every axis')
-        object.__setattr__(self, 'workspace_min_m', lo)
-        object.__setattr__(self, 'workspace_max_m', hi)
+        limits = self.limits
+        object.__setattr__(self, 'workspace_min_m', limits.workspace_min_m)
+        object.__setattr__(self, 'workspace_max_m', limits.workspace_max_m)
+
+    @property
+    def limits(self) -> ArmLimits:
+        """The limits every command obeys (validated)."""
+        return ArmLimits(max_speed_m_s=self.max_speed_m_s, max_acc_m_s2=self.max_acc_m_s2,
+                         workspace_min_m=self.workspace_min_m,
+                         workspace_max_m=self.workspace_max_m, max_rate_hz=self.max_rate_hz,
+                         max_duration_s=self.max_duration_s)
 
 
-_SDK_LOG = logging.getLogger(__name__ + '.sdk')
-_import_lock = threading.Lock()
-_sdk_api_class: Any = None
+class XArmDriver:
+    """The xArm's SDK as an :class:`~aslip_ros.control.arm.Arm`, without the motion limits
+    (use :class:`XArmAdapter`, which adds them). Thread-safe.
 
-
-class _ForwardToLogging(logging.Handler):
-    """Re-emits the SDK's log records on this package's logger (stderr / the ROS logger)."""
-
-    def emit(self, record: logging.LogRecord) -> None:
-        """Forward one record."""
-        try:
-            _SDK_LOG.log(record.levelno, '%s', record.getMessage())
-        except Exception:  # noqa: BLE001 - logging must never raise into the SDK
-            self.handleError(record)
-
-
-def _route_sdk_logging() -> None:
-    """Send the SDK's loggers through :mod:`logging` instead of raw ``sys.stdout``.
-
-    The SDK binds ``StreamHandler(sys.stdout)`` to two loggers at import; stdout may carry
-    a protocol (a launch file, a piped tool) and must stay ours.
-    """
-    try:
-        from xarm.core.utils import log as sdk_log
-    except Exception:  # noqa: BLE001 - a layout change must not stop the arm from working
-        return
-    for sdk_logger in (getattr(sdk_log, 'logger', None), getattr(sdk_log, 'origin_logger', None)):
-        if not isinstance(sdk_logger, logging.Logger):
-            continue
-        for handler in list(sdk_logger.handlers):
-            if type(handler) is logging.StreamHandler:
-                sdk_logger.removeHandler(handler)
-        if not any(isinstance(h, _ForwardToLogging) for h in sdk_logger.handlers):
-            sdk_logger.addHandler(_ForwardToLogging())
-        sdk_logger.propagate = False
-
-
-def _import_sdk() -> Any:
-    """Import ``XArmAPI`` once, containing the import's side effects.
-
-    Importing prints the SDK version to stdout (captured here and logged at debug level)
-    and installs stdout log handlers (rerouted by :func:`_route_sdk_logging`). It also
-    creates ``~/.UFACTORY/log``, which cannot be avoided.
-    """
-    global _sdk_api_class
-    with _import_lock:
-        if _sdk_api_class is None:
-            captured = io.StringIO()
-            with contextlib.redirect_stdout(captured):
-                from xarm.wrapper import XArmAPI
-            _route_sdk_logging()
-            text = captured.getvalue().strip()
-            if text:
-                _SDK_LOG.debug('%s', text)
-            _sdk_api_class = XArmAPI
-        return _sdk_api_class
-
-
-@contextlib.contextmanager
-def _socket_default_timeout_restored():
-    """Undo the SDK's ``socket.setdefaulttimeout(1)``, which it calls for every connection.
-
-    Left in place, every later socket in the process (DDS helpers, HTTP clients) would
-    silently get a 1 s timeout.
-    """
-    saved = socket.getdefaulttimeout()
-    try:
-        yield
-    finally:
-        socket.setdefaulttimeout(saved)
-
-
-def default_api_factory(ip: str) -> Any:
-    """Create an unconnected ``XArmAPI`` (``do_not_open=True``; radians by default).
-
-    ``report_type='real'`` asks for the controller's real-time report stream (port 30003),
-    the fastest of the SDK's three; its location reports feed the adapter's pose.
-    """
-    api_class = _import_sdk()
-    with _socket_default_timeout_restored():
-        return api_class(ip, is_radian=True, do_not_open=True, report_type='real')
-
-
-def _code_of(ret: Any) -> int:
-    """The return code of an SDK call: an int, or the first item of ``(code, data)``."""
-    if isinstance(ret, (tuple, list)):
-        ret = ret[0]
-    if ret is None:
-        # Some SDK calls return None when they did nothing; treat it as success only if
-        # the call is documented to do so, which none of the ones used here is.
-        return -3
-    return int(ret)
-
-
-class XArmAdapter:
-    """An xArm as an :class:`~aslip_ros.control.arm.Arm`. Thread-safe.
-
-    :param config: connection and limits.
+    :param config: connection settings (its limits are :class:`XArmAdapter`'s).
     :param api_factory: ``ip -> XArmAPI-like`` object, created unconnected; tests inject a
         fake here. Default: :func:`default_api_factory`.
-    :param clock: monotonic time source for the rate and acceleration limits.
-    :param sleep: used by the rate limit and the mode settle time.
+    :param clock: monotonic time source (report age, status period).
+    :param sleep: used for the mode settle time.
     """
 
     def __init__(self, config: XArmConfig,
@@ -254,11 +160,6 @@ class XArmAdapter:
         self._lock = threading.RLock()
         self._api: Any = None
         self._enabled = False
-        self._lo = np.array(config.workspace_min_m)
-        self._hi = np.array(config.workspace_max_m)
-        self._last_send_t: Optional[float] = None
-        self._last_v = np.zeros(3)
-        self._last_duration = 0.0
         self._last_status_t: Optional[float] = None
         # Newest report-stream pose: (pose7, clock time, wall ns); its own lock, so a report
         # never waits behind a command's round trip.
@@ -268,8 +169,6 @@ class XArmAdapter:
         self._streaming = False
         self.reports_rejected = 0
         self.commands_sent = 0
-        self.commands_delayed = 0
-        self.commands_clipped = 0
 
     # -- Arm protocol -----------------------------------------------------------------------
 
@@ -292,7 +191,7 @@ class XArmAdapter:
 
             def worker() -> None:
                 try:
-                    with _socket_default_timeout_restored():
+                    with _timeout_restored():
                         api.connect()
                     ok = True
                 except BaseException as exc:  # noqa: BLE001 - reported to the caller
@@ -304,7 +203,7 @@ class XArmAdapter:
                 if ok and abandoned:
                     # The caller gave up waiting: do not leave a live connection behind.
                     try:
-                        with _socket_default_timeout_restored():
+                        with _timeout_restored():
                             api.disconnect()
                     except Exception:  # noqa: BLE001 - nobody left to report to
                         pass
@@ -350,16 +249,13 @@ class XArmAdapter:
             if self._cfg.mode_settle_s > 0.0:
                 self._sleep(self._cfg.mode_settle_s)
             self._enabled = True
-            self._last_send_t = None
-            self._last_v = np.zeros(3)
             self._last_status_t = self._clock()
 
     def send_velocity(self, v_xyz_m_s: np.ndarray, duration_s: float) -> None:
-        """Command a TCP velocity [m/s, ``link_base``], valid for ``duration_s`` [s].
+        """Command a TCP velocity [m/s, ``link_base``], valid for ``duration_s`` [s], as is.
 
-        The velocity is clipped to the speed, acceleration and workspace limits. Raises
-        :class:`XArmError` (after stopping the arm) on an invalid request, a TCP outside the
-        workspace or any non-zero SDK code.
+        Raises :class:`XArmError` (after stopping the arm) on an invalid request, a
+        controller error or warning, or any non-zero SDK code.
         """
         with self._lock:
             self._require_connected()
@@ -375,26 +271,11 @@ class XArmAdapter:
             except ValueError as exc:
                 self._stop_quietly()
                 raise XArmError(f'refused command: {exc}') from exc
-            duration = min(duration, self._cfg.max_duration_s)
-
-            self._respect_rate_limit()
             self._check_status_if_due()
-            position = self._position_m()
-            if np.any(position < self._lo) or np.any(position > self._hi):
-                self._stop_quietly()
-                raise XArmError(f'TCP {np.round(position, 4).tolist()} m is outside the '
-                                f'workspace {self._lo.tolist()}..{self._hi.tolist()}; stopped')
-            now = self._clock()
-            cmd = self._limit(v, position, duration, now)
-            if not np.array_equal(cmd, v):
-                self.commands_clipped += 1
-            mm = cmd * 1000.0
+            mm = v * 1000.0
             self._call('vc_set_cartesian_velocity',
                        [float(mm[0]), float(mm[1]), float(mm[2]), 0.0, 0.0, 0.0],
                        is_radian=True, is_tool_coord=False, duration=duration)
-            self._last_send_t = now
-            self._last_v = cmd
-            self._last_duration = duration
             self.commands_sent += 1
 
     def stop(self) -> None:
@@ -406,7 +287,6 @@ class XArmAdapter:
         """
         with self._lock:
             self._enabled = False
-            self._last_v = np.zeros(3)
             api = self._api
             if api is None or not getattr(api, 'connected', False):
                 return
@@ -481,7 +361,7 @@ class XArmAdapter:
         with self._lock:
             return self._enabled
 
-    def __enter__(self) -> 'XArmAdapter':
+    def __enter__(self) -> 'XArmDriver':
         """Connect on entering a ``with`` block."""
         self.connect()
         return self
@@ -629,26 +509,10 @@ class XArmAdapter:
             except Exception as exc:  # noqa: BLE001 - the connection goes anyway
                 _LOG.debug('releasing the report callback raised %s', exc)
         try:
-            with _socket_default_timeout_restored():
+            with _timeout_restored():
                 api.disconnect()
         except Exception as exc:  # noqa: BLE001 - nothing more can be done
             _LOG.warning('xArm disconnect raised %s', exc)
-
-    def _respect_rate_limit(self) -> None:
-        if self._last_send_t is None:
-            return
-        wait = 1.0 / self._cfg.max_rate_hz - (self._clock() - self._last_send_t)
-        if wait > 0.0:
-            # Delaying beats dropping: a dropped command could be the one that slows down.
-            self.commands_delayed += 1
-            self._sleep(wait)
-
-    def _position_m(self) -> np.ndarray:
-        fresh = self._fresh_report()
-        if fresh is not None:
-            return fresh[:3].copy()
-        _, pos = self._call_get('get_position', is_radian=True)
-        return self._to_pose(pos)[:3]
 
     def _to_pose(self, pos: Sequence[float]) -> np.ndarray:
         values = np.asarray(pos, dtype=np.float64).reshape(-1)
@@ -663,29 +527,34 @@ class XArmAdapter:
         quat = Rotation.from_euler('xyz', values[3:6]).as_quat()
         return np.concatenate([values[:3] / 1000.0, quat])
 
-    def _limit(self, v: np.ndarray, position: np.ndarray, duration: float,
-               now: float) -> np.ndarray:
-        """Speed, then acceleration, then workspace limits (the last one wins)."""
-        speed = float(np.linalg.norm(v))
-        if speed > self._cfg.max_speed_m_s:
-            v = v * (self._cfg.max_speed_m_s / speed)
-        if np.any(v != 0.0):
-            previous = np.zeros(3)
-            dt = 1.0 / self._cfg.max_rate_hz
-            if self._last_send_t is not None:
-                elapsed = now - self._last_send_t
-                # After its duration the previous command has expired: the arm is at rest.
-                if elapsed <= self._last_duration:
-                    previous = self._last_v
-                dt = max(dt, elapsed)
-            dv = v - previous
-            max_dv = self._cfg.max_acc_m_s2 * dt
-            n = float(np.linalg.norm(dv))
-            if n > max_dv:
-                v = previous + dv * (max_dv / n)
-        # Aim each component at most at the box wall within this command's duration.
-        v = v.copy()
-        reach_hi = (self._hi - position) / duration
-        reach_lo = (self._lo - position) / duration
-        v = np.minimum(np.maximum(v, reach_lo), reach_hi)
-        return v
+
+class XArmAdapter(LimitedArm):
+    """An xArm as an :class:`~aslip_ros.control.arm.Arm`: :class:`XArmDriver` behind the
+    configured limits (:class:`~aslip_ros.control.limits.LimitedArm`). Thread-safe.
+
+    The driver's extras (``connected``, ``velocity_mode_enabled``, ``config``,
+    ``set_pose_listener``, counters) are this object's too.
+
+    :param config: connection and limits.
+    :param api_factory: ``ip -> XArmAPI-like`` object, created unconnected; tests inject a
+        fake here. Default: :func:`default_api_factory`.
+    :param clock: monotonic time source for the limits and the driver.
+    :param sleep: used by the rate limit and the mode settle time.
+    """
+
+    def __init__(self, config: XArmConfig,
+                 api_factory: Optional[Callable[[str], Any]] = None,
+                 clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        """Create the adapter; nothing is contacted until :meth:`connect`."""
+        super().__init__(XArmDriver(config, api_factory, clock, sleep), config.limits,
+                         clock=clock, sleep=sleep, error=XArmError)
+
+    def __enter__(self) -> 'XArmAdapter':
+        """Connect on entering a ``with`` block."""
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        """Stop and disconnect on leaving it."""
+        self.close()

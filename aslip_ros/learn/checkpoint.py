@@ -31,7 +31,7 @@ from aslip_ros.util import atomic_path
 
 FORMAT = "aslip-checkpoint"
 VERSION = 1
-MODEL_TYPES = ("aslip_cnn", "svm")
+MODEL_TYPES = ("aslip_cnn", "svm", "aslip_stream")
 _REQUIRED = ("model_type", "model_config", "feature_config", "channel_names", "sample_rate",
              "window_s", "window_samples", "epsilon_m_s")
 _TYPES = {"int": (int,), "float": (int, float), "str": (str,), "None": (type(None),),
@@ -161,6 +161,8 @@ def validate_meta(meta: Any) -> list[str]:
         except ValueError as exc:
             problems.append(f"feature_config: {exc}")
     model_cls = ModelConfig if meta["model_type"] == "aslip_cnn" else SvmConfig
+    if meta["model_type"] == "aslip_stream":
+        from .streaming_model import StreamConfig as model_cls
     mcfg, bad = _config(model_cls, meta["model_config"], "model_config")
     problems += bad
     if isinstance(mcfg, ModelConfig):
@@ -170,6 +172,9 @@ def validate_meta(meta: Any) -> list[str]:
         if fcfg is not None and mcfg.n_mels != fcfg.n_mels:
             problems.append(f"model_config.n_mels {mcfg.n_mels} != feature_config.n_mels "
                             f"{fcfg.n_mels}")
+    elif meta["model_type"] == "aslip_stream" and mcfg is not None:
+        from .streaming import stream_meta_problems
+        problems += stream_meta_problems(meta, mcfg, fcfg)
     elif isinstance(mcfg, SvmConfig) and mcfg.n_bands < 1:
         problems.append(f"model_config.n_bands must be >= 1, got {mcfg.n_bands}")
     if "calibration" in meta:

@@ -141,3 +141,30 @@ def stream_logmel(audio: np.ndarray, cfg: FeatureConfig, input_rate: float) -> n
     if x.ndim != 2:
         raise ValueError(f"audio must be (n_samples, n_channels), got {x.shape}")
     return StreamingLogMel(cfg, input_rate, x.shape[1]).push(x)
+
+
+def stream_meta_problems(meta: dict, mcfg, fcfg: FeatureConfig | None) -> list[str]:
+    """What an ``aslip_stream`` checkpoint document gets wrong (empty when sound): channel
+    and mel counts against the model, a stream rate the features cannot decimate, the hop
+    and the label definition."""
+    problems = []
+    names = meta["channel_names"]
+    if mcfg.n_channels != len(names):
+        problems.append(f"model_config.n_channels {mcfg.n_channels} != {len(names)} "
+                        f"channel_names")
+    if fcfg is None:
+        return problems
+    if mcfg.n_mels != fcfg.n_mels:
+        problems.append(f"model_config.n_mels {mcfg.n_mels} != feature_config.n_mels "
+                        f"{fcfg.n_mels}")
+    try:
+        decimation_factor(float(meta["sample_rate"]), fcfg.sample_rate)
+    except ValueError as exc:
+        problems.append(str(exc))
+    hop = meta.get("hop_s")
+    if not isinstance(hop, (int, float)) or abs(hop - fcfg.hop / fcfg.sample_rate) > 1e-9:
+        problems.append(f"hop_s must equal feature hop / rate = "
+                        f"{fcfg.hop / fcfg.sample_rate:g} s, got {hop!r}")
+    if not isinstance(meta.get("label"), dict) or not meta["label"].get("kind"):
+        problems.append("an aslip_stream checkpoint needs a label definition (label.kind)")
+    return problems

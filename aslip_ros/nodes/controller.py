@@ -1,14 +1,16 @@
 """The lifecycle-node shell shared by ``slip_stop`` and ``slip_track``.
 
 The task logic lives in :mod:`aslip_ros.control` (pure, clock-injectable); this module only
-wires it to topics and an arm:
+wires it to topics and an arm, chosen by name from :mod:`aslip_ros.nodes.arms`:
 
-- ``arm:=sim``: :class:`TopicArm` publishes ``/aslip/arm/cmd_vel`` (TwistStamped,
-  ``link_base``), which ``scene_sim`` executes on the scene's simulated arm, and reads the TCP
-  from ``/aslip/robot/tcp_pose``.
+- ``arm:=sim``: :class:`~aslip_ros.nodes.topic_arm.TopicArm` publishes
+  ``/aslip/arm/cmd_vel`` (TwistStamped, ``link_base``), which ``scene_sim`` executes on the
+  scene's simulated arm, and reads the TCP from ``/aslip/robot/tcp_pose``.
 - ``arm:=xarm``: :class:`aslip_ros.hw.xarm.XArmAdapter` at ``xarm_ip``; the TCP comes from
   the SDK's report stream (polled on the arm thread where there is none) and is republished
   on ``/aslip/robot/tcp_pose``, stamped when it was measured.
+- ``arm:=module.path:factory``: an arm from outside the package, within the ``xarm_*``
+  speed and workspace limits (docs/design.md, "Extending").
 
 Every arm call runs on a thread of its own (:mod:`aslip_ros.control.arm_worker`): the
 control step only posts its command, so slip and pose callbacks never wait behind arm I/O.
@@ -41,7 +43,7 @@ from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, ArrivalStats
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
-from aslip_ros.nodes.topic_arm import TopicArm
+from aslip_ros.nodes.arms import ARMS, resolve_arm
 
 IDENTITY = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
 
@@ -49,16 +51,18 @@ IDENTITY = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
 def arm_params() -> list:
     """Parameters that choose and limit the arm (shared by both controllers)."""
     return [
-        c.Param("arm", "sim", "sim (scene_sim over topics) or xarm", c.one_of("sim", "xarm"),
-                read_only=True),
+        c.Param("arm", "sim", "sim (scene_sim over topics), xarm, or module.path:factory",
+                c.Rule(_arm, _ARM_CHOICES), read_only=True),
         c.Param("xarm_ip", "192.168.1.222", "xArm controller IP", c.non_empty, read_only=True),
-        c.Param("xarm_max_speed_m_s", 0.1, "xArm TCP speed limit [m/s]", c.in_range(1e-4, 1.0),
-                read_only=True),
+        c.Param("xarm_max_speed_m_s", 0.1, "TCP speed limit of the xArm and of "
+                "module.path arms [m/s]", c.in_range(1e-4, 1.0), read_only=True),
         c.Param("xarm_connect_timeout_s", 5.0, "xArm unreachable after this long [s]",
                 c.in_range(0.1, 60.0), read_only=True),
-        c.Param("xarm_workspace_min_m", [0.15, -0.45, 0.02], "xArm workspace lower corner [m]",
+        c.Param("xarm_workspace_min_m", [0.15, -0.45, 0.02],
+                "workspace lower corner of the xArm and of module.path arms [m]",
                 c.vector3(allow_empty=True), read_only=True),
-        c.Param("xarm_workspace_max_m", [0.70, 0.45, 0.60], "xArm workspace upper corner [m]",
+        c.Param("xarm_workspace_max_m", [0.70, 0.45, 0.60],
+                "workspace upper corner of the xArm and of module.path arms [m]",
                 c.vector3(allow_empty=True), read_only=True),
         c.Param("control_rate_hz", 100.0, "control loop rate [Hz]", c.in_range(1.0, 250.0),
                 read_only=True),
@@ -81,6 +85,17 @@ def arm_params() -> list:
         c.Param("autostart", True, "configure and activate at start", read_only=True),
         c.Param("exit_when_done", False, "exit once the task has ended", read_only=True),
     ]
+
+
+_ARM_CHOICES = f"one of {', '.join(ARMS)}, or module.path:factory"
+
+
+def _arm(v) -> Optional[str]:
+    try:
+        resolve_arm(str(v))
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 class ControllerNode(LifecycleNode):
@@ -119,12 +134,13 @@ class ControllerNode(LifecycleNode):
         self._started = False
         self.meta: Optional[dict] = None
         self.diag = c.Diagnostics(self, f"aslip: {name}", self.p["arm"])
+        self.arm_kind = resolve_arm(self.p["arm"])
         self.pub_tcp = None
         # One dispatch thread (common._executor): callback groups would change nothing.
         self.create_subscription(SlipVector, self.p["slip_topic"], self._on_slip,
                                  c.RELIABLE_QOS)
         self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS)
-        if self.p["arm"] == "sim":
+        if self.arm_kind.pose_from_topic:
             self.create_subscription(PoseStamped, c.TCP_TOPIC, self._on_tcp, c.SENSOR_QOS)
         else:
             self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
@@ -196,7 +212,7 @@ class ControllerNode(LifecycleNode):
         from aslip_ros.control.arm import ArmError
         from aslip_ros.control.arm_worker import ArmWorker
         try:
-            arm = self._make_arm()
+            arm = self.arm_kind.make(self, self.p)
             arm.connect()
         except (ArmError, ValueError, ImportError, OSError) as exc:
             self.arm_error = f"{type(exc).__name__}: {exc}"
@@ -204,7 +220,7 @@ class ControllerNode(LifecycleNode):
                                     "unconfigured and commands nothing")
             self._diagnose()
             return TransitionCallbackReturn.FAILURE
-        streams = isinstance(arm, TopicArm)
+        streams = self.arm_kind.pose_from_topic
         listen = getattr(arm, "set_pose_listener", None)
         if listen is not None:
             streams = bool(listen(self._on_arm_pose))
@@ -255,16 +271,6 @@ class ControllerNode(LifecycleNode):
         self._release()
 
     # -- internals -----------------------------------------------------------------------------
-
-    def _make_arm(self):
-        if self.p["arm"] == "sim":
-            return TopicArm(self)
-        from aslip_ros.hw.xarm import XArmAdapter, XArmConfig
-        cfg = XArmConfig(ip=self.p["xarm_ip"], max_speed_m_s=self.p["xarm_max_speed_m_s"],
-                         connect_timeout_s=self.p["xarm_connect_timeout_s"],
-                         workspace_min_m=tuple(self.p["xarm_workspace_min_m"]),
-                         workspace_max_m=tuple(self.p["xarm_workspace_max_m"]))
-        return XArmAdapter(cfg)
 
     def post(self, command) -> None:
         """Hand a controller output to the arm thread (never blocks on the arm)."""
@@ -343,7 +349,7 @@ class ControllerNode(LifecycleNode):
         except ValueError:
             return
         arm = self.arm
-        if isinstance(arm, TopicArm):
+        if arm is not None:
             arm.set_pose(pose)
         self._take_pose(pose, now, stamp_ns)
 
@@ -421,8 +427,7 @@ class ControllerNode(LifecycleNode):
         label = state.current_state[1] if state is not None else "?"
         values = {"lifecycle": label, "arm": self.p["arm"], "slip_received": self.slip_count,
                   "slip_rejected": self.rejected_slip}
-        if self.p["arm"] == "xarm":
-            values["xarm_ip"] = self.p["xarm_ip"]
+        values.update(self.arm_kind.describe(self.p))
         with self._lock:
             if self.task is not None:
                 values["task_state"] = self.task.state.value

@@ -1,0 +1,124 @@
+"""The causal streaming slip network: per-frame embedding and a GRU, stepped one hop at a time.
+
+Input: one log-mel frame per 10 ms hop, ``(C, M)`` from ``streaming.StreamingLogMel``,
+normalised per mel bin with the training statistics the model holds. Each frame goes
+through a two-layer embedding (all microphones together: their level differences carry
+the direction) into a GRU whose state is the only memory; the heads read the state and
+give the slip logit and the slip velocity now, ``(vx, vz)`` in units of ``speed_scale``.
+
+Why a GRU and not a cached causal convolution: the measured per-hop cost of one GRU step
+on a 64-wide state is a few small matrix-vector products (tens of microseconds in numpy),
+its memory is unbounded in principle yet trained on 2 s sequences, and a reset is one
+zero vector; a dilated convolution needs a frame cache per layer for the same receptive
+field (docs/streaming.md has the numbers).
+
+``StreamNet.forward`` runs whole sequences (training, offline evaluation); ``GruStepper``
+is the same arithmetic in numpy for one frame at a time (the live path: torch's per-call
+overhead alone exceeds the budget of a hop). Tests hold the two to the same outputs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+
+@dataclass(frozen=True)
+class StreamConfig:
+    """Architecture of the streaming net; stored in the checkpoint's ``model_config``."""
+
+    n_channels: int = 4
+    n_mels: int = 40
+    embed: int = 96
+    hidden: int = 64
+    speed_scale: float = 0.02
+
+    def __post_init__(self) -> None:
+        if min(self.n_channels, self.n_mels, self.embed, self.hidden) < 1:
+            raise ValueError("n_channels, n_mels, embed and hidden must be >= 1")
+        if not self.speed_scale > 0:
+            raise ValueError("speed_scale must be > 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "StreamConfig":
+        return cls(**d)
+
+
+class StreamNet(nn.Module):
+    """``forward(x (B, T, C, M), h0 (1, B, H) or None) -> (logit (B, T), v (B, T, 2), h)``;
+    ``v`` in m/s."""
+
+    def __init__(self, cfg: StreamConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        n_in = cfg.n_channels * cfg.n_mels
+        self.register_buffer("feat_mean", torch.zeros(cfg.n_mels))
+        self.register_buffer("feat_std", torch.ones(cfg.n_mels))
+        self.embed1 = nn.Linear(n_in, cfg.embed)
+        self.embed2 = nn.Linear(cfg.embed, cfg.embed)
+        self.gru = nn.GRU(cfg.embed, cfg.hidden, batch_first=True)
+        self.head = nn.Linear(cfg.hidden, 3)
+
+    def set_normalization(self, mean: np.ndarray, std: np.ndarray) -> None:
+        self.feat_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+        self.feat_std.copy_(torch.as_tensor(std, dtype=torch.float32))
+
+    def forward(self, x: torch.Tensor, h0: torch.Tensor | None = None):
+        b, t = x.shape[:2]
+        z = ((x - self.feat_mean) / self.feat_std).reshape(b, t, -1)
+        z = torch.relu(self.embed2(torch.relu(self.embed1(z))))
+        y, h = self.gru(z, h0)
+        out = self.head(y)
+        return out[..., 0], out[..., 1:] * self.cfg.speed_scale, h
+
+
+class GruStepper:
+    """One frame at a time in numpy, with the weights of a ``StreamNet`` state dict."""
+
+    def __init__(self, cfg: StreamConfig, state: dict[str, torch.Tensor]) -> None:
+        def w(name: str) -> np.ndarray:
+            return state[name].detach().cpu().numpy().astype(np.float32)
+
+        self.cfg = cfg
+        self.inv_std = (1.0 / w("feat_std")).astype(np.float32)
+        self.mean = w("feat_mean")
+        self.w1, self.b1 = np.ascontiguousarray(w("embed1.weight").T), w("embed1.bias")
+        self.w2, self.b2 = np.ascontiguousarray(w("embed2.weight").T), w("embed2.bias")
+        self.w_ih = np.ascontiguousarray(w("gru.weight_ih_l0").T)      # (E, 3H): r, z, n
+        self.w_hh = np.ascontiguousarray(w("gru.weight_hh_l0").T)      # (H, 3H)
+        self.b_ih, self.b_hh = w("gru.bias_ih_l0"), w("gru.bias_hh_l0")
+        self.wh, self.bh = np.ascontiguousarray(w("head.weight").T), w("head.bias")
+        self.h = np.zeros(cfg.hidden, np.float32)
+
+    def reset(self) -> None:
+        self.h = np.zeros(self.cfg.hidden, np.float32)
+
+    def step(self, frame: np.ndarray) -> tuple[float, np.ndarray]:
+        """``frame (C, M)`` raw log-mel -> (p_slip, v (2,) m/s); advances the state."""
+        z = ((frame - self.mean) * self.inv_std).reshape(-1)
+        z = np.maximum(z @ self.w1 + self.b1, 0.0)
+        z = np.maximum(z @ self.w2 + self.b2, 0.0)
+        hsz = self.cfg.hidden
+        gi = z @ self.w_ih + self.b_ih
+        gh = self.h @ self.w_hh + self.b_hh
+        rz = 1.0 / (1.0 + np.exp(-(gi[:2 * hsz] + gh[:2 * hsz])))
+        n = np.tanh(gi[2 * hsz:] + rz[:hsz] * gh[2 * hsz:])
+        self.h = ((1.0 - rz[hsz:]) * n + rz[hsz:] * self.h).astype(np.float32)
+        out = self.h @ self.wh + self.bh
+        p = 1.0 / (1.0 + np.exp(-float(out[0])))
+        return p, out[1:] * np.float32(self.cfg.speed_scale)
+
+
+def offline_outputs(model: StreamNet, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """p_slip ``(T,)`` and v ``(T, 2)`` for one sequence ``(T, C, M)`` from a zero state."""
+    with torch.inference_mode():
+        logit, v, _ = model(torch.from_numpy(np.ascontiguousarray(frames, np.float32))[None])
+    return torch.sigmoid(logit[0]).numpy(), v[0].numpy()

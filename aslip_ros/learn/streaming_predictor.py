@@ -1,0 +1,164 @@
+"""Live streaming slip estimation from an ``aslip_stream`` checkpoint (ROS-free, node-ready).
+
+    p = StreamingPredictor.from_checkpoint("stream.pt")
+    p.check_stream(sample_rate, channel_names)        # CheckpointMismatch (a ValueError)
+    for est in p.push(block):                         # block: AudioData-like (see below)
+        publish(est.stamp_ns, est.prediction)         # one estimate per completed 10 ms hop
+    p.reset()                                         # forget features and state
+
+``push`` takes anything with ``block`` ``(frames, C)`` float32, ``first_sample_index``,
+``frames``, ``stamp_ns``, ``end_stamp_ns`` and ``sample_rate`` (``nodes.convert.AudioData``).
+Continuity is judged by ``stream.StreamGate`` exactly as the window node does: a gap, a
+time jump or a new stream resets the features and the recurrent state (the block that
+revealed it starts the new history); repeated or out-of-order blocks are dropped. Each
+estimate describes the instant of its frame's last sample: ``stamp_ns`` is that sample's
+time on the block clock, and ``Prediction.window_length`` is the frame length (the audio
+the estimate reads directly; the state summarises what came before).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from .checkpoint import Checkpoint, check_compatible, load_checkpoint
+from .features import FeatureConfig
+from .predictor import Prediction
+from .streaming import StreamingLogMel
+from .streaming_model import GruStepper, StreamConfig, StreamNet
+
+DEFAULT_MAX_TIME_JUMP_S = 0.05
+
+
+@dataclass(frozen=True)
+class StreamEstimate:
+    """One hop's estimate and the stream instant it describes."""
+
+    stamp_ns: int
+    sample_index: int           # stream index one past the frame's last sample
+    prediction: Prediction
+
+
+class StreamingPredictor:
+    """Per-hop p(slip) and slip velocity from a stream of audio blocks."""
+
+    def __init__(self, ckpt: Checkpoint, threshold: float | None = None,
+                 max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S) -> None:
+        if ckpt.model_type != "aslip_stream":
+            raise ValueError(f"StreamingPredictor needs an aslip_stream checkpoint, got "
+                             f"{ckpt.model_type!r} (window models use learn.predictor)")
+        from .stream import StreamGate
+        self.checkpoint = ckpt
+        self.feature_config = FeatureConfig.from_dict(ckpt.meta["feature_config"])
+        self.model_config = StreamConfig.from_dict(ckpt.meta["model_config"])
+        net = StreamNet(self.model_config)
+        try:
+            net.load_state_dict(ckpt.tensors)
+        except RuntimeError as exc:
+            raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
+        self.model = net.eval()
+        self.stepper = GruStepper(self.model_config, net.state_dict())
+        self.features = StreamingLogMel(self.feature_config, ckpt.sample_rate,
+                                        len(ckpt.channel_names))
+        self.gate = StreamGate(max_time_jump_s)
+        self.window_s = float(ckpt.meta["window_s"])
+        self.hop_s = float(ckpt.meta["hop_s"])
+        self._threshold = 0.5
+        self.set_threshold(threshold)
+        self._origin: int | None = None        # stream index of the first sample since reset
+        self._origin_ns = 0
+        self.resets = 0
+        self.last_reset_reason = ""
+
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike, threshold: float | None = None,
+                        max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S
+                        ) -> "StreamingPredictor":
+        return cls(load_checkpoint(path), threshold, max_time_jump_s)
+
+    @property
+    def meta(self) -> dict[str, Any]:
+        return self.checkpoint.meta
+
+    @property
+    def sample_rate(self) -> float:
+        return self.checkpoint.sample_rate
+
+    @property
+    def channel_names(self) -> list[str]:
+        return self.checkpoint.channel_names
+
+    @property
+    def threshold(self) -> float:
+        return self._threshold
+
+    def set_threshold(self, threshold: float | None) -> float:
+        """Gate following estimates at ``threshold`` (None: the checkpoint's); ValueError
+        outside [0, 1]."""
+        t = float(self.meta.get("threshold", 0.5)) if threshold is None else float(threshold)
+        if not 0.0 <= t <= 1.0:
+            raise ValueError(f"threshold must be in [0, 1], got {t}")
+        self._threshold = t
+        return t
+
+    def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
+        """CheckpointMismatch unless rate and channel names (in order) match the training."""
+        check_compatible(self.meta, sample_rate, channel_names)
+
+    def reset(self, reason: str = "reset") -> None:
+        """Forget the audio history and the recurrent state."""
+        self.features.reset()
+        self.stepper.reset()
+        self._origin = None
+        self.resets += 1
+        self.last_reset_reason = reason
+
+    def push(self, a) -> list[StreamEstimate]:
+        """Feed one block; the estimates of the hops it completes (empty when the block is
+        dropped as repeated / out of order, or no hop completed)."""
+        x = np.asarray(a.block)
+        if x.ndim != 2 or x.shape[1] != len(self.channel_names) or x.shape[0] != a.frames:
+            raise ValueError(f"block shaped {x.shape} does not match {a.frames} frames of "
+                             f"{len(self.channel_names)} channels")
+        if not np.isfinite(x).all():
+            raise ValueError("audio block contains NaN or Inf")
+        verdict, detail = self.gate.check(a)
+        if verdict in ("repeated", "out_of_order"):
+            return []
+        if verdict != "ok":
+            self.reset(f"{verdict}: {detail}")
+        self.gate.accept(a)
+        if self._origin is None:
+            self._origin, self._origin_ns = int(a.first_sample_index), int(a.stamp_ns)
+        first_frame = self.features.n_frames
+        frames = self.features.push(x)
+        return self._estimates(frames, first_frame, a)
+
+    def _estimates(self, frames: np.ndarray, first_frame: int, a) -> list[StreamEstimate]:
+        out = []
+        ends = self.features.frame_end_samples(np.arange(first_frame,
+                                                         first_frame + frames.shape[0]))
+        # Sample times on the block's clock: the rate the gate holds the stamps to.
+        ns_per = (a.end_stamp_ns - a.stamp_ns) / a.frames if a.frames else 1e9 / a.sample_rate
+        for frame, end in zip(frames, ends):
+            p, v = self.stepper.step(frame)
+            idx = self._origin + int(end)
+            stamp = int(a.stamp_ns + round((idx - 1 - a.first_sample_index) * ns_per))
+            out.append(StreamEstimate(stamp, idx, self._prediction(p, v)))
+        return out
+
+    def _prediction(self, p: float, v: np.ndarray) -> Prediction:
+        t = self._threshold
+        slipping = bool(p >= t)
+        vx, vz = (float(v[0]), float(v[1])) if slipping else (0.0, 0.0)
+        speed = float(np.hypot(vx, vz))
+        d = (vx / speed, vz / speed) if speed > 0 else (0.0, 0.0)
+        return Prediction(float(p), slipping, vx, vz, speed, d, self.window_s, t)
+
+    def offline(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Batched torch forward over ``(T, C, M)`` frames from a zero state: p, raw v."""
+        from .streaming_model import offline_outputs
+        return offline_outputs(self.model, frames)

@@ -1,0 +1,281 @@
+"""Training the streaming estimator (``aslip train --stage stream``).
+
+The dataset is the one ``aslip export`` writes for the window models; the streaming model
+reads each trial's whole audio (frames from ``streaming.stream_logmel``, the live path) and
+its object-relative track (labels from ``streaming_labels.frame_labels``: the smoothed
+slip velocity at each frame's last sample). Splits are by trial with
+``data_io.trial_splits``, so a trial is in the same split for the window models and this
+one. Training draws random 2 s sequences from the training trials, each starting from a
+zero state as the live estimator does after a reset; selection is by the validation loss
+over whole validation trials, with a time budget, and writes a self-describing checkpoint
+(``model_type`` "aslip_stream").
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from .checkpoint import git_revision, save_checkpoint
+from .data_io import WindowSet, open_dataset, trial_splits
+from .features import FeatureConfig
+from .streaming import StreamingLogMel, stream_logmel
+from .streaming_labels import DEFAULT_SMOOTHER, Smoother, frame_labels, load_track
+from .streaming_model import StreamConfig, StreamNet, offline_outputs
+
+MODEL_TYPE = "aslip_stream"
+_DB = math.log(10.0) / 10.0      # +1 dB of power in natural-log mel units
+
+
+@dataclass
+class StreamTrainConfig:
+    epochs: int = 60
+    steps_per_epoch: int = 40
+    batch_size: int = 32
+    seq_frames: int = 200
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    patience: int = 12
+    time_budget_s: float = 300.0
+    seed: int = 0
+    split_seed: int = 0
+    gain_db: float = 6.0
+    channel_gain_db: float = 1.0
+    velocity_weight: float = 1.0
+    threads: int = 1
+    progress: bool = True
+
+
+@dataclass
+class Sequences:
+    """Per-trial frames ``(T, C, M)`` and labels, for one split."""
+
+    trials: list[int]
+    frames: list[np.ndarray]
+    v: list[np.ndarray]
+    slip: list[np.ndarray]
+    valid: list[np.ndarray]
+
+
+def trial_sequences(ds: WindowSet, trials: Sequence[int], channels: Sequence[str],
+                    fcfg: FeatureConfig, smoother: Smoother = DEFAULT_SMOOTHER) -> Sequences:
+    """Frames and per-frame labels of whole trials (trials with audio gaps are skipped:
+    their file joins segments the live estimator would see as a reset)."""
+    cols = ds.channel_indices(channels)
+    out = Sequences([], [], [], [], [])
+    for k in trials:
+        if int(ds.trials[k].get("audio_gaps") or 0):
+            continue
+        audio = np.asarray(ds.audio(k))[:, cols]
+        frames = stream_logmel(audio, fcfg, ds.sample_rate)
+        ends = StreamingLogMel(fcfg, ds.sample_rate, len(cols)).frame_end_samples(
+            np.arange(frames.shape[0]))
+        lab = frame_labels(load_track(ds.root, k), ends, ds.sample_rate, ds.epsilon, smoother)
+        out.trials.append(int(k))
+        out.frames.append(frames)
+        out.v.append(lab["v"])
+        out.slip.append(lab["slip"])
+        out.valid.append(lab["valid"])
+    return out
+
+
+def split_trial_indices(ds: WindowSet, split: str, seed: int = 0) -> list[int]:
+    return [k for k, s in enumerate(trial_splits(ds, seed)) if s == split]
+
+
+def frame_metrics(p: np.ndarray, v: np.ndarray, v_true: np.ndarray, slip: np.ndarray,
+                  valid: np.ndarray, threshold: float = 0.5) -> dict[str, float]:
+    """Per-frame detection and, on true slip frames, direction MAE (deg) and speed RMSE."""
+    p, v, v_true, slip = p[valid], v[valid], v_true[valid], slip[valid]
+    pred = p >= threshold
+    tp = float((pred & slip).sum())
+    out = {"n_frames": int(p.size), "n_slip": int(slip.sum()),
+           "detection_accuracy": float((pred == slip).mean()) if p.size else float("nan"),
+           "precision": tp / max(float(pred.sum()), 1.0),
+           "recall": tp / max(float(slip.sum()), 1.0)}
+    if slip.any():
+        a = np.arctan2(v[slip, 1], v[slip, 0]) - np.arctan2(v_true[slip, 1], v_true[slip, 0])
+        err = np.degrees(np.abs((a + np.pi) % (2 * np.pi) - np.pi))
+        out["direction_mae_deg"] = float(err.mean())
+        d = np.hypot(*v[slip].T) - np.hypot(*v_true[slip].T)
+        out["speed_rmse_mm_s"] = float(np.sqrt((d ** 2).mean()) * 1e3)
+    return out
+
+
+def _batch(seqs: Sequences, cfg: StreamTrainConfig, rng: np.random.Generator,
+           mean: np.ndarray) -> tuple[torch.Tensor, ...]:
+    lens = np.array([f.shape[0] for f in seqs.frames])
+    t = cfg.seq_frames
+    k = rng.choice(len(lens), cfg.batch_size, p=lens / lens.sum())
+    xs, vs, ss, ms = [], [], [], []
+    for j in k:
+        s = int(rng.integers(0, max(1, lens[j] - t)))
+        x = seqs.frames[j][s:s + t].astype(np.float32)
+        # Gain augmentation in log-mel units, as the window models: whole sequence and per
+        # microphone; added to the signal part only (the floor would not move).
+        g = rng.uniform(-cfg.gain_db, cfg.gain_db) * _DB
+        gc = rng.uniform(-cfg.channel_gain_db, cfg.channel_gain_db, x.shape[1]) * _DB
+        xs.append(x + (g + gc).astype(np.float32)[None, :, None])
+        vs.append(seqs.v[j][s:s + t])
+        ss.append(seqs.slip[j][s:s + t])
+        ms.append(seqs.valid[j][s:s + t])
+    n = min(x.shape[0] for x in xs)
+    return tuple(torch.from_numpy(np.stack([a[:n] for a in arr]))
+                 for arr in (xs, vs, ss, ms))
+
+
+def _loss(model: StreamNet, x, v, slip, valid, cfg: StreamTrainConfig) -> torch.Tensor:
+    logit, vp, _ = model(x)
+    m = valid.float()
+    bce = F.binary_cross_entropy_with_logits(logit, slip.float(), reduction="none")
+    scale = model.cfg.speed_scale
+    hub = F.smooth_l1_loss(vp / scale, v / scale, reduction="none").sum(-1)
+    return ((bce + cfg.velocity_weight * hub) * m).sum() / m.sum().clamp(min=1.0)
+
+
+def _validate(model: StreamNet, seqs: Sequences, cfg: StreamTrainConfig):
+    model.eval()
+    losses, outs = [], []
+    with torch.inference_mode():
+        for x, v, s, m in zip(seqs.frames, seqs.v, seqs.slip, seqs.valid):
+            t = [torch.from_numpy(np.ascontiguousarray(a))[None] for a in (x, v, s, m)]
+            losses.append(float(_loss(model, t[0].float(), *t[1:], cfg)) * float(m.sum()))
+            outs.append(offline_outputs(model, x))
+    loss = sum(losses) / max(1.0, float(sum(m.sum() for m in seqs.valid)))
+    p = np.concatenate([o[0] for o in outs])
+    v = np.concatenate([o[1] for o in outs])
+    metrics = frame_metrics(p, v, np.concatenate(seqs.v), np.concatenate(seqs.slip),
+                            np.concatenate(seqs.valid))
+    return loss, metrics
+
+
+def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
+                 feature_config: FeatureConfig | None = None,
+                 model_config: dict[str, Any] | None = None,
+                 channels: Sequence[str] | None = None,
+                 smoother: Smoother = DEFAULT_SMOOTHER,
+                 log: Callable[[str], None] = print) -> tuple[dict, dict, list]:
+    """Train and select; returns ``(meta, tensors, history)`` for ``save_checkpoint``."""
+    torch.set_num_threads(max(1, cfg.threads))
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    channels = list(channels or ds.channel_names)
+    fcfg = feature_config or FeatureConfig()
+    StreamingLogMel(fcfg, ds.sample_rate, len(channels))    # refuses unsupported rates early
+    t0 = time.perf_counter()
+    tr = trial_sequences(ds, split_trial_indices(ds, "train", cfg.split_seed), channels, fcfg,
+                         smoother)
+    va = trial_sequences(ds, split_trial_indices(ds, "val", cfg.split_seed), channels, fcfg,
+                         smoother)
+    if not tr.trials or not va.trials:
+        raise ValueError(f"need training and validation trials, have {len(tr.trials)} and "
+                         f"{len(va.trials)}")
+    t_feat = time.perf_counter() - t0
+    allf = np.concatenate(tr.frames)
+    mean, std = allf.mean(axis=(0, 1)), np.maximum(allf.std(axis=(0, 1)), 1e-3)
+    speeds = np.hypot(*np.concatenate(tr.v)[np.concatenate(tr.slip)].T)
+    mcfg = StreamConfig(n_channels=len(channels), n_mels=fcfg.n_mels,
+                        speed_scale=float(max(np.median(speeds) if speeds.size else 0.02, 1e-3)),
+                        **(model_config or {}))
+    model = StreamNet(mcfg)
+    model.set_normalization(mean, std)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    best = (math.inf, -1, copy.deepcopy(model.state_dict()), {})
+    history: list[dict] = []
+    stop = "max_epochs"
+    t_start = time.perf_counter()
+    for epoch in range(cfg.epochs):
+        model.train()
+        run = 0.0
+        for _ in range(cfg.steps_per_epoch):
+            loss = _loss(model, *_batch(tr, cfg, rng, mean), cfg)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+            opt.step()
+            run += float(loss.detach())
+        val_loss, val_m = _validate(model, va, cfg)
+        history.append({"epoch": epoch, "train_loss": run / cfg.steps_per_epoch,
+                        "val_loss": val_loss, "time_s": time.perf_counter() - t_start})
+        if cfg.progress:
+            log(f"epoch {epoch:3d} train {run / cfg.steps_per_epoch:.4f} val {val_loss:.4f} "
+                f"det {val_m['detection_accuracy']:.3f} "
+                f"dir {val_m.get('direction_mae_deg', float('nan')):.1f} deg")
+        if val_loss < best[0]:
+            best = (val_loss, epoch, copy.deepcopy(model.state_dict()), val_m)
+        elif epoch - best[1] >= cfg.patience:
+            stop = "early_stopping"
+            break
+        if time.perf_counter() - t_start > cfg.time_budget_s:
+            stop = "time_budget"
+            break
+    model.load_state_dict(best[2])
+    model.eval()
+    meta = stream_meta(ds, cfg, mcfg, fcfg, channels, smoother, model)
+    meta["provenance"].update(
+        metrics={"val": best[3], "best_val_loss": best[0]},
+        training={"best_epoch": best[1], "epochs_run": len(history), "stop_reason": stop,
+                  "train_time_s": time.perf_counter() - t_start, "feature_time_s": t_feat,
+                  "train_trials": tr.trials, "val_trials": va.trials})
+    tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    return meta, tensors, history
+
+
+def stream_meta(ds: WindowSet, cfg: StreamTrainConfig, mcfg: StreamConfig,
+                fcfg: FeatureConfig, channels: list[str], smoother: Smoother,
+                model: StreamNet) -> dict[str, Any]:
+    """The checkpoint document: what the model expects and what its outputs mean."""
+    factor = int(round(ds.sample_rate / fcfg.sample_rate))
+    frame_s = fcfg.n_fft / fcfg.sample_rate
+    return {
+        "model_type": MODEL_TYPE, "model_config": mcfg.to_dict(),
+        "feature_config": fcfg.to_dict(),
+        "normalization": {"mean": model.feat_mean.tolist(), "std": model.feat_std.tolist(),
+                          "scope": "per mel bin over training frames and channels"},
+        "channel_names": channels, "layout": ds.layout, "sample_rate": ds.sample_rate,
+        # One frame is the audio an estimate reads directly; the state carries the rest.
+        "window_s": frame_s, "window_samples": fcfg.n_fft * factor,
+        "hop_s": fcfg.hop / fcfg.sample_rate, "epsilon_m_s": ds.epsilon, "threshold": 0.5,
+        "label": {"kind": "slip_velocity_now",
+                  "describes": "the last audio sample of each frame",
+                  "smoother": {"method": "savitzky_golay", **smoother.to_dict()},
+                  "frame": "grasp plane (x, z), m/s"},
+        "train_config": asdict(cfg),
+        "provenance": {"dataset": str(ds.root), "git_revision": git_revision(),
+                       "seed": cfg.seed, "split_seed": cfg.split_seed, "stage": "stream",
+                       "torch": torch.__version__},
+    }
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """``aslip train --stage stream``: the window trainer's arguments, read here."""
+    try:
+        ds = open_dataset(args.dataset)
+        cfg = StreamTrainConfig(
+            epochs=args.epochs, lr=args.lr,
+            weight_decay=args.weight_decay, patience=args.patience, seed=args.seed,
+            split_seed=args.split_seed, gain_db=args.gain_db,
+            channel_gain_db=args.channel_gain_db, threads=args.threads,
+            time_budget_s=args.time_budget, progress=not args.no_progress)
+        fcfg = FeatureConfig(sample_rate=args.feature_rate, n_fft=args.n_fft, hop=args.hop,
+                             n_mels=args.n_mels, fmin=args.fmin, fmax=args.fmax)
+        chans = [c for c in (args.channels or "").split(",") if c] or None
+        meta, tensors, _ = train_stream(ds, cfg, feature_config=fcfg, channels=chans)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"aslip train: error: {exc}", file=sys.stderr)
+        return 1
+    save_checkpoint(args.out, meta, tensors)
+    val = meta["provenance"]["metrics"]["val"]
+    print(f"wrote {args.out}: val frame detection {val.get('detection_accuracy', math.nan):.3f},"
+          f" direction MAE {val.get('direction_mae_deg', math.nan):.1f} deg, "
+          f"speed RMSE {val.get('speed_rmse_mm_s', math.nan):.1f} mm/s")
+    return 0

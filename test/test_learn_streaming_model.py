@@ -1,0 +1,205 @@
+"""Streaming estimator: step == offline, resets on gaps and time jumps, refused mismatches,
+labels from exported tracks, and ``aslip train --stage stream`` end to end."""
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+import torch
+
+from aslip_ros import cli
+from aslip_ros.data.export import export
+from aslip_ros.data.synthetic import write_synthetic_bag
+from aslip_ros.learn.checkpoint import CheckpointMismatch, load_checkpoint, save_checkpoint
+from aslip_ros.learn.data_io import open_dataset
+from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.streaming import stream_logmel
+from aslip_ros.learn.streaming_labels import Smoother, frame_labels, load_track, smooth_velocity
+from aslip_ros.learn.streaming_model import GruStepper, StreamConfig, StreamNet, offline_outputs
+from aslip_ros.learn.streaming_predictor import StreamingPredictor
+
+RATE = 48000.0
+NAMES = ["m0", "m1"]
+
+
+@dataclass
+class Block:
+    first_sample_index: int
+    stamp_ns: int
+    sample_rate: float
+    block: np.ndarray
+
+    @property
+    def frames(self):
+        return int(self.block.shape[0])
+
+    @property
+    def end_stamp_ns(self):
+        return self.stamp_ns + int(round(self.frames * 1e9 / self.sample_rate))
+
+
+def blocks(audio, n=480, start_index=1000, start_ns=5_000_000_000):
+    return [Block(start_index + i, start_ns + int(round(i * 1e9 / RATE)), RATE, audio[i:i + n])
+            for i in range(0, audio.shape[0], n)]
+
+
+def make_checkpoint(path, seed=0, **meta_changes):
+    torch.manual_seed(seed)
+    fcfg = FeatureConfig()
+    cfg = StreamConfig(n_channels=2, n_mels=fcfg.n_mels, embed=16, hidden=8)
+    net = StreamNet(cfg)
+    net.set_normalization(np.full(fcfg.n_mels, -8.0), np.full(fcfg.n_mels, 3.0))
+    meta = {"model_type": "aslip_stream", "model_config": cfg.to_dict(),
+            "feature_config": fcfg.to_dict(), "channel_names": NAMES, "sample_rate": RATE,
+            "window_s": 0.032, "window_samples": 1536, "hop_s": 0.01, "epsilon_m_s": 0.005,
+            "threshold": 0.0, "label": {"kind": "slip_velocity_now"}}
+    meta.update(meta_changes)
+    return save_checkpoint(path, meta, net.state_dict())
+
+
+def audio(n=48000, seed=0):
+    rng = np.random.default_rng(seed)
+    env = 1.0 + np.sin(np.arange(n) / 4000.0)[:, None]
+    return (0.05 * env * rng.standard_normal((n, 2))).astype(np.float32)
+
+
+def outputs(ests):
+    return (np.array([e.prediction.probability for e in ests]),
+            np.array([[e.prediction.vx, e.prediction.vz] for e in ests]))
+
+
+def test_gru_step_equals_the_batched_forward():
+    torch.manual_seed(1)
+    net = StreamNet(StreamConfig(n_channels=3, n_mels=10, embed=12, hidden=7)).eval()
+    x = np.random.default_rng(0).standard_normal((50, 3, 10)).astype(np.float32)
+    p, v = offline_outputs(net, x)
+    step = GruStepper(net.cfg, net.state_dict())
+    got = [step.step(f) for f in x]
+    np.testing.assert_allclose([g[0] for g in got], p, atol=1e-5)
+    np.testing.assert_allclose(np.array([g[1] for g in got]), v, atol=1e-7)
+    step.reset()
+    np.testing.assert_allclose(step.step(x[0])[0], p[0], atol=1e-5)
+
+
+def test_streaming_over_a_recorded_stream_equals_offline(tmp_path):
+    pred = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "s.pt"))
+    a = audio()
+    ests = [e for b in blocks(a, 480) for e in pred.push(b)]
+    p_off, v_off = pred.offline(stream_logmel(a, pred.feature_config, RATE))
+    p, v = outputs(ests)
+    assert p.size == p_off.size == 97
+    np.testing.assert_allclose(p, p_off, atol=1e-5)
+    np.testing.assert_allclose(v, v_off, atol=1e-6)
+    assert len(set(p.round(6))) > 10                 # the outputs do vary with the input
+    # Each estimate describes the last sample of its frame.
+    assert ests[0].sample_index == 1000 + 1536
+    assert ests[1].sample_index - ests[0].sample_index == 480
+    assert ests[0].stamp_ns == 5_000_000_000 + int(round(1535 * 1e9 / RATE))
+    assert ests[0].prediction.window_length == pytest.approx(0.032)
+
+
+@pytest.mark.parametrize("fault", ["gap", "time_jump"])
+def test_a_gap_or_time_jump_resets_the_state(tmp_path, fault):
+    ckpt = make_checkpoint(tmp_path / "s.pt")
+    pred = StreamingPredictor.from_checkpoint(ckpt)
+    a = audio(seed=3)
+    bl = blocks(a, 480)
+    for b in bl[:40]:
+        pred.push(b)
+    rest = bl[41:] if fault == "gap" else [
+        Block(b.first_sample_index, b.stamp_ns + 300_000_000, RATE, b.block) for b in bl[40:]]
+    after = [e for b in rest for e in pred.push(b)]
+    assert pred.resets == 1 and pred.last_reset_reason.startswith(fault)
+    fresh = StreamingPredictor.from_checkpoint(ckpt)
+    want = [e for b in rest for e in fresh.push(b)]
+    assert len(after) == len(want) > 0
+    np.testing.assert_allclose(outputs(after)[0], outputs(want)[0], atol=1e-6)
+    assert after[0].stamp_ns == want[0].stamp_ns
+    # Without the fault the same blocks continue the old state: different outputs.
+    cont = StreamingPredictor.from_checkpoint(ckpt)
+    for b in bl[:40]:
+        cont.push(b)
+    same = [e for b in bl[40:] for e in cont.push(b)]
+    assert cont.resets == 0
+    assert not np.allclose(outputs(same)[0][:5], outputs(want)[0][:5], atol=1e-6)
+
+
+def test_repeated_blocks_are_dropped_without_reset(tmp_path):
+    pred = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "s.pt"))
+    bl = blocks(audio(n=9600), 480)
+    for b in bl[:10]:
+        pred.push(b)
+    assert pred.push(bl[9]) == [] and pred.resets == 0
+
+
+def test_mismatched_streams_and_checkpoints_are_refused(tmp_path):
+    pred = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "s.pt"))
+    pred.check_stream(RATE, NAMES)
+    with pytest.raises(CheckpointMismatch, match="sample rate"):
+        pred.check_stream(44100.0, NAMES)
+    with pytest.raises(CheckpointMismatch, match="channel"):
+        pred.check_stream(RATE, ["m0", "m1", "m2"])
+    with pytest.raises(CheckpointMismatch, match="channel names"):
+        pred.check_stream(RATE, ["m1", "m0"])
+    with pytest.raises(ValueError, match="does not match"):
+        pred.push(Block(0, 0, RATE, np.zeros((480, 3), np.float32)))
+    with pytest.raises(ValueError, match="integer multiple"):
+        make_checkpoint(tmp_path / "b.pt", sample_rate=44100.0, window_samples=1411)
+    with pytest.raises(ValueError, match="label"):
+        make_checkpoint(tmp_path / "c.pt", label={})
+    with pytest.raises(ValueError, match="aslip_stream"):
+        from aslip_ros.learn.checkpoint import Checkpoint
+        StreamingPredictor(Checkpoint(meta={"model_type": "aslip_cnn"}))
+
+
+def test_smoother_recovers_a_ramp_velocity_through_noise():
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 3, 1 / 120.0)
+    v_true = np.where(t > 1.0, 0.03, 0.0)
+    r = np.cumsum(v_true) / 120.0 + rng.normal(0, 2e-4, t.size)
+    tq = np.array([0.5, 2.0, 2.5])
+    v, valid = smooth_velocity(t, r[:, None], tq, Smoother(0.15, 2))
+    assert valid.all()
+    np.testing.assert_allclose(v[:, 0], [0.0, 0.03, 0.03], atol=0.005)
+    raw = np.gradient(r, t)
+    assert np.abs(raw[t > 1.5] - 0.03).mean() > 3 * np.abs(v[1:, 0] - 0.03).mean()
+    t_gap = np.delete(t, np.arange(200, 220))         # 167 ms without poses
+    v2, valid2 = smooth_velocity(t_gap, np.delete(r, np.arange(200, 220))[:, None],
+                                 np.array([1.75, 0.5]))
+    assert list(valid2) == [False, True]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("stream")
+    for i, v in enumerate([(0.02, 0.0, 0.0), (0.0, 0.0, -0.03), (0.0, 0.0, 0.0)] * 3):
+        write_synthetic_bag(root / "bags" / f"t{i}", duration_s=1.5, slip_velocity=v,
+                            seed=i, channel_names=NAMES)
+    export([root / "bags"], root / "ds", window_s=0.2, hop_s=0.1, progress=False)
+    return root / "ds"
+
+
+def test_export_stores_tracks_that_give_the_slip_velocity(dataset):
+    ds = open_dataset(dataset)
+    for k, trial in enumerate(ds.trials):
+        tr = load_track(dataset, k)
+        assert tr.shape[1] == 4 and tr[0, 0] <= 48000 * 0.2
+        lab = frame_labels(tr, np.array([24000, 48000]), 48000.0, 0.005)
+        w = ds.windows[ds.windows["trial"] == k][0]
+        np.testing.assert_allclose(lab["v"][:, 0], w["vx"], atol=2e-3)
+        np.testing.assert_allclose(lab["v"][:, 1], w["vz"], atol=2e-3)
+        assert lab["valid"].all() and (lab["slip"] == bool(w["slip"])).all()
+
+
+def test_aslip_train_stage_stream_writes_a_streaming_checkpoint(dataset, tmp_path):
+    out = tmp_path / "stream.pt"
+    assert cli.main(["train", "--dataset", str(dataset), "--stage", "stream", "--out",
+                     str(out), "--epochs", "2", "--threads", "1", "--no-progress"]) == 0
+    ck = load_checkpoint(out)
+    assert ck.model_type == "aslip_stream" and ck.channel_names == NAMES
+    assert ck.meta["label"]["kind"] == "slip_velocity_now" and ck.meta["hop_s"] == 0.01
+    assert set(ck.meta["provenance"]["training"]["val_trials"]).isdisjoint(
+        ck.meta["provenance"]["training"]["train_trials"])
+    pred = StreamingPredictor.from_checkpoint(out)
+    ests = [e for b in blocks(audio(n=9600)) for e in pred.push(b)]
+    assert len(ests) == 17 and all(np.isfinite(e.prediction.probability) for e in ests)
