@@ -47,7 +47,7 @@ from .losses import LossWeights, slip_loss
 from .network import ModelConfig, SlipNet
 from .svm import SvmConfig, SvmFeaturizer, fit_svm
 
-STAGES = ("pretrain", "finetune", "scratch", "svm")
+STAGES = ("pretrain", "finetune", "scratch", "svm", "stream")
 CALIBRATIONS = ("off",) + METHODS
 _DB_TO_LOG_POWER = math.log(10.0) / 10.0  # +1 dB amplitude-power gain in natural-log power
 
@@ -526,6 +526,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.stage == "stream":     # the causal streaming estimator (learn/train_stream.py)
+        from .train_stream import run_from_args
+        return run_from_args(args)
     try:
         ds = open_dataset(args.dataset)
         if args.window is not None and abs(args.window - ds.window_s) > 1e-9:
