@@ -31,40 +31,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-IDENTITY_POSE = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+from aslip_ros.poses import IDENTITY_POSE, as_pose, compose, invert, quat_ok
+
 DEFAULT_MAX_GAP_S = 0.05
 
 # Per-window reason codes returned with the labels.
 OK, COVERAGE, GAP = 0, 1, 2
 REASONS = {COVERAGE: "label_coverage", GAP: "label_gap"}
-
-
-def as_pose(pose, name: str = "pose") -> np.ndarray:
-    """Validate one pose7 (x y z qx qy qz qw); returns it with a unit quaternion."""
-    p = np.asarray(pose, dtype=np.float64).reshape(-1)
-    if p.size != 7 or not np.all(np.isfinite(p)):
-        raise ValueError(f"{name} must be 7 finite numbers (x y z qx qy qz qw), got {pose!r}")
-    n = np.linalg.norm(p[3:])
-    if n < 1e-9:
-        raise ValueError(f"{name} has a zero quaternion: {pose!r}")
-    p[3:] /= n
-    return p
-
-
-def compose(a, b) -> np.ndarray:
-    """Pose product ``a * b`` (b expressed in a's frame) for pose7 arrays, broadcasting."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    ra, rb = Rotation.from_quat(a[..., 3:]), Rotation.from_quat(b[..., 3:])
-    pos = a[..., :3] + ra.apply(b[..., :3])
-    return np.concatenate([pos, (ra * rb).as_quat()], axis=-1)
-
-
-def invert(pose) -> np.ndarray:
-    """Inverse of pose7 array(s) (``compose(invert(a), a)`` is the identity), broadcasting."""
-    p = np.asarray(pose, dtype=np.float64)
-    r = Rotation.from_quat(p[..., 3:]).inv()
-    return np.concatenate([-r.apply(p[..., :3]), r.as_quat()], axis=-1)
 
 
 def measure_grasp_plane(finger_poses, object_poses, orientation=IDENTITY_POSE[3:],
@@ -88,8 +61,7 @@ def measure_grasp_plane(finger_poses, object_poses, orientation=IDENTITY_POSE[3:
                          f"pairs, got {len(f)}")
     if not (np.isfinite(f).all() and np.isfinite(o).all()):
         raise ValueError("grasp-plane calibration poses contain NaN or Inf")
-    if min(np.linalg.norm(f[:, 3:], axis=1).min(), np.linalg.norm(o[:, 3:], axis=1).min()) \
-            < 1e-9:
+    if not (quat_ok(f).all() and quat_ok(o).all()):
         raise ValueError("grasp-plane calibration poses contain a zero quaternion")
     q = as_pose(np.concatenate([np.zeros(3), np.asarray(orientation, dtype=np.float64)
                                 .reshape(-1)]), "grasp-plane orientation")[3:]
@@ -110,9 +82,9 @@ class PoseTrack:
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
         if t.shape[0] != poses.shape[0]:
             raise ValueError(f"{name}: {t.shape[0]} stamps but {poses.shape[0]} poses")
+        ok = np.isfinite(t) & quat_ok(poses)
+        t, poses = t[ok], poses[ok]
         qn = np.linalg.norm(poses[:, 3:], axis=1)
-        ok = np.isfinite(t) & np.all(np.isfinite(poses), axis=1) & (qn > 1e-9)
-        t, poses, qn = t[ok], poses[ok], qn[ok]
         order = np.argsort(t, kind="stable")
         t, poses, qn = t[order], poses[order], qn[order]
         if t.size:

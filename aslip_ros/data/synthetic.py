@@ -15,14 +15,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from aslip_ros.data.bags import DEFAULT_TOPICS, BagWriter, Topics, make_metadata
-from aslip_ros.data.labels import IDENTITY_POSE, as_pose, compose
+from aslip_ros.poses import IDENTITY_POSE, as_pose, compose, invert
 
 DEFAULT_CHANNELS = ("left_front", "left_rear", "right_front", "right_rear")
-
-
-def _inverse(pose: np.ndarray) -> np.ndarray:
-    r = Rotation.from_quat(pose[3:]).inv()
-    return np.concatenate([-r.apply(pose[:3]), r.as_quat()])
 
 
 def _in_any(t: float, intervals: Iterable[tuple[float, float]]) -> bool:
@@ -60,7 +55,7 @@ def write_synthetic_bag(path: str | os.PathLike, *, duration_s: float = 3.0,
     rg = Rotation.from_quat(g0[3:])
     v_rel = np.asarray(slip_velocity, dtype=np.float64)
     v_finger = np.asarray(finger_velocity, dtype=np.float64)
-    inv_calib = _inverse(calib)
+    inv_calib = invert(calib)
     names = list(channel_names)
     if metadata is True:
         meta = make_metadata(sample_rate=float(sample_rate), channel_names=names,

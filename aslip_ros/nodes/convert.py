@@ -18,7 +18,7 @@ from geometry_msgs.msg import PoseStamped, TwistStamped
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from aslip_ros import frames
+from aslip_ros import frames, poses
 from aslip_ros.msg import AudioFrame, SlipVector
 
 #: Default frame of slip vectors (docs/design.md, "Units and frames").
@@ -234,14 +234,7 @@ def pose_from_msg(msg: PoseStamped) -> tuple:
 
 
 def _pose7(pose7: Sequence[float]) -> np.ndarray:
-    p = np.asarray(pose7, dtype=np.float64).reshape(-1)
-    if p.shape != (7,) or not np.isfinite(p).all():
-        raise ValueError(f"a pose needs 7 finite numbers (x y z qx qy qz qw), got {pose7!r}")
-    n = float(np.linalg.norm(p[3:]))
-    if n < 1e-9:
-        raise ValueError("pose has a zero quaternion")
-    p[3:] /= n
-    return p
+    return poses.as_pose(pose7, "pose")
 
 
 # --------------------------------------------------------------------------------- twist
