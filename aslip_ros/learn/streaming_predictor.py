@@ -40,6 +40,7 @@ class StreamEstimate:
     stamp_ns: int
     sample_index: int           # stream index one past the frame's last sample
     prediction: Prediction
+    raw_velocity: tuple[float, float] = (0.0, 0.0)   # ungated (vx, vz), for evaluation
 
 
 class StreamingPredictor:
@@ -147,7 +148,8 @@ class StreamingPredictor:
             p, v = self.stepper.step(frame)
             idx = self._origin + int(end)
             stamp = int(a.stamp_ns + round((idx - 1 - a.first_sample_index) * ns_per))
-            out.append(StreamEstimate(stamp, idx, self._prediction(p, v)))
+            out.append(StreamEstimate(stamp, idx, self._prediction(p, v),
+                                      (float(v[0]), float(v[1]))))
         return out
 
     def _prediction(self, p: float, v: np.ndarray) -> Prediction:
