@@ -23,6 +23,17 @@ window under-reports slip, so no SlipVector goes out for it: the controllers' st
 watchdogs then hold the arm still. Each such window is counted, a throttled error names
 the channels, and the diagnostics go to ERROR naming them while it lasts.
 
+Per-grasp calibration (a checkpoint with ``calibration``, docs/model.md): every accepted
+block feeds the predictor's calibration state; each hop's window goes to the model with
+the offsets the state had when the window's last block arrived, so the estimate equals the
+offline computation over the same stream. A gap, a time jump or a new stream starts a new
+grasp (the state resets with the window), and so does the ``~/recalibrate`` service
+(std_srvs/Trigger). Until the state has converged, ``direction_sigma`` is
+``UNCONVERGED_DIRECTION_SIGMA`` (pi: the direction may be anywhere); after it, and for
+checkpoints without calibration, -1 (the model gives none). ``/diagnostics`` shows
+``calibration_converged``, ``calibration_accepted_frames``, ``calibration_frames``,
+``calibration_resets`` and ``gain_db_<channel>``.
+
 Timing: the model runs on a thread of its own, never inside the audio callback, so a slow
 forward pass cannot hold up the audio subscription (which would overflow its best-effort
 queue and cost a window restart). When a hop is due the callback copies the newest window
@@ -45,6 +56,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
+from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from aslip_ros.learn.channel_check import DEAD_MARGIN_DB, dead_channels
@@ -60,6 +72,9 @@ from aslip_ros.nodes import convert
 #: backlog is cheap to catch up with (a hop supersedes the waiting one); lost audio is not.
 AUDIO_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                        reliability=c.SENSOR_QOS.reliability, durability=c.SENSOR_QOS.durability)
+
+#: direction_sigma [rad] while the per-grasp calibration has not converged: uninformative.
+UNCONVERGED_DIRECTION_SIGMA = float(np.pi)
 
 DROP_REASONS = ("no_channels", "bad_rate", "empty", "ragged", "non_finite", "out_of_range",
                 "channels", "sample_rate", "repeated", "out_of_order", "time_jump")
@@ -130,7 +145,7 @@ class SlipInference(Node):
         # Double buffer between the audio callback and the inference thread, allocated once.
         self._back = np.zeros((pr.window_samples, pr.n_channels), np.float32)
         self._front = np.zeros_like(self._back)
-        self._job: Optional[tuple] = None        # (end stamp ns, t_in) of the back buffer
+        self._job: Optional[tuple] = None        # (end stamp ns, t_in, calibration) of _back
         self._wake = threading.Condition(threading.Lock())
         self._stop = False
 
@@ -152,9 +167,12 @@ class SlipInference(Node):
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(self.p["diagnostics_period_s"], self._diagnose,
                           callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(Trigger, "~/recalibrate", self._on_recalibrate,
+                            callback_group=MutuallyExclusiveCallbackGroup())
         c.ready(self, f"{self.source} model, {pr.n_channels} channels "
                       f"{pr.channel_names} at {pr.sample_rate:g} Hz, window "
-                      f"{pr.window_s * 1e3:.0f} ms, hop {self.hop_frames} frames")
+                      f"{pr.window_s * 1e3:.0f} ms, hop {self.hop_frames} frames, "
+                      f"calibration {pr.calibration.method if pr.calibrated else 'none'}")
 
     # -- parameters -------------------------------------------------------------------------
 
@@ -177,6 +195,22 @@ class SlipInference(Node):
 
     def _on_metadata(self, msg: String) -> None:
         self.get_logger().debug(f"metadata: {msg.data[:200]}")
+
+    def _on_recalibrate(self, request, response):
+        """``~/recalibrate``: a new grasp; the calibration starts again from zero gain."""
+        with self._lock:
+            self.predictor.reset_calibration()
+        response.success = self.predictor.calibrated
+        response.message = "calibration reset" if response.success else \
+            "the checkpoint has no per-grasp calibration"
+        self.get_logger().info(f"~/recalibrate: {response.message}")
+        return response
+
+    def _restart_window(self) -> None:
+        """The stream is not continuous here: a new window, and a new grasp to calibrate."""
+        self.ring.reset()
+        self.predictor.reset_calibration()
+        self._since_hop = 0
 
     def _drop(self, reason: str, detail: str) -> None:
         self.drops[reason] += 1
@@ -220,8 +254,7 @@ class SlipInference(Node):
             # Re-anchor on this frame so a real clock step costs one window, not the stream.
             self._drop(verdict, detail)
             self.gate.accept(a)
-            self.ring.reset()
-            self._since_hop = 0
+            self._restart_window()
             return
         if verdict == "new_stream":
             # A restarted or re-numbered source: its blocks are good audio, only the old
@@ -229,19 +262,18 @@ class SlipInference(Node):
             self.stream_restarts += 1
             self.get_logger().warning(f"new audio stream: {detail}; window restarts",
                                       throttle_duration_sec=1.0)
-            self.ring.reset()
-            self._since_hop = 0
+            self._restart_window()
         if verdict == "gap":
             self.gaps += 1
             self.frames_lost += a.first_sample_index - self.gate.next_index
             self.get_logger().warning(f"audio gap: {detail}; window restarts",
                                       throttle_duration_sec=1.0)
-            self.ring.reset()
-            self._since_hop = 0
+            self._restart_window()
         self.gate.accept(a)
         self.blocks_ok += 1
         self.refusal = ""
         self.ring.push(a.block)
+        pr.push_audio(a.block)
         self._since_hop += a.frames
         if self.ring.filled < self.ring.length or self._since_hop < self.hop_frames:
             return
@@ -251,7 +283,9 @@ class SlipInference(Node):
             np.copyto(self._back, self.ring.window())
             if self._job is not None:
                 self.hops_superseded += 1
-            self._job = (a.end_stamp_ns, t_in)
+            # The calibration as of this window's end, whenever the model gets to it.
+            self._job = (a.end_stamp_ns, t_in, pr.calibration_offsets(),
+                         pr.calibration_converged)
             self._wake.notify()
 
     def _infer_loop(self) -> None:
@@ -263,7 +297,7 @@ class SlipInference(Node):
                     self._wake.wait(0.5)
                 if self._stop:
                     return
-                stamp_ns, t_in = self._job
+                stamp_ns, t_in, offsets, converged = self._job
                 self._job = None
                 self._back, self._front = self._front, self._back
             try:
@@ -274,10 +308,8 @@ class SlipInference(Node):
                 if dead:
                     self._withhold(dead)
                     continue
-                pred = pr.predict(self._front)
                 try:
-                    out = convert.prediction_to_slip(pred, stamp_ns, self.source,
-                                                     self.p["frame_id"])
+                    out = self._estimate(self._front, stamp_ns, offsets, converged)
                 except ValueError as exc:
                     with self._lock:
                         self._drop("bad_estimate", str(exc))
@@ -296,6 +328,15 @@ class SlipInference(Node):
                     self.drops["internal_error"] += 1
                 self.get_logger().error(f"inference failed: {self.last_error}",
                                         throttle_duration_sec=1.0)
+
+    def _estimate(self, window: np.ndarray, stamp_ns: int, offsets: Optional[np.ndarray],
+                  converged: bool):
+        """One hop: the window (and its calibration) through the model, as a SlipVector."""
+        pred = self.predictor.predict(window, offsets)
+        sigma = UNCONVERGED_DIRECTION_SIGMA if offsets is not None and not converged else -1.0
+        return convert.slip_to_msg(pred.vx, pred.vz, pred.probability, pred.slipping,
+                                   pred.threshold, stamp_ns, pred.window_length, self.source,
+                                   self.p["frame_id"], direction_sigma=sigma)
 
     def _withhold(self, dead: list) -> None:
         """A window with dead channels: counted, reported, no estimate published."""
@@ -337,6 +378,11 @@ class SlipInference(Node):
             names = self.predictor.channel_names
             dead = [n for n in names if n in self.dead_recent]
             self.dead_recent.clear()
+            cal = self.predictor.calibration_summary()
+        if cal is not None:
+            gains = cal.pop("gain_db")
+            values.update(cal)
+            values.update({f"gain_db_{n}": g for n, g in gains.items()})
         values["dead_channels"] = ",".join(dead)
         recent = [t for t in arr if t > time.monotonic() - 2.0]
         values["input_rate_hz"] = (len(recent) - 1) / (recent[-1] - recent[0]) \

@@ -1,0 +1,234 @@
+"""slip_inference with a per-grasp calibrated checkpoint, as a separate process.
+
+Streaming equals offline over the same stream; the state resets on a gap, a new stream and
+``~/recalibrate``; a checkpoint whose calibration cannot fit its stream is refused.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+
+from test_nodes_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint
+
+pytestmark = pytest.mark.ros
+
+SLIP = "/aslip/slip"
+DIAG = "/aslip/diagnostics"
+RATE, BLOCK = 48000.0, 480
+GAINS = np.array([2.0, 1.0, 0.5, 1.4])             # per-microphone coupling of the test grasp
+
+
+def constants(names=SCENE_NAMES, **kw):
+    """Permissive constants: every frame above -100 counts as background."""
+    from aslip_ros.learn.calibration import CalibrationConstants
+    m = 16                                          # make_checkpoint's n_mels
+    d = dict(channel_names=tuple(names), n_mels=m, hop_s=0.01, gate_mean=(0.0,) * m,
+             gate_std=(1.0,) * m, gate_coef=(0.0,) * m, gate_bias=-5.0, floor_level=-100.0,
+             ref_offset=(0.0,) * len(names), prior_frames=5.0, converge_frames=60)
+    d.update(kw)
+    return CalibrationConstants(**d)
+
+
+def calibrated_checkpoint(path, k=None, sample_rate=RATE):
+    """make_checkpoint's untrained CNN (its answer depends on the audio) plus ``k``, written
+    without the save path's validation (so a mismatched one can be written too)."""
+    import json
+
+    import torch
+    plain = make_checkpoint(path.with_suffix(".plain.pt"), sample_rate=sample_rate)
+    payload = torch.load(plain, weights_only=True)
+    meta = json.loads(payload["meta"])
+    meta["calibration"] = json.loads(json.dumps((k or constants()).to_dict()))
+    payload["meta"] = json.dumps(meta)
+    torch.save(payload, path)
+    return path
+
+
+def stream_audio(n_blocks, seed=0):
+    rng = np.random.default_rng(seed)
+    a = 0.01 * rng.standard_normal((n_blocks * BLOCK, len(SCENE_NAMES)))
+    # Bursts on one channel at a time, so the model's answer moves from window to window.
+    burst = np.repeat(rng.integers(0, 4, n_blocks // 5 + 1), 5 * BLOCK)[:a.shape[0]]
+    a[np.arange(a.shape[0]), burst] *= 3.0
+    return (a * GAINS).astype(np.float32)
+
+
+class Stream:
+    def __init__(self, bus, pub, index=0, stamp_ns=1_000_000_000_000) -> None:
+        self.bus, self.pub = bus, pub
+        self.index, self.stamp_ns = index, stamp_ns
+
+    def feed(self, audio) -> None:
+        from aslip_ros.nodes import convert
+        for s in range(0, audio.shape[0], BLOCK):
+            self.pub.publish(convert.audio_to_msg(self.index, self.stamp_ns, RATE, SCENE_NAMES,
+                                                  audio[s:s + BLOCK], "4mic"))
+            self.index += BLOCK
+            self.stamp_ns += int(BLOCK / RATE * 1e9)
+            time.sleep(0.003)
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    import rclpy
+    from domain_coordinator import domain_id
+    from rclpy.context import Context
+    from std_msgs.msg import String
+
+    from aslip_ros.msg import AudioFrame, SlipVector
+    from aslip_ros.nodes import common as c
+    ckpt = calibrated_checkpoint(tmp_path_factory.mktemp("cal") / "cal.pt")
+    with domain_id() as did:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                   PYTHONUNBUFFERED="1")
+        ctx = Context()
+        rclpy.init(context=ctx, domain_id=did)
+        bus = Bus(ctx)
+        bus.listen(SlipVector, SLIP, c.RELIABLE_QOS)
+        bus.listen(String, DIAG, c.RELIABLE_QOS)
+        pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+        proc = NodeProcess("slip_inference", env, {"checkpoint": str(ckpt), "threshold": 0.0,
+                                                   "diagnostics_period_s": 0.1})
+        try:
+            proc.wait_ready()
+            assert bus.wait(lambda: pub.get_subscription_count() > 0, 10)
+            yield bus, Stream(bus, pub), proc, ckpt
+        finally:
+            proc.stop()
+            bus.close()
+            rclpy.try_shutdown(context=ctx)
+
+
+def _stamp_ns(m) -> int:
+    return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+
+
+def _diag(bus, predicate=lambda v: True, timeout=20.0):
+    """The newest diagnostics values that satisfy ``predicate`` (None if none in time)."""
+    found = []
+
+    def ok():
+        docs = bus.diagnostics("slip_inference")
+        if docs and predicate(docs[-1]["values"]):
+            found.append(docs[-1]["values"])
+            return True
+        return False
+    return found[-1] if bus.wait(ok, timeout) else None
+
+
+def test_streaming_calibration_in_the_node_equals_offline(live):
+    """Every published estimate equals the offline computation over the same stream:
+    the window ending at its stamp, with the offsets of the frames complete by then."""
+    from aslip_ros.learn.calibration import CalibrationState
+    from aslip_ros.learn.calibration_frames import FrameCutter, window_offsets
+    from aslip_ros.learn.predictor import Predictor
+    bus, stream, proc, ckpt = live
+    audio = stream_audio(150)
+    t0 = stream.stamp_ns
+    stream.feed(audio)
+    end = stream.stamp_ns
+    assert bus.wait(lambda: any(_stamp_ns(m) == end for m in bus.messages(SLIP)), 20), \
+        proc.output[-3000:]
+    total = FrameCutter(Predictor.from_checkpoint(ckpt).feature_config, RATE).count(
+        audio.shape[0])
+    values = _diag(bus, lambda v: v["calibration_frames"] == total)
+    assert values is not None, proc.output[-3000:]
+    assert values["gaps"] == 0 and values["blocks_accepted"] == 150, values
+
+    p = Predictor.from_checkpoint(ckpt, threshold=0.0)
+    k = p.calibration
+    cutter = FrameCutter(p.feature_config, RATE)
+    frames = cutter.frames(audio)
+    msgs = [m for m in bus.messages(SLIP) if t0 < _stamp_ns(m) <= end]
+    assert len(msgs) >= 20                     # superseded hops are skipped, not wrong
+    ends = np.array([round((_stamp_ns(m) - t0) * RATE / 1e9) for m in msgs])
+    offs = window_offsets(frames, ends, cutter, k)
+    assert np.abs(offs[-1]).max() > 0.5        # the calibration moves the features
+    sigmas, moved = set(), 0.0
+    for m, e, off in zip(msgs, ends, offs):
+        want = p.predict(audio[e - p.window_samples:e], off)
+        raw = p.predict(audio[e - p.window_samples:e])
+        assert m.probability == pytest.approx(want.probability, abs=1e-5)
+        assert (m.velocity.x, m.velocity.z) == pytest.approx((want.vx, want.vz), abs=1e-6)
+        moved = max(moved, abs(want.vx - raw.vx), abs(want.vz - raw.vz))
+        state = CalibrationState(k)
+        state.update(frames[:, :, :cutter.count(e)])
+        want_sigma = math.pi if not state.converged else -1.0
+        assert m.direction_sigma == pytest.approx(want_sigma, abs=1e-6)
+        sigmas.add(round(m.direction_sigma, 3))
+    assert sigmas == {round(math.pi, 3), -1.0}          # both before and after convergence
+    assert moved > 1e-4                  # the uncalibrated answer would have differed
+    final = CalibrationState(k)
+    final.update(frames)
+    for name, g in zip(SCENE_NAMES, final.gain_db):
+        assert values[f"gain_db_{name}"] == pytest.approx(g, abs=1e-3)
+    assert values["calibration_converged"] is True
+    assert values["calibration_accepted_frames"] == total
+
+
+def test_calibration_resets_on_gap_restart_and_service(live):
+    from std_srvs.srv import Trigger
+    bus, stream, proc, _ = live
+    stream.feed(stream_audio(20, seed=1))
+    before = _diag(bus, lambda v: v["calibration_frames"] >= 17)
+    assert before is not None, proc.output[-3000:]
+    n = before["calibration_resets"]
+    after_five = 4                          # frames complete after 5 blocks: (2400-768)//480+1
+
+    stream.index += 4800                    # a gap: ten blocks lost upstream
+    stream.stamp_ns += 100_000_000
+    stream.feed(stream_audio(5, seed=2))
+    v = _diag(bus, lambda v: v["calibration_resets"] == n + 1
+              and v["calibration_frames"] == after_five)
+    assert v is not None and v["gaps"] > before["gaps"], proc.output[-3000:]
+    assert v["calibration_converged"] is False
+
+    stream.feed(stream_audio(20, seed=3))
+    assert _diag(bus, lambda v: v["calibration_frames"] >= 17) is not None
+    stream.index = 0                        # the source restarted its sample counter
+    stream.feed(stream_audio(5, seed=4))
+    v = _diag(bus, lambda v: v["calibration_resets"] == n + 2
+              and v["calibration_frames"] == after_five)
+    assert v is not None and v["stream_restarts"] >= 1, proc.output[-3000:]
+
+    cli = bus.node.create_client(Trigger, "/slip_inference/recalibrate")
+    assert cli.wait_for_service(timeout_sec=10)
+    fut = cli.call_async(Trigger.Request())
+    assert bus.wait(fut.done, 10)
+    assert fut.result().success and "reset" in fut.result().message
+    v = _diag(bus, lambda v: v["calibration_resets"] == n + 3)
+    assert v is not None and v["calibration_frames"] == 0
+    assert v["calibration_accepted_frames"] == 0
+    assert all(v[f"gain_db_{name}"] == 0.0 for name in SCENE_NAMES)
+
+
+def _refused(ros_env, ckpt):
+    proc = NodeProcess("slip_inference", ros_env, {"checkpoint": str(ckpt)})
+    try:
+        code = proc.proc.wait(60)
+    finally:
+        out = proc.stop()
+    return code, out
+
+
+def test_calibration_for_another_stream_is_refused_at_start(ros_env, tmp_path):
+    """Constants fitted for other microphones: refused with exit 2, naming the problem."""
+    ckpt = calibrated_checkpoint(tmp_path / "other.pt",
+                                 constants(names=["a", "b", "c", "d"]))
+    code, out = _refused(ros_env, ckpt)
+    assert code == 2, out
+    assert "refused to start" in out and "calibration" in out and "Traceback" not in out, out
+
+
+def test_calibration_that_cannot_follow_the_stream_rate_is_refused(ros_env, tmp_path):
+    """A 22.05 kHz checkpoint: the 10 ms feature hop is no whole number of its samples, so
+    its stream cannot be cut into the calibration's frames."""
+    ckpt = calibrated_checkpoint(tmp_path / "odd.pt", sample_rate=22050.0)
+    code, out = _refused(ros_env, ckpt)
+    assert code == 2, out
+    assert "refused to start" in out and "whole number" in out and "Traceback" not in out, out
