@@ -259,3 +259,41 @@ def test_unwritable_output_is_one_error_line(tmp_path, capsys):
                    "--no-progress"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(err) == 1 and str(blocker / "ds") in err[0], err
+
+
+@pytest.mark.parametrize("bad, reason", [(np.nan, "non_finite"), (7.0, "out_of_range")])
+def test_a_block_the_node_refuses_is_refused_offline_too(tmp_path, monkeypatch, bad, reason):
+    """A corrupt AudioFrame (NaN, or beyond full scale) in a bag: the exporter refuses that
+    block with the live node's own check, exactly as if it had not been recorded (its
+    windows are audio gaps), and says so; it never reaches the dataset."""
+    from aslip_ros.audio_frame import AudioFrameError, decode_audio_frame
+    original = bags.BagWriter.write_audio
+    corrupt = {"mode": "corrupt"}
+
+    def write_audio(self, t, first_sample_index, block, *args, **kwargs):
+        if first_sample_index == 48000:
+            if corrupt["mode"] == "skip":
+                return
+            block = np.array(block, copy=True)
+            block[10, 1] = bad
+        return original(self, t, first_sample_index, block, *args, **kwargs)
+
+    monkeypatch.setattr(bags.BagWriter, "write_audio", write_audio)
+    write_synthetic_bag(tmp_path / "bad", duration_s=2.0)
+    corrupt["mode"] = "skip"
+    write_synthetic_bag(tmp_path / "missing", duration_s=2.0)
+    with bags.BagReader(tmp_path / "bad") as r:
+        msg = next(m.msg for m in r.messages(["/aslip/audio"])
+                   if m.msg.first_sample_index == 48000)
+    with pytest.raises(AudioFrameError) as info:       # what the node's decode says
+        decode_audio_frame(msg)
+    assert info.value.reason == reason
+    s_bad = export([tmp_path / "bad"], tmp_path / "ds_bad", progress=False)
+    s_ref = export([tmp_path / "missing"], tmp_path / "ds_ref", progress=False)
+    assert s_bad.dropped == s_ref.dropped and s_bad.dropped["audio_gap"] > 0
+    assert s_bad.bags[0].refused_blocks == {reason: 1}
+    assert any(reason in w and "refused" in w for w in s_bad.warnings), s_bad.warnings
+    bad, ref = Dataset(tmp_path / "ds_bad"), Dataset(tmp_path / "ds_ref")
+    np.testing.assert_array_equal(np.asarray(bad.windows), np.asarray(ref.windows))
+    audio = np.load(tmp_path / "ds_bad" / "audio" / "0.npy")
+    assert np.isfinite(audio).all() and np.abs(audio).max() <= 1.0

@@ -30,6 +30,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
+from aslip_ros import frames, topics
 
 PACKAGE = "aslip_ros"
 AUDIO_TYPE = "aslip_ros/msg/AudioFrame"
@@ -43,20 +44,20 @@ METADATA_VERSION = 1
 
 @dataclass(frozen=True)
 class Topics:
-    """Topic names of the recording contract (docs/design.md); override per deployment."""
+    """Topic names of the recording contract (aslip_ros/topics.py); override per deployment."""
 
-    audio: str = "/aslip/audio"
-    finger: str = "/aslip/mocap/finger"
-    object: str = "/aslip/mocap/object"
-    tcp: str = "/aslip/robot/tcp_pose"
-    metadata: str = "/aslip/metadata"
-    slip_truth: str = "/aslip/slip_truth"
+    audio: str = topics.AUDIO
+    finger: str = topics.FINGER
+    object: str = topics.OBJECT
+    tcp: str = topics.TCP
+    metadata: str = topics.METADATA
+    slip_truth: str = topics.SLIP_TRUTH
 
 
 DEFAULT_TOPICS = Topics()
 
-# Frames each pose topic is expressed in (REP 105 names used throughout the project).
-POSE_FRAMES = {"finger": "world", "object": "world", "tcp": "link_base"}
+# Frames each pose topic is expressed in (aslip_ros/frames.py).
+POSE_FRAMES = {"finger": frames.WORLD, "object": frames.WORLD, "tcp": frames.BASE}
 
 
 def _qos(kind: str):

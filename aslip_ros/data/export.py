@@ -38,23 +38,21 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from aslip_ros.audio_frame import AudioFrameError, decode_audio_frame
 from aslip_ros.data.bags import (AUDIO_TYPE, DEFAULT_TOPICS, POSE_TYPE, BagDamaged,
                                  BagError, BagReader, Topics, find_bags, stamp_to_ns)
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
 from aslip_ros.data.export_bench import measure_export_speed  # noqa: F401 (public name)
-from aslip_ros.data.labels import (DEFAULT_MAX_GAP_S, IDENTITY_POSE, OK, REASONS,
-                                   PoseTrack, mocap_window_velocity, robot_window_velocity)
+from aslip_ros.data.labels import (DEFAULT_EPSILON_M_S, DEFAULT_HOP_S, DEFAULT_MAX_GAP_S,
+                                   DEFAULT_WINDOW_S, IDENTITY_POSE, OK, REASONS, PoseTrack,
+                                   mocap_window_velocity, robot_window_velocity)
 from aslip_ros.learn.streaming_labels import export_track, write_track
 
-DEFAULT_WINDOW_S = 0.2
-DEFAULT_HOP_S = 0.1
-# 5 mm/s = 1 mm of slip per 200 ms window: several times the velocity noise of
-# sub-millimetre motion capture differenced over a window (about 1-3 mm/s), and the size
-# of the paper's magnitude error, so "slip" means motion the sensor can be asked to see.
-DEFAULT_EPSILON_M_S = 0.005
 LABEL_SOURCES = ("auto", "mocap", "robot")
 UNKNOWN = "unknown"
 DROP_REASONS = ("audio_gap",) + tuple(REASONS.values())
+#: Defects of one AudioFrame that cost that block (as in the live node), not the bag.
+REFUSED_BLOCKS = ("non_finite", "out_of_range", "empty")
 
 
 @dataclass(frozen=True)
@@ -95,6 +93,7 @@ class BagResult:
     audio_s: float = 0.0
     kept: int = 0
     dropped: dict = field(default_factory=dict)
+    refused_blocks: dict = field(default_factory=dict)
     error: str = ""
 
 
@@ -242,6 +241,7 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
     seg_file: list[int] = []       # its offset in the trial's audio file
     seg_len: list[int] = []
     expected = None
+    refused: Counter = Counter()   # AudioFrames refused, by reason
     # Compact per-topic buffers (stamp, log time, pose7) sized from the bag's index, so a
     # long recording costs 72 bytes per pose rather than a Python object per value.
     poses = {t: _PoseBuffer(reader.info.counts.get(t, 0)) for t in label_topics}
@@ -272,12 +272,16 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
             elif float(msg.sample_rate) != sample_rate or tuple(msg.channel_names) != names:
                 raise BagError(f"bag {path}: sample rate or channel names change within the "
                                f"audio stream at first_sample_index {msg.first_sample_index}")
-            data = msg.data
-            c = len(names)
-            if data.size % c:
-                raise BagError(f"bag {path}: AudioFrame with {data.size} samples is not a "
-                               f"whole number of {c}-channel frames")
-            frames = data.size // c
+            try:
+                block = decode_audio_frame(msg).block
+            except AudioFrameError as exc:
+                if exc.reason not in REFUSED_BLOCKS:
+                    raise BagError(f"bag {path}: {exc} (first_sample_index "
+                                   f"{msg.first_sample_index})") from None
+                # Refused like the live node refuses it: left out, so the windows over it
+                # are dropped as an audio gap.
+                refused[exc.reason] += 1
+                continue
             idx = int(msg.first_sample_index)
             if expected is None or idx > expected:
                 seg_start.append(idx)
@@ -286,9 +290,9 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
             elif idx < expected:
                 raise BagError(f"bag {path}: audio first_sample_index goes back from "
                                f"{expected} to {idx} (restarted capture?); split the bag")
-            audio.append(data.reshape(frames, c))
-            seg_len[-1] += frames
-            expected = idx + frames
+            audio.append(block)
+            seg_len[-1] += block.shape[0]
+            expected = idx + block.shape[0]
             blk_idx.append(idx)
             blk_ns.append(stamp_to_ns(msg.header.stamp))
             blk_log.append(m.log_ns)
@@ -301,6 +305,9 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
     bar.update(pending / n_msgs)
     if audio is None:
         raise BagError(f"bag {path}: no messages on audio topic {topics.audio}")
+    if not blk_idx:
+        raise BagError(f"bag {path}: every AudioFrame was refused ({dict(refused)})")
+    res.refused_blocks = dict(refused)
     for t, buf in poses.items():
         if buf.n < 2:
             raise BagError(f"bag {path}: topic {t} has {buf.n} message(s); labels from "
@@ -461,6 +468,11 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
                     raise
                 summary.bags.append(BagResult(bag=str(p), error=str(exc)))
                 continue
+            if res.refused_blocks:
+                summary.warnings.append(
+                    f"bag {p}: {sum(res.refused_blocks.values())} AudioFrame(s) refused "
+                    f"({', '.join(f'{k} {v}' for k, v in res.refused_blocks.items())}); "
+                    "their windows are dropped as audio gaps")
             info = trial["info"]
             tid = str(meta.get("trial_id") or _bag_name(p))
             ids[tid] += 1

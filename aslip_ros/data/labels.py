@@ -34,6 +34,13 @@ from scipy.spatial.transform import Rotation, Slerp
 from aslip_ros.poses import IDENTITY_POSE, as_pose, compose, invert, quat_ok
 
 DEFAULT_MAX_GAP_S = 0.05
+#: The label window and its hop [s]: the exporter's grid and mocap_bridge's live truth.
+DEFAULT_WINDOW_S = 0.2
+DEFAULT_HOP_S = 0.1
+# 5 mm/s = 1 mm of slip per 200 ms window: several times the velocity noise of
+# sub-millimetre motion capture differenced over a window (about 1-3 mm/s), and the size
+# of the paper's magnitude error, so "slip" means motion the sensor can be asked to see.
+DEFAULT_EPSILON_M_S = 0.005
 
 # Per-window reason codes returned with the labels.
 OK, COVERAGE, GAP = 0, 1, 2

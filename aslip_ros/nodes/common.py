@@ -29,6 +29,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
+from aslip_ros import topics
 # Parameter specs and validators live in params.py; the nodes use them as c.<name>.
 from aslip_ros.nodes.params import (Param, Rule, Validator, at_least, descriptor,  # noqa: F401
                                     in_range, int_range, non_empty, non_negative, off_or,
@@ -53,17 +54,18 @@ MARKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                         durability=DurabilityPolicy.VOLATILE)
 
 # --------------------------------------------------------------------------------- topics
-AUDIO_TOPIC = "/aslip/audio"
-FINGER_TOPIC = "/aslip/mocap/finger"
-OBJECT_TOPIC = "/aslip/mocap/object"
-TCP_TOPIC = "/aslip/robot/tcp_pose"
-METADATA_TOPIC = "/aslip/metadata"
-SLIP_TOPIC = "/aslip/slip"
-SLIP_TRUTH_TOPIC = "/aslip/slip_truth"
-MARKER_TOPIC = "/aslip/slip_marker"
-CMD_VEL_TOPIC = "/aslip/arm/cmd_vel"
-DIAG_TOPIC = "/diagnostics"
-DIAG_JSON_TOPIC = "/aslip/diagnostics"
+# The names are defined in aslip_ros/topics.py; the nodes use them as c.<NAME>_TOPIC.
+AUDIO_TOPIC = topics.AUDIO
+FINGER_TOPIC = topics.FINGER
+OBJECT_TOPIC = topics.OBJECT
+TCP_TOPIC = topics.TCP
+METADATA_TOPIC = topics.METADATA
+SLIP_TOPIC = topics.SLIP
+SLIP_TRUTH_TOPIC = topics.SLIP_TRUTH
+MARKER_TOPIC = topics.MARKER
+CMD_VEL_TOPIC = topics.CMD_VEL
+DIAG_TOPIC = topics.DIAGNOSTICS
+DIAG_JSON_TOPIC = topics.DIAGNOSTICS_JSON
 
 #: Exit code of a node refused at start (invalid parameters, unusable configuration).
 EXIT_CONFIG = 2

@@ -39,13 +39,14 @@ from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import String
 
+from aslip_ros import frames, poses
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, ArrivalStats
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.arms import ARMS, resolve_arm
 
-IDENTITY = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+IDENTITY = [float(x) for x in poses.IDENTITY_POSE]
 
 
 def arm_params() -> list:
@@ -357,7 +358,7 @@ class ControllerNode(LifecycleNode):
         """A pose measured by the arm itself (report stream or poll), stamped when taken."""
         pub = self.pub_tcp
         if pub is not None:
-            pub.publish(convert.pose_to_msg(pose, stamp_ns, "link_base"))
+            pub.publish(convert.pose_to_msg(pose, stamp_ns, frames.BASE))
         self._take_pose(pose, now, stamp_ns)
 
     def _take_pose(self, pose, now: float, stamp_ns: int) -> None:

@@ -19,31 +19,18 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from aslip_ros import frames, poses
+# The decoding itself is ROS-free (the exporter uses it too); its names are part of this API.
+from aslip_ros.audio_frame import (FULL_SCALE, NS_PER_S, AudioData,  # noqa: F401
+                                   AudioFrameError, decode_audio_frame, stamp_to_ns)
 from aslip_ros.msg import AudioFrame, SlipVector
 
 #: Default frame of slip vectors (docs/design.md, "Units and frames").
 GRASP_FRAME = frames.GRASP_PLANE
 #: Default frame of audio blocks.
 SENSOR_FRAME = frames.GRIPPER
-NS_PER_S = 1_000_000_000
-#: Audio samples are float in full-scale units: a converter cannot deliver more than this.
-FULL_SCALE = 1.0
-
-
-class AudioFrameError(ValueError):
-    """An AudioFrame that cannot be turned into a block; ``reason`` names the defect."""
-
-    def __init__(self, reason: str, message: str) -> None:
-        super().__init__(message)
-        self.reason = reason
 
 
 # --------------------------------------------------------------------------------- time
-
-def stamp_to_ns(stamp: Time) -> int:
-    """ROS time -> integer nanoseconds."""
-    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
-
 
 def ns_to_stamp(ns: int) -> Time:
     """Integer nanoseconds -> ROS time (negative times are refused)."""
@@ -54,29 +41,6 @@ def ns_to_stamp(ns: int) -> Time:
 
 
 # --------------------------------------------------------------------------------- audio
-
-@dataclass(frozen=True)
-class AudioData:
-    """A decoded AudioFrame: ``block`` is ``(frames, channels)`` float32."""
-
-    first_sample_index: int
-    stamp_ns: int
-    sample_rate: float
-    channel_names: list
-    layout: str
-    frame_id: str
-    block: np.ndarray
-
-    @property
-    def frames(self) -> int:
-        """Frames in the block."""
-        return int(self.block.shape[0])
-
-    @property
-    def end_stamp_ns(self) -> int:
-        """Stamp of the instant just after the block's last sample."""
-        return self.stamp_ns + int(round(self.frames * NS_PER_S / self.sample_rate))
-
 
 def audio_to_msg(first_sample_index: int, stamp_ns: int, sample_rate: float,
                  channel_names: Sequence[str], block: np.ndarray, layout: str = "",
@@ -107,36 +71,13 @@ def audio_to_msg(first_sample_index: int, stamp_ns: int, sample_rate: float,
 
 
 def audio_from_msg(msg: AudioFrame, require_finite: bool = True) -> AudioData:
-    """Decode and validate an AudioFrame.
+    """Decode and validate an AudioFrame: :func:`aslip_ros.audio_frame.decode_audio_frame`
+    (the exporter's check of a recorded block too).
 
-    :raises AudioFrameError: ``no_channels``, ``bad_rate``, ``empty``, ``ragged`` (length not
-        a multiple of the channel count), ``non_finite`` (NaN/Inf samples) or
-        ``out_of_range`` (a sample beyond :data:`FULL_SCALE`: no converter produces it, so
-        the block is corrupt or mis-scaled, e.g. integer counts sent as float).
+    :raises AudioFrameError: ``no_channels``, ``bad_rate``, ``empty``, ``ragged``,
+        ``non_finite`` or ``out_of_range``.
     """
-    names = list(msg.channel_names)
-    if not names:
-        raise AudioFrameError("no_channels", "AudioFrame has no channel names")
-    rate = float(msg.sample_rate)
-    if not (math.isfinite(rate) and rate > 0.0):
-        raise AudioFrameError("bad_rate", f"AudioFrame sample_rate {rate} is not positive")
-    flat = np.frombuffer(msg.data, dtype=np.float32) if isinstance(msg.data, array.array) \
-        else np.asarray(msg.data, dtype=np.float32)
-    if flat.size == 0:
-        raise AudioFrameError("empty", "AudioFrame carries no samples")
-    if flat.size % len(names):
-        raise AudioFrameError("ragged", f"AudioFrame has {flat.size} samples, not a multiple "
-                                        f"of its {len(names)} channels")
-    finite = np.isfinite(flat)
-    if require_finite and not finite.all():
-        raise AudioFrameError("non_finite", "AudioFrame contains NaN or Inf samples")
-    peak = float(np.max(np.abs(flat), where=finite, initial=0.0))
-    if peak > FULL_SCALE:
-        raise AudioFrameError("out_of_range", f"AudioFrame holds a sample of magnitude "
-                                              f"{peak:.3g}, beyond full scale {FULL_SCALE:g}")
-    block = flat.reshape(-1, len(names))
-    return AudioData(int(msg.first_sample_index), stamp_to_ns(msg.header.stamp), rate, names,
-                     str(msg.layout), str(msg.header.frame_id), block)
+    return decode_audio_frame(msg, require_finite)
 
 
 # --------------------------------------------------------------------------------- slip

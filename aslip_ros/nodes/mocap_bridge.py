@@ -36,18 +36,17 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
-from aslip_ros import frames
+from aslip_ros import frames, poses
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 
-IDENTITY = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+IDENTITY = [float(x) for x in poses.IDENTITY_POSE]
 
 
 def bridge_params() -> list:
     """mocap_bridge's parameter specs."""
-    from aslip_ros.data.export import DEFAULT_EPSILON_M_S, DEFAULT_WINDOW_S
-    from aslip_ros.data.labels import DEFAULT_MAX_GAP_S
+    from aslip_ros.data.labels import DEFAULT_EPSILON_M_S, DEFAULT_MAX_GAP_S, DEFAULT_WINDOW_S
     return [
         c.Param("finger_topic", c.FINGER_TOPIC, "finger rigid-body PoseStamped topic",
                 c.non_empty, read_only=True),

@@ -13,6 +13,7 @@ import numpy as np
 from geometry_msgs.msg import TwistStamped
 from rclpy.duration import Duration
 
+from aslip_ros import frames
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 
@@ -31,7 +32,7 @@ class TopicArm:
     #: Publishing never waits for the receiver: no need for an arm thread.
     blocking = False
 
-    def __init__(self, node, topic: str = c.CMD_VEL_TOPIC, frame_id: str = "link_base"):
+    def __init__(self, node, topic: str = c.CMD_VEL_TOPIC, frame_id: str = frames.BASE):
         self._node = node
         self._pub = node.create_publisher(TwistStamped, topic, c.RELIABLE_QOS)
         self._frame = frame_id
