@@ -31,8 +31,8 @@ from typing import Any
 
 from aslip_ros.util import write_json, write_text
 
-from .common import (LAYOUTS_2MIC, DataPlan, Log, Recipe, evaluate_cached, fmt_num, fmt_pm,
-                     markdown_table, paper_units, set_threads, train_named)
+from .common import (EXTERNAL_TRIALS, LAYOUTS_2MIC, DataPlan, Log, Recipe, evaluate_cached,
+                     fmt_num, fmt_pm, markdown_table, paper_units, set_threads, train_named)
 
 
 @dataclass(frozen=True)
@@ -98,11 +98,6 @@ ROBOT_NOISE: dict[str, tuple[float, float, float, float]] = {
     "2mic_corners": (21.3, 20.9, 0.5, 0.4),
     "2mic_same_finger": (17.4, 18.7, 0.6, 0.3),
 }
-
-#: Finetuning-set size of the ablation (trials per object and condition, 10 s each): 50
-#: trials, 7 of them in the test split with every object represented. The default preset
-#: (3 / 1 / 2) leaves two of the five objects without a test trial.
-EXTERNAL_TRIALS = {"robot_stationary": 5, "robot_moving": 2, "robot_off": 3}
 
 
 def paper_dict(p: tuple[float, ...]) -> dict[str, float]:

@@ -29,6 +29,10 @@ from aslip_ros.util import read_json, write_json
 LAYOUTS_2MIC = ("2mic_centered", "2mic_corners", "2mic_same_finger")
 ALL_LAYOUTS = ("4mic",) + LAYOUTS_2MIC + ("1mic",)
 STAGES = ("pretrain", "finetune")
+#: Finetuning-set size of the experiments (trials per object and condition, 10 s each): 50
+#: trials, 7 of them in the test split with every object represented. The default preset
+#: (3 / 1 / 2) leaves two of the five objects without a test trial.
+EXTERNAL_TRIALS = {"robot_stationary": 5, "robot_moving": 2, "robot_off": 3}
 
 
 class Log:
@@ -350,7 +354,6 @@ def add_plan_arguments(p: argparse.ArgumentParser, quick_help: str) -> None:
 def plan_from_args(args: argparse.Namespace, **recipe: Any) -> tuple[DataPlan, Recipe]:
     """DataPlan and Recipe from the arguments of ``add_plan_arguments`` (plus ``--data``,
     ``--scale`` and ``--preset-finetune``); ``recipe`` overrides Recipe fields."""
-    from .ablation import EXTERNAL_TRIALS
     progress = not args.no_progress
     quick = args.quick
     external = None if (args.preset_finetune or quick or args.synthetic) \
