@@ -198,6 +198,7 @@ LAUNCHES = [
     ("slip_stop.launch.py", {"sim": "false", "audio_device": "0", "autostart": "false"}),
     ("slip_track.launch.py", {}),
     ("slip_track.launch.py", {"sim": "false", "audio_device": "UMC404HD", "gain": "1"}),
+    ("slip_track.launch.py", {"input_timeout_s": "0.1"}),
     ("data_collection.launch.py", {}),
     ("data_collection.launch.py", {"sim": "false", "record": "false", "audio_device": "0"}),
     ("data_collection.launch.py", {"recorder": "aslip", "duration_s": "0"}),
@@ -240,6 +241,17 @@ def test_closed_loop_defaults_use_the_shipped_model(launch_file):
     assert Path(ckpt).is_file(), f"{ckpt} is not installed"
     assert {"scene_sim", "slip_inference", "mocap_bridge", launch_file.split(".")[0]} == \
         set(nodes)
+
+
+@needs_launch
+@pytest.mark.parametrize("launch_file", ["slip_stop.launch.py", "slip_track.launch.py"])
+def test_the_watchdog_timeout_is_a_launch_argument(launch_file):
+    from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S
+    task = launch_file.split(".")[0]
+    default = _by_exe(evaluate(launch_file, {}))[task]
+    assert (default["slip_timeout_s"], default["pose_timeout_s"]) == (DEFAULT_TIMEOUT_S,) * 2
+    given = _by_exe(evaluate(launch_file, {"input_timeout_s": "0.25"}))[task]
+    assert (given["slip_timeout_s"], given["pose_timeout_s"]) == (0.25, 0.25)
 
 
 @needs_launch

@@ -19,6 +19,8 @@ from launch.substitutions import PythonExpression
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
+from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S
+
 #: The checkpoint a launch uses when none is given (shipped in share/aslip_ros/models).
 DEFAULT_MODEL = "aslip_cnn.pt"
 
@@ -104,6 +106,11 @@ def closed_loop_description(controller: str, scenario: str, task_arg: str,
                               description="configure and activate the controller at start "
                                           "(false: it waits for `ros2 lifecycle set`)"),
         DeclareLaunchArgument(task_arg, default_value=task_default, description=task_help),
+        DeclareLaunchArgument(
+            "input_timeout_s", default_value=str(DEFAULT_TIMEOUT_S),
+            description="stale-input watchdog of the controller: stop the arm when the newest "
+                        "slip estimate or TCP pose is older than this [s] (raise it on a "
+                        "machine too busy to deliver estimates every 10 ms)"),
     ]
     arm = PythonExpression(["'sim' if '", LC("sim"), "' == 'true' else 'xarm'"])
     task_value = LC(task_arg) if task_type is None else ParameterValue(LC(task_arg),
@@ -134,6 +141,10 @@ def closed_loop_description(controller: str, scenario: str, task_arg: str,
              parameters=[os.path.join(cfg, f"{controller}.yaml"),
                          {"arm": arm, "xarm_ip": ParameterValue(LC("xarm_ip"), value_type=str),
                           "autostart": ParameterValue(LC("autostart"), value_type=bool),
+                          "slip_timeout_s": ParameterValue(LC("input_timeout_s"),
+                                                           value_type=float),
+                          "pose_timeout_s": ParameterValue(LC("input_timeout_s"),
+                                                           value_type=float),
                           task_arg: task_value}]),
     ]
     return LaunchDescription(args + nodes + rviz_actions(IfCondition(LC("rviz"))))
