@@ -5,16 +5,9 @@ import pytest
 
 from aslip_ros.control.command import apply_command
 from aslip_ros.control.slip_stop import (SlipStop, SlipStopConfig, State, StopReason)
+from fake_clock import FakeClock
 
 DT = 0.01
-
-
-class Clock:
-    def __init__(self):
-        self.t = 0.0
-
-    def __call__(self):
-        return self.t
 
 
 class KinematicArm:
@@ -73,7 +66,7 @@ def run(task, arm, clock, slip_fn, steps, pose_ok=lambda t: True, slip_ok=lambda
 
 
 def make(cfg=None, wall_x=0.5):
-    clock = Clock()
+    clock = FakeClock()
     cfg = cfg or SlipStopConfig(direction=(1, 0, 0), approach_speed_m_s=0.05,
                                 retract_speed_m_s=0.1, settle_s=0.1, debounce_count=3)
     task = SlipStop(cfg, clock)
@@ -191,7 +184,7 @@ def test_shutdown_when_idle_still_commands_stop():
 
 
 def test_start_requires_fresh_pose_and_not_running():
-    clock = Clock()
+    clock = FakeClock()
     task = SlipStop(SlipStopConfig(), clock)
     with pytest.raises(RuntimeError):
         task.start()

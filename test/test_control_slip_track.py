@@ -6,21 +6,14 @@ from scipy.spatial.transform import Rotation
 
 from aslip_ros.control.slip_track import (SlipTrack, SlipTrackConfig, TrackState,
                                           shape_slip)
+from fake_clock import FakeClock
 
 DT = 0.01
 LEVEL = [0.4, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0]    # TCP axes aligned with link_base
 
 
-class Clock:
-    def __init__(self):
-        self.t = 0.0
-
-    def __call__(self):
-        return self.t
-
-
 def make(pose=LEVEL, **kw):
-    clock = Clock()
+    clock = FakeClock()
     kw.setdefault('hold_s', 0.05)
     ctl = SlipTrack(SlipTrackConfig(**kw), clock)
     ctl.on_tcp_pose(pose)
@@ -124,7 +117,7 @@ def _closed_loop(v_obj_of_t, duration, window_s=0.2, scale=1.0, **kw):
     (times ``scale``) every 10 ms hop; returns times and relative displacements (x)."""
     cfg = dict(hold_s=0.3, decay_s=0.2, max_speed_m_s=0.1, deadband_m_s=0.002)
     cfg.update(kw)
-    clock = Clock()
+    clock = FakeClock()
     ctl = SlipTrack(SlipTrackConfig(**cfg), clock)
     arm = FirstOrderArm()
     fine = 0.001
@@ -269,7 +262,7 @@ def test_fault_and_shutdown():
 
 
 def test_idle_sends_nothing():
-    clock = Clock()
+    clock = FakeClock()
     ctl = SlipTrack(SlipTrackConfig(), clock)
     ctl.on_tcp_pose(LEVEL)
     ctl.on_slip((0.02, 0.0), True)

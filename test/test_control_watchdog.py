@@ -6,17 +6,10 @@ import threading
 import pytest
 
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, Watchdog
+from fake_clock import FakeClock
 
 
-class FakeClock:
-    def __init__(self, t=0.0):
-        self.t = t
-
-    def __call__(self):
-        return self.t
-
-
-def test_default_timeout_is_100_ms():
+def test_default_timeout_is_50_ms():
     assert DEFAULT_TIMEOUT_S == pytest.approx(0.05)
     assert Watchdog().timeout_s == pytest.approx(0.05)
 
