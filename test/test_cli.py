@@ -1,4 +1,4 @@
-"""The `aslip` console command (issue #2): installed into the venv, --help works."""
+"""The `aslip` console command: installed into the venv, --help works."""
 
 import subprocess
 import sys

@@ -1,4 +1,4 @@
-"""A bag recorded from live rclpy publishers by a separate process exports (issue #3).
+"""A bag recorded from live rclpy publishers by a separate process exports.
 
 The publisher imitates other hardware: 44.1 kHz, two channels with other names, 100 Hz
 motion capture, no scenario metadata; labels therefore come from motion capture alone.

@@ -1,4 +1,4 @@
-"""Issue #2 acceptance: a node starts from a fresh shell that only sources install/setup.bash."""
+"""A node starts from a fresh shell that only sources install/setup.bash."""
 
 from __future__ import annotations
 

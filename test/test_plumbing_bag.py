@@ -1,4 +1,4 @@
-"""rosbag2 (mcap) files with the project's message types (issue #2).
+"""rosbag2 (mcap) files with the project's message types.
 
 Written and read back with `rosbags` (types registered from the repository's msg/ text),
 and the stored bytes decoded by rclpy's own deserializer against the generated types, so a

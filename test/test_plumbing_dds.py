@@ -1,4 +1,4 @@
-"""Two separate processes exchange AudioFrame and SlipVector over DDS (issue #2).
+"""Two separate processes exchange AudioFrame and SlipVector over DDS.
 
 The publisher is a child process; the subscriber is this test process. Both sit on a
 ROS_DOMAIN_ID reserved for the test, with localhost-only discovery.

@@ -7,7 +7,7 @@ the accuracy on the externally induced test split. Two sweeps:
 - model size (width, depth, temporal channels) at the default features, marking the
   smallest model whose direction MAE is within 1 degree of the best;
 - feature setting (feature sample rate, n_fft, hop, n_mels), one knob at a time around the
-  default, naming the cheapest setting that loses no accuracy (issue 4, item 1's evidence).
+  default, naming the cheapest setting that loses no accuracy.
 
 Every sweep point is trained with the same recipe as the ablation's default row (pretrain on
 the robot-induced set, finetune the heads on the externally induced set), and checkpoints of

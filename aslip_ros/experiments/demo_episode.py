@@ -4,7 +4,7 @@ Per episode: a ROS_DOMAIN_ID of its own (``domain_coordinator``, discovery on lo
 fresh rclpy context on it, and the package's real node classes (``scene_sim``,
 ``slip_inference``, ``slip_stop`` or ``slip_track``) plus a small recorder on one
 MultiThreadedExecutor. Every message still goes through DDS topics exactly as between the
-separate executables (issue 5 allows composing the nodes in one process); only the process
+separate executables (composing the nodes in one process changes only that); only the process
 start-up (importing torch and rclpy costs seconds) is shared between episodes.
 
 Node parameters go in through a ``--params-file`` keyed by node name, the way ``ros2 run``

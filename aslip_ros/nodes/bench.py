@@ -1,4 +1,4 @@
-"""Benchmarks of the live node graph (issue #5 targets), run by ``make bench``.
+"""Benchmarks of the live node graph (latency, rates, CPU), run by ``make bench``.
 
 ``measure_node_latency``: ``audio_capture`` (simulated scene, 4 channels at 48 kHz) and
 ``slip_inference`` run as separate processes, exactly as ``ros2 run`` starts them, on an

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-# The public contract of the messages: these fields must exist (issue #2).
+# The public contract of the messages: these fields must exist.
 REQUIRED_FIELDS = {
     "AudioFrame": {"header", "sample_rate", "channel_names", "first_sample_index", "data"},
     "SlipVector": {"header", "probability", "slipping", "threshold", "velocity", "speed",
