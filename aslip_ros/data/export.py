@@ -38,21 +38,20 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from aslip_ros.audio_frame import AudioFrameError, decode_audio_frame
-from aslip_ros.data.bags import (AUDIO_TYPE, DEFAULT_TOPICS, POSE_TYPE, BagDamaged,
-                                 BagError, BagReader, Topics, find_bags, stamp_to_ns)
+from aslip_ros.data.bags import (DEFAULT_TOPICS, BagDamaged, BagError, BagReader, Topics,
+                                 find_bags)
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
 from aslip_ros.data.export_bench import measure_export_speed  # noqa: F401 (public name)
+from aslip_ros.data.export_read import (AudioClock, BagStreams, StreamFormat, WindowGrid,
+                                        fit_clock, read_streams, window_grid)
 from aslip_ros.data.labels import (DEFAULT_EPSILON_M_S, DEFAULT_HOP_S, DEFAULT_MAX_GAP_S,
-                                   DEFAULT_WINDOW_S, IDENTITY_POSE, OK, REASONS, PoseTrack,
+                                   DEFAULT_WINDOW_S, IDENTITY_POSE, OK, REASONS,
                                    mocap_window_velocity, robot_window_velocity)
 from aslip_ros.learn.streaming_labels import export_track, write_track
 
 LABEL_SOURCES = ("auto", "mocap", "robot")
 UNKNOWN = "unknown"
 DROP_REASONS = ("audio_gap",) + tuple(REASONS.values())
-#: Defects of one AudioFrame that cost that block (as in the live node), not the bag.
-REFUSED_BLOCKS = ("non_finite", "out_of_range", "empty")
 
 
 @dataclass(frozen=True)
@@ -163,227 +162,59 @@ def _calibration(meta: dict, key: str, bag: Path) -> np.ndarray:
     return arr
 
 
-def _audio_clock(idx: np.ndarray, stamps_ns: np.ndarray, sample_rate: float,
-                 ref_ns: int):
-    """Return (intercept_s, slope_s_per_sample): t(i) = intercept + (i - idx[0]) * slope."""
-    x = (idx - idx[0]).astype(np.float64)
-    y = (stamps_ns - ref_ns).astype(np.float64) * 1e-9
-    nominal = 1.0 / sample_rate
-    if x.size >= 2 and x[-1] > 0:
-        slope, intercept = np.polyfit(x, y, 1)
-        # A fit far from the nominal rate means bad stamps, not a slow ADC: fall back.
-        if abs(slope * sample_rate - 1.0) < 0.01:
-            return float(intercept), float(slope)
-    return float(np.median(y - x * nominal)), nominal
-
-
-class _PoseBuffer:
-    """Growable arrays of pose samples."""
-
-    def __init__(self, capacity: int):
-        capacity = max(16, int(capacity))
-        self.n = 0
-        self.stamp = np.zeros(capacity, np.int64)
-        self.log = np.zeros(capacity, np.int64)
-        self.pose = np.zeros((capacity, 7), np.float64)
-
-    def append(self, stamp_ns: int, log_ns: int, pose: np.ndarray) -> None:
-        if self.n == self.stamp.size:      # the index undercounted: grow geometrically
-            grow = self.stamp.size
-            self.stamp = np.concatenate([self.stamp, np.zeros(grow, np.int64)])
-            self.log = np.concatenate([self.log, np.zeros(grow, np.int64)])
-            self.pose = np.concatenate([self.pose, np.zeros((grow, 7))])
-        self.stamp[self.n] = stamp_ns
-        self.log[self.n] = log_ns
-        self.pose[self.n] = pose
-        self.n += 1
-
-
-class _Stream:
-    """Dataset-wide audio format, fixed by the first bag."""
-
-    def __init__(self):
-        self.sample_rate: float | None = None
-        self.channel_names: tuple[str, ...] | None = None
-        self.source = ""
-        self.layouts: set[str] = set()
-
-    def check(self, sample_rate: float, names: tuple[str, ...], bag: Path) -> None:
-        if self.sample_rate is None:
-            self.sample_rate, self.channel_names, self.source = sample_rate, names, str(bag)
-            return
-        if abs(sample_rate - self.sample_rate) > 1e-6 * self.sample_rate:
-            raise BagError(f"bag {bag}: sample rate {sample_rate:g} Hz differs from "
-                           f"{self.sample_rate:g} Hz of {self.source}; one dataset needs "
-                           "one sample rate")
-        if names != self.channel_names:
-            raise BagError(f"bag {bag}: channel names {list(names)} differ from "
-                           f"{list(self.channel_names)} of {self.source}; one dataset needs "
-                           "one channel set")
-
-
-def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: DatasetWriter,
-                stream: _Stream, bar) -> tuple[BagResult, dict]:
-    path = reader.path
-    topics = cfg.topics
-    source = _label_source(cfg, meta)
-    label_topics = _label_topics(cfg, source)
-    res = BagResult(bag=str(path), label_source=source)
-
-    audio = None
-    names: tuple[str, ...] | None = None
-    sample_rate = 0.0
-    layout_msg = ""
-    blk_idx: list[int] = []
-    blk_ns: list[int] = []
-    blk_log: list[int] = []
-    seg_start: list[int] = []      # stream index of each contiguous segment's first frame
-    seg_file: list[int] = []       # its offset in the trial's audio file
-    seg_len: list[int] = []
-    expected = None
-    refused: Counter = Counter()   # AudioFrames refused, by reason
-    # Compact per-topic buffers (stamp, log time, pose7) sized from the bag's index, so a
-    # long recording costs 72 bytes per pose rather than a Python object per value.
-    poses = {t: _PoseBuffer(reader.info.counts.get(t, 0)) for t in label_topics}
-    n_msgs = max(1, sum(reader.info.counts.get(t, 0) for t in [topics.audio] + label_topics))
-    pending = 0
-
-    for m in reader.messages([topics.audio] + label_topics, fast_poses=True):
-        pending += 1
-        if pending >= 512:
-            # Fractional updates: the bar counts bags, moving smoothly within each one.
-            bar.update(pending / n_msgs)
-            pending = 0
-        if m.topic == topics.audio:
-            if m.msgtype != AUDIO_TYPE:
-                raise BagError(f"bag {path}: topic {m.topic} holds {m.msgtype}, expected "
-                               f"{AUDIO_TYPE}")
-            msg = m.msg
-            if names is None:
-                names = tuple(msg.channel_names)
-                sample_rate = float(msg.sample_rate)
-                layout_msg = msg.layout
-                if not names:
-                    raise BagError(f"bag {path}: AudioFrame without channel_names")
-                if not (math.isfinite(sample_rate) and sample_rate > 0):
-                    raise BagError(f"bag {path}: AudioFrame sample_rate {sample_rate!r}")
-                stream.check(sample_rate, names, path)
-                audio = writer.begin_trial(len(names))
-            elif float(msg.sample_rate) != sample_rate or tuple(msg.channel_names) != names:
-                raise BagError(f"bag {path}: sample rate or channel names change within the "
-                               f"audio stream at first_sample_index {msg.first_sample_index}")
-            try:
-                block = decode_audio_frame(msg).block
-            except AudioFrameError as exc:
-                if exc.reason not in REFUSED_BLOCKS:
-                    raise BagError(f"bag {path}: {exc} (first_sample_index "
-                                   f"{msg.first_sample_index})") from None
-                # Refused like the live node refuses it: left out, so the windows over it
-                # are dropped as an audio gap.
-                refused[exc.reason] += 1
-                continue
-            idx = int(msg.first_sample_index)
-            if expected is None or idx > expected:
-                seg_start.append(idx)
-                seg_file.append(audio.n_frames)
-                seg_len.append(0)
-            elif idx < expected:
-                raise BagError(f"bag {path}: audio first_sample_index goes back from "
-                               f"{expected} to {idx} (restarted capture?); split the bag")
-            audio.append(block)
-            seg_len[-1] += block.shape[0]
-            expected = idx + block.shape[0]
-            blk_idx.append(idx)
-            blk_ns.append(stamp_to_ns(msg.header.stamp))
-            blk_log.append(m.log_ns)
-        else:
-            if m.msgtype != POSE_TYPE:
-                raise BagError(f"bag {path}: topic {m.topic} holds {m.msgtype}, expected "
-                               f"{POSE_TYPE}")
-            poses[m.topic].append(m.msg.stamp_ns, m.log_ns, m.msg.pose)
-
-    bar.update(pending / n_msgs)
-    if audio is None:
-        raise BagError(f"bag {path}: no messages on audio topic {topics.audio}")
-    if not blk_idx:
-        raise BagError(f"bag {path}: every AudioFrame was refused ({dict(refused)})")
-    res.refused_blocks = dict(refused)
-    for t, buf in poses.items():
-        if buf.n < 2:
-            raise BagError(f"bag {path}: topic {t} has {buf.n} message(s); labels from "
-                           f"{source} need a pose stream")
-
-    idx = np.asarray(blk_idx, dtype=np.int64)
-    stamps = np.asarray(blk_ns, dtype=np.int64)
-    if not stamps.any():           # unstamped driver: the recorder's clock is all we have
-        stamps = np.asarray(blk_log, dtype=np.int64)
-    ref_ns = int(stamps[0])
-    intercept, slope = _audio_clock(idx, stamps, sample_rate, ref_ns)
-
-    def pose_track(topic: str) -> PoseTrack:
-        buf = poses[topic]
-        t_ns = buf.stamp[:buf.n]
-        if not t_ns.any():
-            t_ns = buf.log[:buf.n]
-        return PoseTrack((t_ns - ref_ns) * 1e-9, buf.pose[:buf.n], name=topic)
-
-    # Window grid over the stream's sample index.
-    n_win = int(round(cfg.window_s * sample_rate))
-    hop = int(round(cfg.hop_s * sample_rate))
-    if n_win < 1 or hop < 1:
-        raise BagError(f"window {cfg.window_s} s / hop {cfg.hop_s} s is below one sample at "
-                       f"{sample_rate:g} Hz")
-    s_first, s_end = int(seg_start[0]), int(expected)
-    starts = np.arange(s_first, s_end - n_win + 1, hop, dtype=np.int64)
-    seg_s = np.asarray(seg_start, dtype=np.int64)
-    seg_n = np.asarray(seg_len, dtype=np.int64)
-    seg_f = np.asarray(seg_file, dtype=np.int64)
-    j = np.searchsorted(seg_s, starts, side="right") - 1
-    audio_ok = starts + n_win <= seg_s[j] + seg_n[j]
-    file_pos = seg_f[j] + (starts - seg_s[j])
-
-    t0 = intercept + (starts - idx[0]) * slope
-    t1 = t0 + n_win * slope
+def _window_labels(rec: BagStreams, meta: dict, cfg: ExportConfig, source: str,
+                   clock: AudioClock, grid: WindowGrid):
+    """Labels of every window, the label stream's rate, and the streaming-label track."""
+    topics, path = cfg.topics, rec.path
+    t0 = clock.time_of(grid.starts)
+    t1 = t0 + grid.n_win * clock.slope
+    track = {t: buf.track(clock.ref_ns, t) for t, buf in rec.poses.items()}
     if source == "robot":
         calib = _calibration(meta, "grasp_plane_in_tcp", path)
-        track = pose_track(topics.tcp)
-        labels = robot_window_velocity(track, t0, t1, calib, cfg.max_gap_s)
-        rate = track.rate_hz
+        labels = robot_window_velocity(track[topics.tcp], t0, t1, calib, cfg.max_gap_s)
+        rate = track[topics.tcp].rate_hz
     else:
         calib = _calibration(meta, "grasp_plane_in_finger", path)
-        finger = pose_track(topics.finger)
-        labels = mocap_window_velocity(finger, pose_track(topics.object), t0, t1, calib,
-                                       cfg.max_gap_s)
-        rate = finger.rate_hz
-
+        labels = mocap_window_velocity(track[topics.finger], track[topics.object], t0, t1,
+                                       calib, cfg.max_gap_s)
+        rate = track[topics.finger].rate_hz
     # The object-relative pose track on the audio file's sample axis: streaming labels.
-    track = export_track(source, pose_track(topics.tcp if source == "robot" else topics.finger),
-                         calib, None if source == "robot" else pose_track(topics.object),
-                         intercept, slope, float(s_first - idx[0]))
+    s_first = int(rec.seg_start[0])
+    stream_track = export_track(
+        source, track[topics.tcp if source == "robot" else topics.finger], calib,
+        None if source == "robot" else track[topics.object], clock.intercept, clock.slope,
+        float(s_first - clock.idx0))
+    return labels, rate, stream_track
+
+
+def _window_rows(labels, grid: WindowGrid, cfg: ExportConfig) -> tuple[np.ndarray, dict]:
+    """The kept windows' rows and the count of dropped ones by reason."""
     dropped = Counter()
-    dropped["audio_gap"] = int((~audio_ok).sum())
+    dropped["audio_gap"] = int((~grid.audio_ok).sum())
     for code, name in REASONS.items():
-        dropped[name] = int((audio_ok & (labels.reason == code)).sum())
-    keep = audio_ok & (labels.reason == OK)
+        dropped[name] = int((grid.audio_ok & (labels.reason == code)).sum())
+    keep = grid.audio_ok & (labels.reason == OK)
     rows = np.zeros(int(keep.sum()), dtype=WINDOW_DTYPE)
-    rows["start"] = file_pos[keep]
+    rows["start"] = grid.file_pos[keep]
     rows["vx"] = labels.vx[keep]
     rows["vz"] = labels.vz[keep]
     speed = labels.speed[keep]
     rows["speed"] = speed
     rows["slip"] = speed > cfg.epsilon_m_s
+    return rows, {k: int(dropped[k]) for k in DROP_REASONS}
 
-    res.kept = int(rows.size)
-    res.dropped = {k: int(dropped[k]) for k in DROP_REASONS}
-    res.audio_s = audio.n_frames / sample_rate
-    info = {
+
+def _trial_info(meta: dict, rec: BagStreams, res: BagResult, clock: AudioClock,
+                rate: float) -> dict:
+    s_first = int(rec.seg_start[0])
+    return {
         "object": meta.get("object") or UNKNOWN, "pad": meta.get("pad") or UNKNOWN,
-        "layout": meta.get("layout") or layout_msg or "",
+        "layout": meta.get("layout") or rec.layout or "",
         "condition": meta.get("condition") or UNKNOWN,
         "induced": meta.get("induced") or UNKNOWN,
-        "source_bag": str(path), "label_source": source,
+        "source_bag": str(rec.path), "label_source": res.label_source,
         "seed": meta.get("seed"), "label_rate_hz": round(rate, 3),
-        "dropped": res.dropped, "audio_gaps": len(seg_start) - 1,
+        "dropped": res.dropped, "audio_gaps": len(rec.seg_start) - 1,
         "has_metadata": bool(meta),
         # Which scene defaults rendered a simulated bag (None for recorded ones).
         "scene_version": meta.get("scene_version"),
@@ -391,16 +222,33 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
         # on the stream's clock (file position p of a gap-free trial is stream sample
         # first_sample_index + p, stamped start_stamp_ns + p / sample_rate).
         "first_sample_index": s_first,
-        "start_stamp_ns": int(ref_ns + round((intercept + (s_first - idx[0]) * slope) * 1e9)),
+        "start_stamp_ns": int(clock.ref_ns + round(clock.time_of(s_first) * 1e9)),
     }
-    return res, {"info": info, "rows": rows, "track": track}
+
+
+def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: DatasetWriter,
+                stream: StreamFormat, bar) -> tuple[BagResult, dict]:
+    """One bag -> one trial: read, fit the audio clock, lay the window grid, label, keep."""
+    source = _label_source(cfg, meta)
+    res = BagResult(bag=str(reader.path), label_source=source)
+    rec = read_streams(reader, cfg.topics.audio, _label_topics(cfg, source), writer, stream,
+                       bar, source)
+    res.refused_blocks = dict(rec.refused)
+    clock = fit_clock(rec)
+    grid = window_grid(rec, cfg.window_s, cfg.hop_s)
+    labels, rate, track = _window_labels(rec, meta, cfg, source, clock, grid)
+    rows, res.dropped = _window_rows(labels, grid, cfg)
+    res.kept = int(rows.size)
+    res.audio_s = rec.audio.n_frames / rec.sample_rate
+    return res, {"info": _trial_info(meta, rec, res, clock, rate), "rows": rows,
+                 "track": track}
 
 
 def _bag_name(path: Path) -> str:
     return path.stem if path.is_file() else path.name
 
 
-def _read_bag(reader: BagReader, cfg: ExportConfig, writer: DatasetWriter, stream: _Stream,
+def _read_bag(reader: BagReader, cfg: ExportConfig, writer: DatasetWriter, stream: StreamFormat,
               bar) -> tuple[dict, BagResult, dict]:
     with reader as r:
         meta = r.read_metadata(cfg.topics.metadata) or {}
@@ -413,7 +261,7 @@ def _read_bag(reader: BagReader, cfg: ExportConfig, writer: DatasetWriter, strea
 
 
 def _export_or_recover(path: Path, cfg: ExportConfig, writer: DatasetWriter,
-                       stream: _Stream, bar, warnings: list) -> tuple[dict, BagResult, dict]:
+                       stream: StreamFormat, bar, warnings: list) -> tuple[dict, BagResult, dict]:
     """Export one bag. A damaged one (cut short, failing a CRC) is refused, or with
     ``cfg.recover`` its readable part is exported and a warning says what was lost."""
     try:
@@ -448,7 +296,7 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
     from tqdm import tqdm
 
     summary = ExportSummary(dataset=str(out))
-    stream = _Stream()
+    stream = StreamFormat()
     ids: Counter = Counter()
     layouts: dict[str, str] = {}
     with DatasetWriter(out, overwrite=cfg.overwrite) as writer, \
