@@ -203,3 +203,28 @@ def test_aslip_train_stage_stream_writes_a_streaming_checkpoint(dataset, tmp_pat
     pred = StreamingPredictor.from_checkpoint(out)
     ests = [e for b in blocks(audio(n=9600)) for e in pred.push(b)]
     assert len(ests) == 17 and all(np.isfinite(e.prediction.probability) for e in ests)
+
+
+def test_guard_band_covers_the_smoothed_onset_and_end():
+    from aslip_ros.learn.streaming_labels import guard_band
+    slip = np.zeros(40, bool)
+    slip[10:25] = True
+    g = guard_band(slip, np.arange(40) * 0.01, 0.05)
+    assert list(np.flatnonzero(g)) == [10, 11, 12, 13, 14, 20, 21, 22, 23, 24]
+    assert not guard_band(slip, np.arange(40) * 0.01, 0.0).any()
+
+
+def test_threshold_is_chosen_for_the_false_alarm_rate():
+    from aslip_ros.learn.train_stream import false_alarms_per_min, select_threshold
+    n = 6000                                     # one minute of 10 ms hops
+    slip = np.zeros(n, bool)
+    slip[1000:1200] = True
+    p = np.where(slip, 0.97, 0.1)
+    p[3000:3002] = 0.72                          # five blips of 0.72 in quiet audio
+    p[[3500, 4000, 4500, 5000]] = 0.72
+    assert false_alarms_per_min(p, slip, 0.5, 0.01)[0] == 5
+    assert false_alarms_per_min(p, slip, 0.75, 0.01)[0] == 0
+    t, table = select_threshold([p], [slip], 0.01, fa_per_min=2.0)
+    assert t == 0.75 and table[0]["fa_per_min"] > 5.0
+    t, _ = select_threshold([p], [slip], 0.01, fa_per_min=10.0)
+    assert t == 0.5

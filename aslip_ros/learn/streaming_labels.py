@@ -36,6 +36,10 @@ class Smoother:
     window_s: float = 0.15
     polyorder: int = 2
     max_gap_s: float = 0.05
+    #: The fit spreads a slip onset over half a window both ways, so the labelled slip
+    #: starts ~50 ms before the true one (and ends ~50 ms after): slip flags this close
+    #: after a labelled start or before a labelled end are left out of the detection loss.
+    guard_s: float = 0.05
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -137,7 +141,22 @@ def frame_labels(track: np.ndarray, frame_end: np.ndarray, sample_rate: float,
     t = track[:, 0] / sample_rate
     v, valid = smooth_velocity(t, track[:, 1:], np.asarray(frame_end) / sample_rate, smoother)
     v2 = v[:, [0, 2]].astype(np.float32)
-    return {"v": v2, "slip": np.hypot(v2[:, 0], v2[:, 1]) > epsilon, "valid": valid}
+    slip = np.hypot(v2[:, 0], v2[:, 1]) > epsilon
+    return {"v": v2, "slip": slip, "valid": valid,
+            "ambiguous": guard_band(slip, np.asarray(frame_end) / sample_rate,
+                                    smoother.guard_s)}
+
+
+def guard_band(slip: np.ndarray, t: np.ndarray, guard_s: float) -> np.ndarray:
+    """Frames within ``guard_s`` after a rising or before a falling edge of ``slip``."""
+    out = np.zeros(slip.size, bool)
+    if guard_s <= 0 or slip.size < 2:
+        return out
+    for k in np.flatnonzero(slip[1:] & ~slip[:-1]) + 1:
+        out[k:][t[k:] < t[k] + guard_s - 1e-9] = True
+    for k in np.flatnonzero(~slip[1:] & slip[:-1]) + 1:
+        out[:k][t[:k] > t[k] - guard_s - 1e-9] = True
+    return out
 
 
 def compare_with_truth(n_trials: int = 6, duration_s: float = 10.0, seed: int = 0,
