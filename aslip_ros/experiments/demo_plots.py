@@ -13,6 +13,8 @@ import numpy as np
 from aslip_ros.util import atomic_path
 
 COLORS = {"aslip": "tab:blue", "svm": "tab:orange"}
+#: The slip-stop figure's zoom on the stop: the last seconds of each episode [s].
+ZOOM_S = 1.0
 
 
 def _load(out: Path, key: str):
@@ -42,12 +44,14 @@ def make_plots(out: Path, results: list[dict]) -> list[Path]:
                      and r["object"] == obj), key=lambda r: r["trial"])
         return rs[0] if rs else None
 
-    # 1. slip-stop: TCP and object along the push direction, relative to the wall contact.
+    # 1. slip-stop: TCP and object along the push direction, relative to the wall contact;
+    #    the second row zooms on the stop (the last ZOOM_S), where the stopping error is.
     stop = [r for r in results if r["task"] == "slip_stop"]
     if stop:
-        fig, axes = plt.subplots(1, len(methods), figsize=(6 * len(methods), 4),
-                                 squeeze=False, sharey=True)
-        for ax, m in zip(axes[0], methods):
+        fig, axes = plt.subplots(2, len(methods), figsize=(6 * len(methods), 7.5),
+                                 squeeze=False, sharey="row", constrained_layout=True)
+        for j, m in enumerate(methods):
+            ends = []
             for obj in objects:
                 r = first("slip_stop", m, obj)
                 tr = r and _load(out, f"slip_stop-{m}-{obj}-{r['trial']:02d}")
@@ -55,14 +59,25 @@ def make_plots(out: Path, results: list[dict]) -> list[Path]:
                     continue
                 n = tr["push_dir"]
                 ref = tr["tcp"][0] @ n
-                line, = ax.plot(tr["t"], (tr["tcp"] @ n - ref) * 1e3, label=f"{obj} arm")
-                ax.plot(tr["t"], (tr["object"] @ n - ref) * 1e3, ls=":",
-                        color=line.get_color())
-            ax.axhline(0.0, color="k", lw=0.8)
-            ax.set_title(f"slip-stop, {m}: TCP (solid), object (dotted)")
-            ax.set_xlabel("time [s]")
-            ax.grid(alpha=0.3)
+                tcp, obj_ = (tr["tcp"] @ n - ref) * 1e3, (tr["object"] @ n - ref) * 1e3
+                ends.append((tr["t"][-1], tcp[-1], obj_[-1]))
+                for ax in axes[:, j]:
+                    line, = ax.plot(tr["t"], tcp, label=f"{obj} arm")
+                    ax.plot(tr["t"], obj_, ls=":", color=line.get_color())
+            axes[0][j].set_title(f"slip-stop, {m}: TCP (solid), object (dotted)")
+            axes[1][j].set_title(f"the stop, last {ZOOM_S:g} s")
+            if ends:
+                t_end = max(e[0] for e in ends)
+                lo = min(min(e[1:]) for e in ends)
+                hi = max(max(e[1:]) for e in ends)
+                axes[1][j].set_xlim(t_end - ZOOM_S, t_end)
+                axes[1][j].set_ylim(min(lo, 0.0) - 2.0, hi + 2.0)
+            for ax in axes[:, j]:
+                ax.axhline(0.0, color="k", lw=0.8)
+                ax.set_xlabel("time [s]")
+                ax.grid(alpha=0.3)
         axes[0][0].set_ylabel("along push direction, from the contact pose [mm]")
+        axes[1][0].set_ylabel("along push direction [mm]")
         axes[0][0].legend(fontsize=7)
         written.append(_save(fig, out / "slip_stop_trajectories.png"))
         plt.close(fig)
@@ -70,8 +85,9 @@ def make_plots(out: Path, results: list[dict]) -> list[Path]:
     # 2. slip-track: arm and object paths in the world (x, y) and the relative error.
     track = [r for r in results if r["task"] == "slip_track"]
     if track:
+        # constrained_layout: the top row's x labels and the bottom row's titles overlapped.
         fig, axes = plt.subplots(2, len(methods), figsize=(6 * len(methods), 8),
-                                 squeeze=False)
+                                 squeeze=False, constrained_layout=True)
         for j, m in enumerate(methods):
             for obj in objects:
                 r = first("slip_track", m, obj)
