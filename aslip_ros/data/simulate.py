@@ -27,6 +27,8 @@ from aslip_ros.data.bags import BagError, BagReader, BagWriter
 KINDS = {"robot": "robot_induced", "external": "external_induced"}
 DEFAULT_START_NS = 1_700_000_000_000_000_000   # a fixed ROS time so bags are reproducible
 DEFAULT_BLOCK_FRAMES = 480
+#: Scene variants (docs/scene.md): per-grasp microphone coupling, and that plus one-sided slip.
+VARIANTS = ("coupling", "one_sided")
 
 
 def trial_seed(base_seed: int, kind: str, object: str, condition: str, index: int) -> int:
@@ -120,7 +122,8 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
              conditions: Sequence[str | None] = (None,), trials: int = 1,
              duration_s: float = 30.0, seed: int = 0, layout: str | None = None,
              pad: str | None = None, block_frames: int = DEFAULT_BLOCK_FRAMES,
-             overwrite: bool = False, progress: bool = True) -> dict:
+             overwrite: bool = False, progress: bool = True,
+             variant: str | None = None) -> dict:
     """Simulate ``trials`` bags per (object, condition) into ``out_dir``.
 
     ``None`` for object/condition/layout/pad means the scenario's own default. Existing bags
@@ -135,8 +138,18 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
     make = getattr(scenarios, KINDS[kind])
     plan = plan_trials(kind, objects, conditions, trials, seed, layout, pad, duration_s)
     out = Path(out_dir)
-    worlds = [World(make(**kw)) for kw in plan]
+    if variant not in (None,) + VARIANTS:
+        raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
+
+    def scene(kw):
+        scn = make(**kw)
+        if variant is not None:
+            scn = scenarios.coupling_variant(scn)
+        return scenarios.one_sided_variant(scn) if variant == "one_sided" else scn
+    worlds = [World(scene(kw)) for kw in plan]
     extra = {"duration_s": float(duration_s)}
+    if variant is not None:
+        extra["variant"] = variant
     if not overwrite:
         for kw, world in zip(plan, worlds):
             path = out / kw["trial_id"]
@@ -192,6 +205,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="audio frames per AudioFrame message (default %(default)s)")
     parser.add_argument("-o", "--out", type=Path, required=True,
                         help="directory for the bags (one sub-directory per trial)")
+    parser.add_argument("--variant", choices=VARIANTS, default=None,
+                        help="scene variant: per-grasp microphone coupling, or that with 80 %% "
+                             "of the slip one way (default: the plain scene)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -203,7 +219,8 @@ def run(args: argparse.Namespace) -> int:
                            conditions=_csv(args.conditions), trials=args.trials,
                            duration_s=args.duration, seed=args.seed, layout=args.layout,
                            pad=args.pad, block_frames=args.block_frames,
-                           overwrite=args.overwrite, progress=not args.no_progress)
+                           overwrite=args.overwrite, progress=not args.no_progress,
+                           variant=args.variant)
     except (ValueError, OSError) as exc:
         print(f"aslip simulate: error: {exc}", file=sys.stderr)
         return 1

@@ -1,0 +1,27 @@
+"""``aslip simulate --variant``: the scene's per-grasp coupling variants reach the bags."""
+
+import pytest
+
+from aslip_ros import cli
+from aslip_ros.data import bags
+
+TRIAL = "ext-chips_can-robot_stationary-0000"
+ARGS = ["simulate", "--kind", "external", "--trials", "1", "--duration", "1",
+        "--objects", "chips_can", "--conditions", "robot_stationary", "--no-progress"]
+
+
+def _meta(path):
+    with bags.BagReader(path) as r:
+        return r.read_metadata()
+
+
+def test_variant_is_recorded_and_not_mixed_with_other_bags(tmp_path):
+    assert cli.main(ARGS + ["-o", str(tmp_path / "plain")]) == 0
+    assert cli.main(ARGS + ["--variant", "coupling", "-o", str(tmp_path / "cpl")]) == 0
+    plain, meta = _meta(tmp_path / "plain" / TRIAL), _meta(tmp_path / "cpl" / TRIAL)
+    assert meta["variant"] == "coupling" and "variant" not in plain
+    assert meta["seed"] == plain["seed"]                 # the same grasp, another coupling
+    # A bag of another variant is refused, not kept in the set.
+    assert cli.main(ARGS + ["--variant", "one_sided", "-o", str(tmp_path / "cpl")]) == 1
+    with pytest.raises(SystemExit):
+        cli.main(ARGS + ["--variant", "loud", "-o", str(tmp_path / "x")])
