@@ -124,6 +124,23 @@ def test_a_gap_or_time_jump_resets_the_state(tmp_path, fault):
     assert not np.allclose(outputs(same)[0][:5], outputs(want)[0][:5], atol=1e-6)
 
 
+def test_a_refused_block_resets_the_state(tmp_path):
+    ckpt = make_checkpoint(tmp_path / "s.pt")
+    pred = StreamingPredictor.from_checkpoint(ckpt)
+    bl = blocks(audio(n=24000, seed=5), 480)
+    for b in bl[:20]:
+        pred.push(b)
+    bad = Block(bl[20].first_sample_index, bl[20].stamp_ns, RATE, bl[20].block.copy())
+    bad.block[3, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        pred.push(bad)
+    assert pred.resets == 1 and "refused" in pred.last_reset_reason
+    after = [e for b in bl[21:] for e in pred.push(b)]
+    fresh = StreamingPredictor.from_checkpoint(ckpt)
+    want = [e for b in bl[21:] for e in fresh.push(b)]
+    np.testing.assert_allclose(outputs(after)[0], outputs(want)[0], atol=1e-6)
+
+
 def test_repeated_blocks_are_dropped_without_reset(tmp_path):
     pred = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "s.pt"))
     bl = blocks(audio(n=9600), 480)

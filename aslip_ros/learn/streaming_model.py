@@ -6,11 +6,11 @@ through a two-layer embedding (all microphones together: their level differences
 the direction) into a GRU whose state is the only memory; the heads read the state and
 give the slip logit and the slip velocity now, ``(vx, vz)`` in units of ``speed_scale``.
 
-Why a GRU and not a cached causal convolution: the measured per-hop cost of one GRU step
-on a 64-wide state is a few small matrix-vector products (tens of microseconds in numpy),
-its memory is unbounded in principle yet trained on 2 s sequences, and a reset is one
-zero vector; a dilated convolution needs a frame cache per layer for the same receptive
-field (docs/streaming.md has the numbers).
+Why a GRU rather than a cached causal dilated convolution: one step on a 64-wide state is
+a few small matrix-vector products (measured ~15 us p50 in numpy, against ~70 us for the
+frame's features), its memory is not capped by a receptive field, and a reset is one zero
+vector, where a dilated convolution keeps a frame cache per layer. A convolutional variant
+was not trained for comparison (docs/streaming.md).
 
 ``StreamNet.forward`` runs whole sequences (training, offline evaluation); ``GruStepper``
 is the same arithmetic in numpy for one frame at a time (the live path: torch's per-call

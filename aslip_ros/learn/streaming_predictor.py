@@ -9,8 +9,9 @@
 ``push`` takes anything with ``block`` ``(frames, C)`` float32, ``first_sample_index``,
 ``frames``, ``stamp_ns``, ``end_stamp_ns`` and ``sample_rate`` (``nodes.convert.AudioData``).
 Continuity is judged by ``stream.StreamGate`` exactly as the window node does: a gap, a
-time jump or a new stream resets the features and the recurrent state (the block that
-revealed it starts the new history); repeated or out-of-order blocks are dropped. Each
+time jump, a new stream or a refused block (NaN / Inf: ``push`` raises) resets the
+features and the recurrent state (the block that revealed a gap starts the new history);
+repeated or out-of-order blocks are dropped. Each
 estimate describes the instant of its frame's last sample: ``stamp_ns`` is that sample's
 time on the block clock, and ``Prediction.window_length`` is the frame length (the audio
 the estimate reads directly; the state summarises what came before).
@@ -125,6 +126,8 @@ class StreamingPredictor:
             raise ValueError(f"block shaped {x.shape} does not match {a.frames} frames of "
                              f"{len(self.channel_names)} channels")
         if not np.isfinite(x).all():
+            # The next accepted block follows a hole: start over, as after a gap.
+            self.reset("refused block: NaN or Inf")
             raise ValueError("audio block contains NaN or Inf")
         verdict, detail = self.gate.check(a)
         if verdict in ("repeated", "out_of_order"):
