@@ -103,3 +103,49 @@ def code_of(ret: Any) -> int:
         # the call is documented to do so, which none of the ones used here is.
         return -3
     return int(ret)
+
+
+class ConnectTimeout(Exception):
+    """The SDK's connect did not return in time (an SDK socket timeout is not this)."""
+
+
+def connect_within(api: Any, timeout_s: float) -> None:
+    """``api.connect()`` within ``timeout_s``: :class:`ConnectTimeout` after it, or what
+    ``connect`` raised.
+
+    The SDK's connect blocks on sockets and version queries; a daemon thread with a deadline
+    turns "unreachable" into an error instead of a hung caller. A connection that succeeds
+    after the caller gave up is closed again, never left behind.
+    """
+    outcome: dict = {}
+    handover = threading.Lock()   # decides atomically who owns the connection
+
+    def worker() -> None:
+        try:
+            with socket_default_timeout_restored():
+                api.connect()
+            ok = True
+        except BaseException as exc:  # noqa: BLE001 - reported to the caller
+            outcome['error'] = exc
+            ok = False
+        with handover:
+            outcome['done'] = True
+            abandoned = outcome.get('abandoned', False)
+        if ok and abandoned:
+            try:
+                with socket_default_timeout_restored():
+                    api.disconnect()
+            except Exception:  # noqa: BLE001 - nobody left to report to
+                pass
+
+    t = threading.Thread(target=worker, name='xarm-connect', daemon=True)
+    t.start()
+    t.join(timeout_s)
+    with handover:
+        finished = outcome.get('done', False)
+        if not finished:
+            outcome['abandoned'] = True
+    if not finished:
+        raise ConnectTimeout(f'no answer within {timeout_s:g} s')
+    if 'error' in outcome:
+        raise outcome['error']
