@@ -87,3 +87,29 @@ def test_degenerate_batches_train_without_nan(tmp_path, mode):
     for k, t in res.tensors.items():
         if t.is_floating_point():
             assert torch.isfinite(t).all(), k
+
+
+def test_a_breakdown_line_has_its_methods_colour_and_a_legend_entry(tmp_path, monkeypatch):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgba
+    kept = {}
+    monkeypatch.setattr(plt, "close", lambda fig: kept.setdefault("fig", fig))
+    sweep = {"x_label": "x", "levels": [0, 1, 2],
+             "results": [{"cnn": {"det_pct": 95, "dir_mae_deg": 20},
+                          "svm": {"det_pct": 95, "dir_mae_deg": 20},
+                          "svm_seen": {"det_pct": 95, "dir_mae_deg": 20}}] * 3,
+             "breakdown": {"cnn": {"level": 1}, "svm": {"level": 2}}}
+    stability.plot_stressor("s", sweep, tmp_path / "s.png")
+    assert (tmp_path / "s.png").is_file()
+    for ax in kept["fig"].axes:
+        lines = {ln.get_label(): ln for ln in ax.get_lines()}
+        for m in ("cnn", "svm"):
+            curve, bd = lines[m], lines[f"{m} breaks down"]
+            assert to_rgba(bd.get_color()) == to_rgba(curve.get_color()), m
+            assert bd.get_xdata()[0] == sweep["levels"].index(sweep["breakdown"][m]["level"])
+        assert to_rgba(lines["svm_seen"].get_color()) == to_rgba(lines["svm"].get_color())
+        assert to_rgba(lines["cnn"].get_color()) != to_rgba(lines["svm"].get_color())
+    legend = [t.get_text() for t in kept["fig"].axes[0].get_legend().get_texts()]
+    assert {"cnn breaks down", "svm breaks down"} <= set(legend)

@@ -401,6 +401,10 @@ def plot_stressor(name: str, sweep: dict[str, Any], path: Path) -> None:
     levels = [str(x) for x in sweep["levels"]]
     xs = np.arange(len(levels))
     methods = sorted({m for r in sweep["results"] for m in r})
+    # One colour per method (a "_seen" variant shares its method's colour, dashed), used by
+    # its curve and by its breakdown line, which the legend names.
+    base = sorted({m.removesuffix("_seen") for m in methods})
+    color = {m: f"C{base.index(m.removesuffix('_seen'))}" for m in methods}
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, metric, label, limit in ((axes[0], "det_pct", "detection accuracy (%)",
                                       DET_MIN_PCT),
@@ -409,12 +413,13 @@ def plot_stressor(name: str, sweep: dict[str, Any], path: Path) -> None:
         for m in methods:
             ys = [r.get(m, {}).get(metric) for r in sweep["results"]]
             ys = [np.nan if y is None else y for y in ys]
-            ax.plot(xs, ys, marker="o", ls="--" if m.endswith("_seen") else "-", label=m)
+            ax.plot(xs, ys, marker="o", ls="--" if m.endswith("_seen") else "-", label=m,
+                    color=color[m])
         ax.axhline(limit, color="gray", ls=":", lw=1, label="breakdown limit")
         for m, b in sweep.get("breakdown", {}).items():
             if b is not None:
-                ax.axvline(levels.index(str(b["level"])), ls=":", lw=0.8,
-                           color="tab:red" if m == "cnn" else "tab:orange")
+                ax.axvline(levels.index(str(b["level"])), ls=":", lw=1.2,
+                           color=color.get(m, "gray"), label=f"{m} breaks down")
         ax.set_xticks(xs)
         ax.set_xticklabels(levels, rotation=30, ha="right", fontsize=8)
         ax.set_xlabel(sweep["x_label"])
