@@ -138,3 +138,21 @@ def test_slip_track_episode_composed_in_one_process():
     assert moved > 0.03, moved
     # ... and the arm followed it.
     assert r["pose_rmse_m"] <= TRACK_RMSE_BOUND_M, {k: v for k, v in r.items() if k != "trace"}
+
+
+def test_a_demo_worker_logs_to_its_file_not_to_the_progress_bar(tmp_path):
+    """What a worker writes (Python or C stdio, where rcutils logs) lands in its log file."""
+    import subprocess
+    import sys
+    code = ("import ctypes, os, sys\n"
+            "from aslip_ros.experiments import demo\n"
+            f"demo.redirect_output(demo.worker_log({str(tmp_path)!r}))\n"
+            "print('python line'); print('stderr line', file=sys.stderr)\n"
+            "libc = ctypes.CDLL(None); libc.dprintf(2, b'C line\\n')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == "" and out.stderr == ""
+    logs = list(tmp_path.glob("worker-*.log"))
+    assert len(logs) == 1
+    assert set(logs[0].read_text().splitlines()) == {"python line", "stderr line", "C line"}

@@ -77,8 +77,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 # --- worker side ---------------------------------------------------------------------------
 
-def _worker_init(checkpoints: list) -> None:
-    """Per worker: quiet, single-threaded numerics, localhost discovery, warm models."""
+def worker_log(log_dir: str | Path) -> Path:
+    """This process's log file in ``log_dir``."""
+    return Path(log_dir) / f"worker-{os.getpid()}.log"
+
+
+def redirect_output(path: Path) -> None:
+    """Send this process's stdout and stderr, C stdio included (rcutils logs through it),
+    to ``path``: the nodes' log lines would otherwise break the parent's progress bar."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+
+def _worker_init(checkpoints: list, log_dir: str) -> None:
+    """Per worker: output to its log file, quiet, single-threaded numerics, localhost
+    discovery, warm models."""
+    redirect_output(worker_log(log_dir))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ASLIP_DEMO_EXECUTOR", "events")
     os.environ["RCUTILS_LOGGING_SEVERITY_THRESHOLD"] = os.environ.get(
@@ -159,8 +177,10 @@ def run_episodes(episodes: list[Episode], workers: int, trace_dir: Path,
     ctx = mp.get_context("spawn")
     results: list[Optional[dict]] = [None] * len(episodes)
     jobs = [(ep, str(trace_dir)) for ep in episodes]
-    with ctx.Pool(max(1, workers), initializer=_worker_init, initargs=(checkpoints,),
-                  maxtasksperchild=None) as pool, \
+    log_dir = trace_dir / "logs"
+    log_dir.mkdir(exist_ok=True)
+    with ctx.Pool(max(1, workers), initializer=_worker_init,
+                  initargs=(checkpoints, str(log_dir)), maxtasksperchild=None) as pool, \
             tqdm(total=len(jobs), desc="demo episodes", unit="ep", disable=not progress,
                  file=sys.stderr) as bar:
         it = pool.imap(_worker_run, jobs, chunksize=1)
@@ -168,6 +188,11 @@ def run_episodes(episodes: list[Episode], workers: int, trace_dir: Path,
             results[i] = res
             bar.update(1)
             bar.set_postfix_str(_postfix(res))
+    lines = sum(len(p.read_text(errors="replace").splitlines())
+                for p in log_dir.glob("worker-*.log"))
+    if lines:
+        print(f"[demo] the nodes logged {lines} lines (warnings and errors): "
+              f"{log_dir}/worker-*.log", file=sys.stderr, flush=True)
     return [r for r in results if r is not None]
 
 
