@@ -13,7 +13,7 @@ TEST_TIMEOUT ?= 2400
 PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/pytest
 ASLIP := $(ROS) $(VENV)/bin/aslip
 
-.PHONY: help setup build test test-fast demo datasets ablation bench stability lint clean
+.PHONY: help setup build test test-fast demo datasets ablation bench stability transfer lint clean
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
@@ -23,6 +23,7 @@ help:
 	@echo "make ablation   the paper's Table I and II on the scene (results/ablation/)"
 	@echo "make bench      latency against accuracy (results/bench/)"
 	@echo "make stability  accuracy under stressors (results/stability/)"
+	@echo "make transfer   train on the default scene, test on held-out variants (results/transfer/)"
 
 setup:
 	@bash scripts/setup.sh
@@ -51,6 +52,9 @@ bench: setup
 
 stability: setup
 	$(ASLIP) stability --out results/stability
+
+transfer: setup
+	$(VENV)/bin/python -m aslip_ros.experiments.transfer --out results/transfer
 
 lint: setup
 	$(VENV)/bin/python -m flake8 --max-line-length 99 aslip_ros test || true

@@ -76,15 +76,18 @@ def grouped_metrics(groups: np.ndarray, prob, raw_velocity, true_velocity, slip,
             for g in sorted(set(groups.tolist()))}
 
 
-def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str = "test", *,
-                        induced: str | None = None, objects: Sequence[str] | None = None,
-                        conditions: Sequence[str] | None = None, split_seed: int = 0,
-                        threshold: float | None = None, batch_size: int = 256,
-                        predictor=None) -> dict[str, Any]:
-    """Run a checkpoint over a dataset split; returns overall, per-object, per-condition metrics.
+def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "test", *,
+                  induced: str | None = None, objects: Sequence[str] | None = None,
+                  conditions: Sequence[str] | None = None, split_seed: int = 0,
+                  threshold: float | None = None, batch_size: int = 256,
+                  predictor=None) -> dict[str, Any]:
+    """Run a checkpoint over a dataset split; per-window predictions and labels.
 
     Dataset channels are picked by the checkpoint's channel names, so a single-microphone
     model evaluates on a 4-microphone dataset; rate and window length must match exactly.
+    Returns ``prob``, ``raw_velocity``, ``true_velocity``, ``slip``, ``trial`` (per window),
+    ``index`` (window indices), ``window_s``, ``threshold`` and the ``predictor`` and
+    ``dataset`` used.
     """
     from .predictor import Predictor
 
@@ -118,9 +121,21 @@ def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str 
                                offsets=None if offsets is None else offsets[idx[s:s + 2048]])
         probs.append(b.probability)
         raws.append(b.raw_velocity)
-    prob, raw = np.concatenate(probs), np.concatenate(raws)
-    true, slip = ds.velocity(idx), ds.slip(idx)
-    args = (prob, raw, true, slip, pred.window_s, pred.threshold)
+    return {"prob": np.concatenate(probs), "raw_velocity": np.concatenate(raws),
+            "true_velocity": ds.velocity(idx), "slip": ds.slip(idx),
+            "trial": np.asarray(ds.windows["trial"][idx]), "index": idx,
+            "window_s": pred.window_s, "threshold": pred.threshold, "predictor": pred,
+            "dataset": ds}
+
+
+def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str = "test",
+                        **kw: Any) -> dict[str, Any]:
+    """Run a checkpoint over a dataset split; returns overall, per-object, per-condition metrics
+    (keyword arguments: those of :func:`predict_split`)."""
+    p = predict_split(checkpoint, dataset, split, **kw)
+    pred, ds, idx = p["predictor"], p["dataset"], p["index"]
+    args = (p["prob"], p["raw_velocity"], p["true_velocity"], p["slip"], pred.window_s,
+            pred.threshold)
     return {
         "checkpoint": str(checkpoint), "dataset": str(dataset), "split": split,
         "model_type": pred.model_type, "layout": pred.layout,

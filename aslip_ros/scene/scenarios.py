@@ -301,6 +301,27 @@ def one_sided_variant(scn: Scenario, fraction: float = 0.8,
     return scn.with_(one_sided_fraction=float(fraction), one_sided_spread_rad=float(spread_rad))
 
 
+#: A lab's motion capture in the mocap variant (docs/scene.md): rate [Hz], per-axis marker
+#: noise [m], share of dropped frames, latency [s].
+LAB_MOCAP = {"mocap_rate_hz": 100.0, "mocap_noise_m": 3e-4, "mocap_drop_prob": 0.02,
+             "mocap_latency_s": 0.015}
+
+
+def mocap_variant(scn: Scenario) -> Scenario:
+    """``scn`` seen by a lab's motion capture: slower, noisier, with more dropped frames and
+    latency than the scene's default (``LAB_MOCAP``)."""
+    return scn.with_(**LAB_MOCAP)
+
+
+#: The scene variants by name (``aslip simulate --variant``): each maps a scenario to its
+#: variant. ``one_sided`` includes the coupling, as any real grasp has it.
+VARIANTS = {
+    "coupling": coupling_variant,
+    "one_sided": lambda scn: one_sided_variant(coupling_variant(scn)),
+    "mocap": mocap_variant,
+}
+
+
 def _slip_speed(rng: np.random.Generator, scn: Scenario, fast_max: float) -> float:
     """Slip speed: a share of slow slip near a few mm/s, the rest up to ``fast_max``."""
     if rng.random() < scn.slow_fraction:
