@@ -31,6 +31,9 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from aslip_ros import frames, topics
+from aslip_ros.audio_frame import stamp_to_ns  # noqa: F401 - part of this API
+from aslip_ros.data.bag_errors import BagDamaged, BagError
+from aslip_ros.data.pose_cdr import StampedPose, decode_pose_stamped
 
 PACKAGE = "aslip_ros"
 AUDIO_TYPE = "aslip_ros/msg/AudioFrame"
@@ -72,14 +75,6 @@ def _qos(kind: str):
     }[kind]
     return [Qos(QosHistory.KEEP_LAST, depth, reliability, durability, zero, zero,
                 QosLiveliness.AUTOMATIC, zero, False)]
-
-
-class BagError(ValueError):
-    """A bag that cannot be read or written as the contract requires."""
-
-
-class BagDamaged(BagError):
-    """A bag whose file is truncated or corrupt (as opposed to well-formed but unsuitable)."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -140,11 +135,6 @@ def typestore():
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store
-
-
-def stamp_to_ns(stamp: Any) -> int:
-    """``builtin_interfaces/Time`` -> integer nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def _time_msg(store, ns: int):
@@ -382,36 +372,6 @@ class BagReader:
         what = str(exc) if isinstance(exc, BagError) else f"{type(exc).__name__}: {exc}"
         return BagError(f"bag {self.path}: message {k} on {topic} (log time {log_ns} ns, "
                         f"{after:.3f} s into the bag) cannot be decoded: {what}")
-
-
-@dataclass(frozen=True)
-class StampedPose:
-    """A decoded ``geometry_msgs/PoseStamped``: header stamp (ns), frame id, pose7."""
-
-    stamp_ns: int
-    frame_id: str
-    pose: np.ndarray
-
-
-def decode_pose_stamped(raw: bytes | memoryview) -> StampedPose:
-    """Decode CDR-serialized ``geometry_msgs/msg/PoseStamped`` bytes.
-
-    Layout (XCDR1 plain, after the 4-byte encapsulation header whose second byte gives the
-    byte order): int32 sec, uint32 nanosec, uint32 string length (with NUL), the string,
-    padding to an 8-byte boundary, then seven float64: position xyz, orientation xyzw.
-    """
-    buf = bytes(raw)
-    if len(buf) < 16 or buf[1] not in (0, 1):
-        raise BagError(f"not a CDR PoseStamped ({len(buf)} bytes)")
-    order = "<" if buf[1] == 1 else ">"
-    sec, nsec, n = struct.unpack_from(order + "iII", buf, 4)
-    end = 16 + n
-    off = 4 + ((end - 4 + 7) & ~7)
-    if off + 56 != len(buf) or n == 0:
-        raise BagError(f"not a CDR PoseStamped ({len(buf)} bytes, frame id length {n})")
-    frame = buf[16:end - 1].decode("utf-8", errors="replace")
-    pose = np.frombuffer(buf, dtype=order + "f8", count=7, offset=off).astype(np.float64)
-    return StampedPose(sec * 1_000_000_000 + nsec, frame, pose)
 
 
 def read_messages(path: str | os.PathLike,
