@@ -24,6 +24,26 @@ def _in_any(t: float, intervals: Iterable[tuple[float, float]]) -> bool:
     return any(a <= t < b for a, b in intervals)
 
 
+def _metadata(metadata: Mapping | None | bool, extra: Mapping | None, *, sample_rate: float,
+              channel_names: list, layout: str, induced: str, seed: int,
+              calib: np.ndarray) -> dict | None:
+    """The bag's scenario metadata: made up (True), as given (a mapping) or none."""
+    if metadata is True:
+        meta = make_metadata(sample_rate=sample_rate, channel_names=channel_names,
+                             layout=layout, object="synthetic", pad="textured",
+                             induced=induced,
+                             condition="robot_moving" if induced == "robot" else "robot_off",
+                             seed=seed, trial_id=f"synthetic-{induced}-{seed:04d}")
+        meta["grasp_plane_in_" + ("tcp" if induced == "robot" else "finger")] = list(calib)
+    elif metadata:
+        meta = dict(metadata)
+    else:
+        meta = None
+    if meta is not None and extra:
+        meta.update(extra)
+    return meta
+
+
 def write_synthetic_bag(path: str | os.PathLike, *, duration_s: float = 3.0,
                         sample_rate: float = 48000.0,
                         channel_names: Sequence[str] = DEFAULT_CHANNELS,
@@ -57,19 +77,9 @@ def write_synthetic_bag(path: str | os.PathLike, *, duration_s: float = 3.0,
     v_finger = np.asarray(finger_velocity, dtype=np.float64)
     inv_calib = invert(calib)
     names = list(channel_names)
-    if metadata is True:
-        meta = make_metadata(sample_rate=float(sample_rate), channel_names=names,
-                             layout=layout, object="synthetic", pad="textured",
-                             induced=induced,
-                             condition="robot_moving" if induced == "robot" else "robot_off",
-                             seed=seed, trial_id=f"synthetic-{induced}-{seed:04d}")
-        meta["grasp_plane_in_" + ("tcp" if induced == "robot" else "finger")] = list(calib)
-    elif metadata:
-        meta = dict(metadata)
-    else:
-        meta = None
-    if meta is not None and extra_metadata:
-        meta.update(extra_metadata)
+    meta = _metadata(metadata, extra_metadata, sample_rate=float(sample_rate),
+                     channel_names=names, layout=layout, induced=induced, seed=seed,
+                     calib=calib)
 
     rng = np.random.default_rng(seed)
     # One second of noise reused cyclically keeps long benchmark bags cheap to make.
