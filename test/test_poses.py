@@ -42,3 +42,10 @@ def test_bad_poses_are_refused_with_the_argument_name():
         poses.as_pose([0.0] * 6, "calibration")
     with pytest.raises(ValueError, match="non-finite"):
         poses.compose([0, 0, np.nan, 0, 0, 0, 1], poses.IDENTITY_POSE)
+
+
+@pytest.mark.ros
+def test_a_pose_parameter_refuses_what_the_pose_algebra_refuses():
+    from aslip_ros.nodes import common as c
+    assert c.pose7([0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 1e-8]) == "has a zero quaternion"
+    assert c.pose7([0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 1.0]) is None

@@ -15,6 +15,8 @@ from typing import Any, Callable, Optional
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
+from aslip_ros import poses
+
 Validator = Callable[[Any], Optional[str]]
 
 
@@ -104,7 +106,7 @@ def _pose7(v) -> Optional[str]:
         return f"must be 7 numbers, got {v!r}"
     if len(vals) != 7 or not all(math.isfinite(x) for x in vals):
         return f"must be 7 finite numbers (x y z qx qy qz qw), got {vals}"
-    if math.sqrt(sum(x * x for x in vals[3:])) < 1e-9:
+    if not poses.quat_ok(vals):
         return "has a zero quaternion"
     return None
 
