@@ -297,3 +297,14 @@ def test_a_block_the_node_refuses_is_refused_offline_too(tmp_path, monkeypatch, 
     np.testing.assert_array_equal(np.asarray(bad.windows), np.asarray(ref.windows))
     audio = np.load(tmp_path / "ds_bad" / "audio" / "0.npy")
     assert np.isfinite(audio).all() and np.abs(audio).max() <= 1.0
+
+
+def test_a_calibration_with_a_near_zero_quaternion_is_refused(tmp_path):
+    """The bag's calibration is checked by the one pose algebra: a 1e-8 quaternion is noise,
+    not a rotation to normalise."""
+    write_synthetic_bag(tmp_path / "b", duration_s=1.0,
+                        metadata={"induced": "external",
+                                  "grasp_plane_in_finger": [0, 0, 0, 0, 0, 0, 1e-8]})
+    with pytest.raises(ValueError, match="grasp_plane_in_finger must be a pose"):
+        export([tmp_path / "b"], tmp_path / "ds", progress=False)
+    assert not (tmp_path / "ds").exists()

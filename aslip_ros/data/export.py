@@ -48,6 +48,7 @@ from aslip_ros.data.labels import (DEFAULT_EPSILON_M_S, DEFAULT_HOP_S, DEFAULT_M
                                    DEFAULT_WINDOW_S, IDENTITY_POSE, OK, REASONS,
                                    mocap_window_velocity, robot_window_velocity)
 from aslip_ros.learn.streaming_labels import export_track, write_track
+from aslip_ros.poses import as_pose
 
 LABEL_SOURCES = ("auto", "mocap", "robot")
 UNKNOWN = "unknown"
@@ -155,11 +156,11 @@ def _calibration(meta: dict, key: str, bag: Path) -> np.ndarray:
     value = meta.get(key)
     if value is None:
         return IDENTITY_POSE.copy()
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    if arr.size != 7 or not np.all(np.isfinite(arr)) or np.linalg.norm(arr[3:]) < 1e-9:
+    try:
+        return as_pose(value, key)
+    except ValueError:
         raise BagError(f"bag {bag}: metadata {key} must be a pose x y z qx qy qz qw, "
-                       f"got {value!r}")
-    return arr
+                       f"got {value!r}") from None
 
 
 def _window_labels(rec: BagStreams, meta: dict, cfg: ExportConfig, source: str,
