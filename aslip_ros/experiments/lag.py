@@ -229,7 +229,7 @@ def hop_latency(kind: str, ckpt: Path, n_iter: int = 400, n_warmup: int = 40,
 
 def methods(cache: Path, models: Path) -> list[dict[str, Any]]:
     """The compared checkpoints that exist: streaming, window CNNs, SVMs, shipped ones."""
-    cands = [("stream", "stream", cache / "stream.pt", 0.0)]
+    cands = [("stream", "stream", cache / "stream.pt", 32)]     # one frame + the state
     cands += [(f"cnn_w{w}", "window", cache / f"cnn_w{w}.pt", w) for w in (50, 100, 200, 300)]
     cands += [("svm_w200", "window", cache / "svm_w200.pt", 200),
               ("shipped_cnn_w200", "window", models / "aslip_cnn.pt", 200),
