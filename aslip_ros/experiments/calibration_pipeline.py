@@ -48,18 +48,10 @@ def make_dataset(work: Path, variant: str, trials: int) -> Path:
 
 def per_window(ckpt: Path, ds_path: Path) -> dict[str, np.ndarray]:
     """Test-split predictions the way ``aslip evaluate`` makes them, for the intervals."""
-    from aslip_ros.learn.calibration_frames import dataset_offsets
-    from aslip_ros.learn.data_io import open_dataset, select_windows
-    from aslip_ros.learn.predictor import Predictor
-    p = Predictor.from_checkpoint(ckpt)
-    ds = open_dataset(ds_path)
-    idx = select_windows(ds, "test")
-    cols = ds.channel_indices(p.channel_names)
-    off = None if p.calibration is None else dataset_offsets(
-        ds, p.channel_names, p.feature_config, p.calibration, idx)[idx]
-    b = p.predict_batch(ds.window_audio(idx, cols), offsets=off)
-    return {"p": b.probability, "vel": b.raw_velocity, "v": ds.velocity(idx),
-            "slip": ds.slip(idx), "trial": ds.windows["trial"][idx], "window_s": p.window_s}
+    from aslip_ros.learn.evaluate import predict_split
+    r = predict_split(ckpt, ds_path, "test")
+    return {"p": r["prob"], "vel": r["raw_velocity"], "v": r["true_velocity"],
+            "slip": r["slip"], "trial": r["trial"], "window_s": r["window_s"]}
 
 
 def run_variant(args: argparse.Namespace) -> dict:
