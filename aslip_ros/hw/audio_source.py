@@ -21,7 +21,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Mapping, Optional, Protocol, runtime_checkable
 
 from aslip_ros import plugin
-from aslip_ros.hw.audio import AudioBlock
+from aslip_ros.hw.audio import AudioBlock, SoundDeviceCapture
+from aslip_ros.hw.sources import BagAudio, SimAudio, build_world, world_metadata
+from aslip_ros.hw.wav import WavReplay
 
 METADATA_BASE = {"format": "aslip-metadata", "version": 1}
 
@@ -85,7 +87,6 @@ def _device(value: str):
 def open_device(p: Mapping[str, Any], node: Any = None) -> OpenedSource:
     """PortAudio input: ``device``, ``channels``, ``sample_rate``, ``channel_names``,
     ``latency``, ``layout``, ``block_s``."""
-    from aslip_ros.hw.audio import SoundDeviceCapture
     rate = float(p["sample_rate"])
     src = SoundDeviceCapture(_device(p["device"]), int(p["channels"]), rate,
                              block_frames=_frames(p["block_s"], rate),
@@ -97,7 +98,6 @@ def open_device(p: Mapping[str, Any], node: Any = None) -> OpenedSource:
 
 def open_wav(p: Mapping[str, Any], node: Any = None) -> OpenedSource:
     """WAV replay in real time: ``wav_path``, ``loop``, ``channel_names``, ``layout``."""
-    from aslip_ros.hw.wav import WavReplay
     # A first look at the header gives the rate (for the block length) and the channel
     # count (the configured names apply only when they fit the file).
     probe = WavReplay(p["wav_path"], paced=False)
@@ -112,7 +112,6 @@ def open_wav(p: Mapping[str, Any], node: Any = None) -> OpenedSource:
 
 def open_bag(p: Mapping[str, Any], node: Any = None) -> OpenedSource:
     """A bag's AudioFrames in real time: ``bag_path``, ``bag_topic``, ``loop``."""
-    from aslip_ros.hw.sources import BagAudio
     src = BagAudio(p["bag_path"], p["bag_topic"], p["loop"])
     meta = dict(METADATA_BASE, **src.metadata)
     meta.update(sample_rate=src.sample_rate, channel_names=src.channel_names)
@@ -121,7 +120,6 @@ def open_bag(p: Mapping[str, Any], node: Any = None) -> OpenedSource:
 
 def open_sim(p: Mapping[str, Any], node: Any = None) -> OpenedSource:
     """The simulated scene's audio: the ``sim.*`` scene parameters and ``block_s``."""
-    from aslip_ros.hw.sources import SimAudio, build_world, world_metadata
     world = build_world(dict(p), "sim.")
     src = SimAudio(world, _frames(p["block_s"], world.fs), world_metadata(world))
     meta = dict(src.metadata)

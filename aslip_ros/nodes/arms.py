@@ -21,6 +21,9 @@ from dataclasses import dataclass
 from typing import Any, Callable, Dict, Mapping
 
 from aslip_ros import plugin
+from aslip_ros.control.limits import ArmLimits, LimitedArm
+from aslip_ros.hw.xarm import XArmAdapter, XArmConfig
+from aslip_ros.nodes.topic_arm import TopicArm
 
 ArmFactory = Callable[[Any, Mapping[str, Any]], Any]
 
@@ -44,19 +47,16 @@ class ArmKind:
 
 def limits(p: Mapping[str, Any]):
     """The :class:`~aslip_ros.control.limits.ArmLimits` of the limit parameters."""
-    from aslip_ros.control.limits import ArmLimits
     return ArmLimits(max_speed_m_s=p["xarm_max_speed_m_s"],
                      workspace_min_m=tuple(p["xarm_workspace_min_m"]),
                      workspace_max_m=tuple(p["xarm_workspace_max_m"]))
 
 
 def _sim(node, p: Mapping[str, Any]):
-    from aslip_ros.nodes.topic_arm import TopicArm
     return TopicArm(node)
 
 
 def _xarm(node, p: Mapping[str, Any]):
-    from aslip_ros.hw.xarm import XArmAdapter, XArmConfig
     cfg = XArmConfig(ip=p["xarm_ip"], max_speed_m_s=p["xarm_max_speed_m_s"],
                      connect_timeout_s=p["xarm_connect_timeout_s"],
                      workspace_min_m=tuple(p["xarm_workspace_min_m"]),
@@ -73,7 +73,6 @@ ARMS: Dict[str, ArmKind] = {
 
 def _limited(factory: ArmFactory) -> ArmFactory:
     def make(node, p: Mapping[str, Any]):
-        from aslip_ros.control.limits import LimitedArm
         return LimitedArm(factory(node, p), limits(p))
     return make
 

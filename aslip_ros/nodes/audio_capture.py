@@ -47,6 +47,7 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import String
 
 from aslip_ros.hw import audio_source
+from aslip_ros.hw.audio import check_latency
 from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
@@ -336,7 +337,6 @@ class AudioCapture(LifecycleNode):
 
 
 def _latency(v) -> Optional[str]:
-    from aslip_ros.hw.audio import check_latency
     try:
         check_latency(v)
     except ValueError as exc:

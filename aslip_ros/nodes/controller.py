@@ -40,6 +40,9 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import String
 
 from aslip_ros import frames, poses
+from aslip_ros.control.arm import ArmError
+from aslip_ros.control.arm_worker import ArmWorker
+from aslip_ros.control.command import VelocityCommand
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, ArrivalStats
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
@@ -210,8 +213,6 @@ class ControllerNode(LifecycleNode):
 
     def on_configure(self, state) -> TransitionCallbackReturn:
         """Create and connect the arm; an unreachable arm fails the transition."""
-        from aslip_ros.control.arm import ArmError
-        from aslip_ros.control.arm_worker import ArmWorker
         try:
             arm = self.arm_kind.make(self, self.p)
             arm.connect()
@@ -234,7 +235,6 @@ class ControllerNode(LifecycleNode):
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         """Enable velocity mode; the task starts on the next control cycle."""
-        from aslip_ros.control.arm import ArmError
         try:
             self.arm.enable_velocity_mode()
         except ArmError as exc:
@@ -281,10 +281,12 @@ class ControllerNode(LifecycleNode):
                                      "last_slip_t": self.last_slip_t,
                                      "last_pose_t": self.last_pose_t,
                                      "posted_t": time.monotonic()}
+                # Once per activation: why the arm stopped is in the log, not only on
+                # the diagnostics.
+                self.get_logger().info(f"stopping the arm: {command.reason}")
             self.worker.post(command)
 
     def _halt(self, why: str) -> None:
-        from aslip_ros.control.command import VelocityCommand
         with self._lock:
             task, worker = self.task, self.worker
             if task is not None:

@@ -30,6 +30,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from aslip_ros import frames
+from aslip_ros.control.arm import ArmError
 from aslip_ros.hw import sources
 from aslip_ros.hw.sources import world_metadata
 from aslip_ros.msg import AudioFrame
@@ -157,7 +158,6 @@ class SceneSim(Node):
             self.cmd_timeout = float(changed["command_timeout_s"])
 
     def _on_cmd(self, msg: TwistStamped) -> None:
-        from aslip_ros.control.arm import ArmError
         try:
             v = convert.twist_from_msg(msg)
             with self._lock:

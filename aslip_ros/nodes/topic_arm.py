@@ -14,6 +14,7 @@ from geometry_msgs.msg import TwistStamped
 from rclpy.duration import Duration
 
 from aslip_ros import frames
+from aslip_ros.control.arm import ArmError
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 
@@ -49,7 +50,6 @@ class TopicArm:
 
     def send_velocity(self, v_xyz_m_s, duration_s: float) -> None:
         """Publish a velocity command [m/s, ``link_base``]."""
-        from aslip_ros.control.arm import ArmError
         if not self._enabled:
             raise ArmError("velocity mode is not enabled")
         now = self._node.get_clock().now().nanoseconds
@@ -67,7 +67,6 @@ class TopicArm:
 
     def tcp_pose(self) -> np.ndarray:
         """Newest TCP pose received."""
-        from aslip_ros.control.arm import ArmError
         if self._pose is None:
             raise ArmError("no TCP pose received yet")
         return self._pose.copy()
