@@ -30,7 +30,8 @@ def test_protocol_on_synthetic_scenes(tmp_path, monkeypatch):
                                       seed=seed, coupling_db=0.0 if scene == "default" else 3.0,
                                       background=0.05)
     monkeypatch.setattr(transfer, "scene_dataset", fake_scene)
-    cfg = transfer.TransferConfig(out=tmp_path / "out", test_on=("default", "coupling"),
+    cfg = transfer.TransferConfig(out=tmp_path / "out", data=tmp_path / "data",
+                                  test_on=("default", "coupling"),
                                   methods=("paper_svm", "paper_svm_uncalibrated", "plain_svm"),
                                   n_boot=20, progress=False)
     res = transfer.run_protocol(cfg, log=lambda s: None)
@@ -50,7 +51,7 @@ def test_protocol_on_synthetic_scenes(tmp_path, monkeypatch):
     assert "## default -> coupling (14 test trials)" in md and "**" in md
     # Calibrated and uncalibrated checkpoints differ only in that.
     from aslip_ros.learn.checkpoint import load_checkpoint
-    models = cfg.out / "models" / "default"
+    models = cfg.data / "models" / "default"
     assert "calibration" in load_checkpoint(models / "paper_svm.pt").meta
     assert load_checkpoint(models / "paper_svm_uncalibrated.pt").meta.get("calibration") is None
 

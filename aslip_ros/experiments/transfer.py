@@ -50,6 +50,7 @@ KEYS = (("detection_accuracy", "detection %", 100.0), ("direction_mae_deg", "dir
 @dataclass
 class TransferConfig:
     out: Path
+    data: Path = Path("data/transfer")   # bags, datasets and models (git-ignored)
     train_on: tuple[str, ...] = ("default",)
     test_on: tuple[str, ...] = SCENES
     methods: tuple[str, ...] = METHODS
@@ -71,8 +72,8 @@ def scene_dataset(cfg: TransferConfig, scene: str, log: Callable[[str], None]) -
     """The externally induced dataset of ``scene``: simulated and exported once, then reused."""
     from aslip_ros.data.export import export
     from aslip_ros.data.simulate import simulate
-    bags = cfg.out / "bags" / scene
-    ds = cfg.out / "datasets" / scene
+    bags = cfg.data / "bags" / scene
+    ds = cfg.data / "datasets" / scene
     if (ds / "manifest.json").is_file():
         return ds
     log(f"{scene}: simulating {cfg.trials * len(cfg.objects) * len(CONDITIONS)} trials")
@@ -157,7 +158,8 @@ def run_protocol(cfg: TransferConfig, log: Callable[[str], None] = print) -> dic
     for train in cfg.train_on:
         for method in cfg.methods:
             t0 = time.perf_counter()
-            model = train_method(cfg, method, datasets[train], cfg.out / "models" / train, log)
+            model = train_method(cfg, method, datasets[train], cfg.data / "models" / train,
+                                 log)
             log(f"trained {method} on {train} ({time.perf_counter() - t0:.0f} s)")
             for test in cfg.test_on:
                 split = "test" if test == train else "all"
@@ -222,7 +224,8 @@ def table_markdown(result: dict[str, Any]) -> str:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", default="results/transfer", help="results, data and models")
+    p.add_argument("--out", default="results/transfer", help="results (json, markdown)")
+    p.add_argument("--data", default="data/transfer", help="bags, datasets and models")
     p.add_argument("--train-on", default="default", help="comma-separated scenes to train on")
     p.add_argument("--test-on", default=",".join(SCENES), help="comma-separated scenes")
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
@@ -244,7 +247,8 @@ def config_from_args(args: argparse.Namespace) -> TransferConfig:
         if bad or not out:
             raise SystemExit(f"transfer: unknown {what} {bad or s!r}; choose from {allowed}")
         return out
-    cfg = TransferConfig(out=Path(args.out), train_on=names(args.train_on, SCENES, "scene"),
+    cfg = TransferConfig(out=Path(args.out), data=Path(args.data),
+                         train_on=names(args.train_on, SCENES, "scene"),
                          test_on=names(args.test_on, SCENES, "scene"),
                          methods=names(args.methods, METHODS, "method"), trials=args.trials,
                          duration_s=args.duration, time_budget_s=args.time_budget,
