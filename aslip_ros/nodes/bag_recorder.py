@@ -18,13 +18,14 @@ from typing import Optional
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from aslip_ros import topics
 from aslip_ros.data import bags
 from aslip_ros.data.bag_writer import BagWriter
 from aslip_ros.nodes import common as c
 
 #: What ``data_collection.launch.py`` records: the recording contract plus TF.
 DEFAULT_TOPICS = [c.AUDIO_TOPIC, c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC,
-                  c.METADATA_TOPIC, c.SLIP_TRUTH_TOPIC, "/tf", "/tf_static"]
+                  c.METADATA_TOPIC, c.SLIP_TRUTH_TOPIC, topics.TF, topics.TF_STATIC]
 
 
 class RawBagWriter(BagWriter):

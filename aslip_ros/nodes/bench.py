@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aslip_ros import topics
 from aslip_ros.util import die_with_parent
 
 _CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -115,16 +116,16 @@ def _listen(domain: int, duration_s: float, want_slip: bool, on_start=None) -> d
         ages.append(time.time() - end_ns * 1e-9)
         indices.append((int(msg.first_sample_index), frames))
 
-    node.create_subscription(AudioFrame, "/aslip/audio", on_audio,
+    node.create_subscription(AudioFrame, topics.AUDIO, on_audio,
                              QoSProfile(depth=1000,
                                         reliability=qos_profile_sensor_data.reliability))
     if want_slip:
         rel = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         node.create_subscription(
-            SlipVector, "/aslip/slip",
+            SlipVector, topics.SLIP,
             lambda m: slips.append((m.header.stamp.sec * 10**9 + m.header.stamp.nanosec,
                                     time.perf_counter())), rel)
-        node.create_subscription(String, "/aslip/diagnostics",
+        node.create_subscription(String, topics.DIAGNOSTICS_JSON,
                                  lambda m: diags.append(json.loads(m.data)), rel)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)

@@ -19,6 +19,7 @@ from launch.substitutions import PythonExpression
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
+from aslip_ros import topics
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S
 
 #: The checkpoint a launch uses when none is given (shipped in share/aslip_ros/models).
@@ -98,8 +99,8 @@ def closed_loop_description(controller: str, scenario: str, task_arg: str,
         DeclareLaunchArgument("xarm_ip", default_value="192.168.1.222"),
         DeclareLaunchArgument("audio_device", default_value="",
                               description="hw: PortAudio device name or index"),
-        DeclareLaunchArgument("finger_topic", default_value="/aslip/mocap/finger"),
-        DeclareLaunchArgument("object_topic", default_value="/aslip/mocap/object"),
+        DeclareLaunchArgument("finger_topic", default_value=topics.FINGER),
+        DeclareLaunchArgument("object_topic", default_value=topics.OBJECT),
         DeclareLaunchArgument("rviz", default_value="false",
                               description="start rviz (skipped with a log line when missing)"),
         DeclareLaunchArgument("autostart", default_value="true",

@@ -20,10 +20,11 @@ from typing import Optional
 import numpy as np
 from std_msgs.msg import String
 
+from aslip_ros import topics
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes.controller import ControllerNode
 
-RESULT_TOPIC = "/aslip/slip_stop/result"
+RESULT_TOPIC = topics.SLIP_STOP_RESULT
 
 
 def _direction_check(v) -> Optional[str]:

@@ -21,11 +21,12 @@ except ImportError as exc:   # a stale build; a clear refusal rather than a trac
     raise ConfigError(f"TF needs tf2_msgs (a ROS 2 install provides it; in the venv "
                       f"`make setup` builds compat/tf2_msgs): {exc}") from exc
 
+from aslip_ros import topics
 from aslip_ros.control.frames import as_pose
 from aslip_ros.nodes import convert
 
-TF_TOPIC = "/tf"
-TF_STATIC_TOPIC = "/tf_static"
+TF_TOPIC = topics.TF
+TF_STATIC_TOPIC = topics.TF_STATIC
 #: tf2_ros's DynamicBroadcasterQoS / DynamicListenerQoS.
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                     reliability=ReliabilityPolicy.RELIABLE,
