@@ -171,7 +171,7 @@ def test_streaming_calibration_in_the_node_equals_offline(live):
     assert values["calibration_accepted_frames"] == total
 
 
-def test_calibration_resets_on_gap_restart_and_service(live):
+def test_calibration_resets_on_gap_restart_time_jump_and_service(live):
     from std_srvs.srv import Trigger
     bus, stream, proc, _ = live
     stream.feed(stream_audio(20, seed=1))
@@ -196,12 +196,20 @@ def test_calibration_resets_on_gap_restart_and_service(live):
               and v["calibration_frames"] == after_five)
     assert v is not None and v["stream_restarts"] >= 1, proc.output[-3000:]
 
+    stream.feed(stream_audio(20, seed=5))
+    assert _diag(bus, lambda v: v["calibration_frames"] >= 17) is not None
+    stream.stamp_ns += 5 * 10**9            # a clock step at a contiguous index: dropped,
+    stream.feed(stream_audio(6, seed=6))    # re-anchored, then 5 blocks of the new grasp
+    v = _diag(bus, lambda v: v["calibration_resets"] == n + 3
+              and v["calibration_frames"] == after_five)
+    assert v is not None and v.get("dropped_time_jump", 0) >= 1, proc.output[-3000:]
+
     cli = bus.node.create_client(Trigger, "/slip_inference/recalibrate")
     assert cli.wait_for_service(timeout_sec=10)
     fut = cli.call_async(Trigger.Request())
     assert bus.wait(fut.done, 10)
     assert fut.result().success and "reset" in fut.result().message
-    v = _diag(bus, lambda v: v["calibration_resets"] == n + 3)
+    v = _diag(bus, lambda v: v["calibration_resets"] == n + 4)
     assert v is not None and v["calibration_frames"] == 0
     assert v["calibration_accepted_frames"] == 0
     assert all(v[f"gain_db_{name}"] == 0.0 for name in SCENE_NAMES)
