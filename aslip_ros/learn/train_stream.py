@@ -50,7 +50,7 @@ class StreamTrainConfig:
     split_seed: int = 0
     gain_db: float = 6.0
     channel_gain_db: float = 1.0
-    velocity_weight: float = 1.0
+    velocity_weight: float = 2.0
     fa_per_min: float = 2.0        # validation false alarms per minute the threshold allows
     threads: int = 1
     progress: bool = True
