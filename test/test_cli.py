@@ -105,3 +105,16 @@ def test_a_refused_input_reaching_the_top_is_one_line(monkeypatch, capsys):
     monkeypatch.setenv("ASLIP_DEBUG", "1")
     with pytest.raises(OSError):
         cli.main(["export"])
+
+
+def test_train_help_documents_every_stage_and_its_default(capsys):
+    from aslip_ros import cli
+    from aslip_ros.learn.train import STAGES
+    with pytest.raises(SystemExit):
+        cli.main(["train", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    i = text.index("--stage {")
+    doc = text[i:text.index("--init", i + 10)]
+    assert "(default: scratch)" in doc
+    for stage in STAGES:
+        assert f"{stage}:" in doc, stage

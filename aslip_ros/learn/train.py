@@ -472,10 +472,14 @@ def _csv(s: str | None) -> list[str] | None:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     d, m, f = TrainConfig(), ModelConfig(), FeatureConfig()
     p.add_argument("--dataset", required=True, help="dataset directory (aslip export)")
-    p.add_argument("--stage", choices=STAGES, default="scratch")
+    p.add_argument("--stage", choices=STAGES, default="scratch",
+                   help="pretrain: the CNN on robot-induced data; finetune: the heads on "
+                        "another set from --init (the paper's frozen encoder); scratch: "
+                        "every weight on this dataset; svm: the paper's SVM baseline; "
+                        "stream: the causal streaming estimator (docs/streaming.md)")
     p.add_argument("--init", default=None, help="checkpoint to finetune (--stage finetune)")
     p.add_argument("--out", required=True, help="checkpoint file to write")
-    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--seed", type=int, default=d.seed, help="training seed")
     p.add_argument("--split-seed", type=int, default=d.split_seed,
                    help="seed of the by-trial split (keep fixed across training seeds)")
     p.add_argument("--epochs", type=int, default=d.epochs, help="maximum epochs")
