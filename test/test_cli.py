@@ -113,7 +113,7 @@ def test_train_help_documents_every_stage_and_its_default(capsys):
     with pytest.raises(SystemExit):
         cli.main(["train", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    i = text.index("--stage {")
+    i = text.rindex("--stage {")          # the option, not the usage line
     doc = text[i:text.index("--init", i + 10)]
     assert "(default: scratch)" in doc
     for stage in STAGES:
