@@ -319,7 +319,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache", default="results/lag/cache",
                    help="checkpoints: stream.pt, cnn_w{50,100,200,300}.pt, svm_w200.pt")
     p.add_argument("--models", default="models", help="shipped aslip_cnn.pt / svm.pt")
-    p.add_argument("--trials", type=int, default=10, help="fresh scene trials")
+    p.add_argument("--trials", type=int, default=30, help="fresh scene trials")
     p.add_argument("--duration", type=float, default=10.0, help="seconds per trial")
     p.add_argument("--seed", type=int, default=900000, help="first scene seed")
     p.add_argument("--epsilon", type=float, default=0.005, help="slip speed threshold m/s")
