@@ -14,7 +14,7 @@ from aslip_ros.learn.checkpoint import CheckpointMismatch, load_checkpoint, save
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.streaming import stream_logmel
-from aslip_ros.learn.streaming_labels import Smoother, frame_labels, load_track, smooth_velocity
+from aslip_ros.data.stream_labels import Smoother, frame_labels, load_track, smooth_velocity
 from aslip_ros.learn.streaming_model import GruStepper, StreamConfig, StreamNet, offline_outputs
 from aslip_ros.learn.streaming_predictor import StreamingPredictor
 
@@ -223,7 +223,7 @@ def test_aslip_train_stage_stream_writes_a_streaming_checkpoint(dataset, tmp_pat
 
 
 def test_guard_band_covers_the_smoothed_onset_and_end():
-    from aslip_ros.learn.streaming_labels import guard_band
+    from aslip_ros.data.stream_labels import guard_band
     slip = np.zeros(40, bool)
     slip[10:25] = True
     g = guard_band(slip, np.arange(40) * 0.01, 0.05)

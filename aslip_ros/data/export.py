@@ -47,7 +47,7 @@ from aslip_ros.data.export_read import (AudioClock, BagStreams, StreamFormat, Wi
 from aslip_ros.data.labels import (DEFAULT_EPSILON_M_S, DEFAULT_HOP_S, DEFAULT_MAX_GAP_S,
                                    DEFAULT_WINDOW_S, IDENTITY_POSE, OK, REASONS,
                                    mocap_window_velocity, robot_window_velocity)
-from aslip_ros.learn.streaming_labels import export_track, write_track
+from aslip_ros.data.stream_labels import export_track, write_track
 from aslip_ros.poses import as_pose
 
 LABEL_SOURCES = ("auto", "mocap", "robot")

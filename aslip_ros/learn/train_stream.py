@@ -2,7 +2,7 @@
 
 The dataset is the one ``aslip export`` writes for the window models; the streaming model
 reads each trial's whole audio (frames from ``streaming.stream_logmel``, the live path) and
-its object-relative track (labels from ``streaming_labels.frame_labels``: the smoothed
+its object-relative track (labels from ``data.stream_labels.frame_labels``: the smoothed
 slip velocity at each frame's last sample). Splits are by trial with
 ``data_io.trial_splits``, so a trial is in the same split for the window models and this
 one. Training draws random 2 s sequences from the training trials, each starting from a
@@ -29,7 +29,7 @@ from .checkpoint import git_revision, save_checkpoint
 from .data_io import WindowSet, open_dataset, trial_splits
 from .features import FeatureConfig
 from .streaming import StreamingLogMel, stream_logmel
-from .streaming_labels import DEFAULT_SMOOTHER, Smoother, frame_labels, load_track
+from aslip_ros.data.stream_labels import DEFAULT_SMOOTHER, Smoother, frame_labels, load_track
 from .streaming_model import StreamConfig, StreamNet, offline_outputs
 
 MODEL_TYPE = "aslip_stream"

@@ -12,7 +12,7 @@ future, the model does not.
 :func:`relative_track` and :func:`write_track`; :func:`frame_labels` turns a track into
 per-frame labels at any smoother setting, so the smoother can be changed without exporting
 again. The chosen setting (:data:`DEFAULT_SMOOTHER`) was compared against the scene's true
-velocity with ``python -m aslip_ros.learn.streaming_labels`` (docs/streaming.md).
+velocity with ``python -m aslip_ros.data.stream_labels`` (docs/streaming.md).
 """
 
 from __future__ import annotations
