@@ -29,6 +29,6 @@ setup(
         "tqdm>=4.60",
         "PyYAML>=6",
     ],
-    extras_require={"hw": ["sounddevice>=0.4", "xarm-python-sdk>=1.13", "natnet>=0.3"]},
+    extras_require={"hw": ["sounddevice>=0.4", "xarm-python-sdk>=1.13"]},
     entry_points={"console_scripts": ["aslip = aslip_ros.cli:main"]},
 )

@@ -7,8 +7,9 @@
   name (device, wav, bag, sim); :mod:`.audio`: PortAudio capture
   (:class:`~.audio.SoundDeviceCapture`); :mod:`.wav`: WAV replay; :mod:`.sources`: the
   scene's and a bag's audio.
-- :mod:`.mocap`: NatNet rigid-body poses (:class:`~.mocap.NatNetMocap`).
+Motion capture needs no adapter here: any driver publishing ``PoseStamped`` feeds
+``mocap_bridge`` (docs/hardware.md).
 
-The driver libraries (xarm-python-sdk, sounddevice, natnet) are imported lazily, inside
-the adapters, so importing this package never needs them.
+The driver libraries (xarm-python-sdk, sounddevice) are imported lazily, inside the
+adapters, so importing this package never needs them.
 """

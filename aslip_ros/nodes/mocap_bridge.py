@@ -1,7 +1,7 @@
 """``mocap_bridge``: finger and object poses -> ground-truth slip on ``/aslip/slip_truth``.
 
 Subscribes to two ``geometry_msgs/PoseStamped`` topics from any motion-capture driver
-(mocap4r2, vrpn_mocap, the natnet client) or the scene, keeps the last ``buffer_s`` of each,
+(mocap4r2, vrpn_mocap, ...) or the scene, keeps the last ``buffer_s`` of each,
 and publishes the mean slip velocity over the window ``[t - window_s, t]`` ending at the
 newest instant both streams cover, computed by :func:`aslip_ros.data.labels.
 mocap_window_velocity` -- the same function the training export labels windows with.
