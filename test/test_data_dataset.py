@@ -71,21 +71,39 @@ def test_filters(tmp_path):
 
 
 def test_split_never_leaks_and_is_deterministic(tmp_path):
+    from aslip_ros.data.dataset import split_trials
     ds = make_dataset(tmp_path / "ds")
-    parts = ds.split({"train": 0.5, "val": 0.25, "test": 0.25}, seed=3)
-    trials = {k: set(np.asarray(ds.windows["trial"])[v]) for k, v in parts.items()}
+    fr = {"train": 0.5, "val": 0.25, "test": 0.25}
+    parts = split_trials(ds.trials, fr, seed=3)
+    trials = {k: set(v.tolist()) for k, v in parts.items()}
     assert not (trials["train"] & trials["val"]) and not (trials["train"] & trials["test"])
     assert not (trials["val"] & trials["test"])
-    assert sum(len(v) for v in parts.values()) == len(ds)
+    assert sum(len(v) for v in trials.values()) == len(ds.trials)
     assert [len(v) for v in trials.values()] == [18, 9, 9]
-    again = ds.split({"train": 0.5, "val": 0.25, "test": 0.25}, seed=3)
+    again = split_trials(ds.trials, fr, seed=3)
     assert all(np.array_equal(parts[k], again[k]) for k in parts)
-    other = ds.split({"train": 0.5, "val": 0.25, "test": 0.25}, seed=4)
+    other = split_trials(ds.trials, fr, seed=4)
     assert any(not np.array_equal(parts[k], other[k]) for k in parts)
     # Stratified: every (object, condition) stratum of 4 trials lands in every split.
     for k, tset in trials.items():
         strata = {(ds.trials[t]["object"], ds.trials[t]["condition"]) for t in tset}
         assert len(strata) == 9, k
+
+
+def test_select_by_split_keeps_each_trial_in_its_split_whatever_the_filter(tmp_path):
+    ds = make_dataset(tmp_path / "ds")
+    names = ds.trial_splits(seed=3)
+    win_trial = np.asarray(ds.windows["trial"])
+    parts = {k: ds.select(k, seed=3) for k in ("train", "val", "test")}
+    assert sum(len(v) for v in parts.values()) == len(ds) == len(ds.select("all"))
+    for k, idx in parts.items():
+        assert {names[t] for t in win_trial[idx]} == {k}
+    # A filter selects within the split made over all trials, never a split of its own.
+    sub = ds.select("test", seed=3, object="chips_can")
+    assert set(sub) <= set(parts["test"])
+    assert set(ds.trial_field("object")[sub]) <= {"chips_can"}
+    with pytest.raises(ValueError, match="split must be one of"):
+        ds.select("validation")
 
 
 def test_split_groups_repeated_ids_and_validates():

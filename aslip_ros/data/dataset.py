@@ -323,22 +323,34 @@ class Dataset:
                if all(f is None or t.get(key) in f for key, f in filters.items())]
         return np.asarray(out, dtype=np.int64)
 
-    def select(self, trials: Iterable[int] | None = None, **filters: Any) -> np.ndarray:
-        """Window indices of the given trial indices and/or trial filters (see select_trials)."""
-        chosen = self.select_trials(**filters) if filters else np.arange(len(self.trials))
+    def trial_splits(self, seed: int = 0) -> list[str]:
+        """Split name (train/val/test) of every trial: :func:`split_trials` over all trials
+        of the dataset, so a trial keeps its split whatever subset is selected later."""
+        out = [""] * len(self.trials)
+        for name, positions in split_trials(self.trials, seed=seed).items():
+            for k in positions:
+                out[int(k)] = name
+        return out
+
+    def select(self, split: str = "all", *, seed: int = 0, trials: Iterable[int] | None = None,
+               **filters: Any) -> np.ndarray:
+        """Window indices of ``split`` ("train", "val", "test" or "all"; by trial, seed
+        ``seed``), of the trials matching ``filters`` (see :meth:`select_trials`) and, if
+        given, among the trial indices ``trials``."""
+        if split not in SPLITS + ("all",):
+            raise ValueError(f"split must be one of {SPLITS + ('all',)}, got {split!r}")
+        keep = np.zeros(len(self.trials), dtype=bool)
+        keep[self.select_trials(**filters) if filters else slice(None)] = True
         if trials is not None:
-            chosen = np.intersect1d(chosen, np.asarray(list(trials), dtype=np.int64))
-        return np.flatnonzero(np.isin(np.asarray(self.windows["trial"]), chosen))
-
-    def split(self, fractions: Mapping[str, float] | None = None, seed: int = 0,
-              stratify: Sequence[str] = ("object", "condition"),
-              trials: Iterable[int] | None = None) -> dict[str, np.ndarray]:
-        """Window indices per split; trials never straddle splits (see split_trials)."""
-        pool = np.arange(len(self.trials)) if trials is None else np.asarray(list(trials))
-        parts = split_trials([self.trials[k] for k in pool], fractions, seed, stratify)
-        return {name: self.select(trials=pool[idx]) for name, idx in parts.items()}
+            chosen = np.zeros_like(keep)
+            chosen[np.asarray(list(trials), dtype=np.int64)] = True
+            keep &= chosen
+        if split != "all":
+            keep &= np.array([s == split for s in self.trial_splits(seed)], dtype=bool)
+        return np.flatnonzero(keep[np.asarray(self.windows["trial"])]).astype(np.int64)
 
 
+SPLITS = ("train", "val", "test")
 DEFAULT_FRACTIONS = {"train": 0.7, "val": 0.15, "test": 0.15}
 
 

@@ -19,8 +19,6 @@ import numpy as np
 
 from aslip_ros.data.dataset import Dataset
 
-SPLITS = ("train", "val", "test")
-
 
 @dataclass
 class WindowSet:
@@ -150,33 +148,16 @@ def open_dataset(path: str | os.PathLike) -> WindowSet:
 
 
 def trial_splits(ds: WindowSet, seed: int = 0) -> list[str]:
-    """Split name per manifest trial, from ``aslip_ros.data.dataset.split_trials``.
-
-    The split is made over all trials of the dataset (filters are applied afterwards), so a
-    trial keeps its split whatever subset a model is trained or evaluated on.
-    """
-    from aslip_ros.data.dataset import split_trials
-
-    out = [""] * len(ds.trials)
-    for name, positions in split_trials(ds.trials, seed=seed).items():
-        for k in positions:
-            out[int(k)] = name
-    return out
+    """Split name per manifest trial (``Dataset.trial_splits``: made over all trials, so a
+    trial keeps its split whatever subset a model is trained or evaluated on)."""
+    return ds.dataset.trial_splits(seed)
 
 
 def select_windows(ds: WindowSet, split: str = "all", *, induced: str | None = None,
                    objects: Sequence[str] | None = None, conditions: Sequence[str] | None = None,
                    seed: int = 0) -> np.ndarray:
-    """Indices of windows in ``split`` ("train", "val", "test" or "all"), optionally filtered."""
-    if split not in SPLITS + ("all",):
-        raise ValueError(f"split must be one of {SPLITS + ('all',)}, got {split!r}")
-    keep = np.ones(len(ds.trials), dtype=bool)
-    if split != "all":
-        keep &= np.array([s == split for s in trial_splits(ds, seed)], dtype=bool)
-    if induced:
-        keep &= np.array([t.get("induced") == induced for t in ds.trials], dtype=bool)
-    if objects:
-        keep &= np.array([t.get("object") in set(objects) for t in ds.trials], dtype=bool)
-    if conditions:
-        keep &= np.array([t.get("condition") in set(conditions) for t in ds.trials], dtype=bool)
-    return np.flatnonzero(keep[ds.windows["trial"]]).astype(np.int64)
+    """Indices of windows in ``split`` ("train", "val", "test" or "all"), optionally filtered
+    (``Dataset.select``)."""
+    filters = {k: v for k, v in (("induced", induced), ("object", objects),
+                                 ("condition", conditions)) if v}
+    return ds.dataset.select(split, seed=seed, **filters)
