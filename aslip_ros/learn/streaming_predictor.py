@@ -6,6 +6,11 @@
         publish(est.stamp_ns, est.prediction)         # one estimate per completed 10 ms hop
     p.reset()                                         # forget features and state
 
+A caller that gates the stream itself (``slip_inference`` counts gaps, restarts and drops
+with its own ``StreamGate``) calls ``reset(reason)`` where it restarts and ``feed(block)``
+for each accepted block instead of ``push``. Offline, ``trial_outputs(audio)`` gives the
+estimates of a whole recording from a zero state (the batched forward, equal to ``push``).
+
 ``push`` takes anything with ``block`` ``(frames, C)`` float32, ``first_sample_index``,
 ``frames``, ``stamp_ns``, ``end_stamp_ns`` and ``sample_rate`` (``nodes.convert.AudioData``).
 Continuity is judged by ``stream.StreamGate`` exactly as the window node does: a gap, a
@@ -94,6 +99,28 @@ class StreamingPredictor:
         return self.checkpoint.channel_names
 
     @property
+    def n_channels(self) -> int:
+        return len(self.checkpoint.channel_names)
+
+    @property
+    def model_type(self) -> str:
+        return self.checkpoint.model_type
+
+    @property
+    def window_samples(self) -> int:
+        return int(self.meta["window_samples"])
+
+    @property
+    def calibrated(self) -> bool:
+        """False: the streaming model has no per-grasp calibration."""
+        return False
+
+    @property
+    def fresh(self) -> bool:
+        """True when no audio was fed since the last reset (a reset would forget nothing)."""
+        return self._origin is None
+
+    @property
     def threshold(self) -> float:
         return self._threshold
 
@@ -118,9 +145,32 @@ class StreamingPredictor:
         self.resets += 1
         self.last_reset_reason = reason
 
+    def warm_up(self, n: int = 3) -> None:
+        """Run ``n`` silent frames through features and model (first calls allocate), then
+        start clean: no audio, no state, no reset counted."""
+        fc = self.feature_config
+        n_in = ((n - 1) * fc.hop + fc.n_fft) * self.features.factor
+        self.features.push(np.zeros((n_in, self.n_channels), np.float32))
+        for _ in range(n):
+            self.stepper.step(np.zeros((self.n_channels, self.feature_config.n_mels),
+                                       np.float32))
+        self.features.reset()
+        self.stepper.reset()
+        self._origin = None
+
     def push(self, a) -> list[StreamEstimate]:
         """Feed one block; the estimates of the hops it completes (empty when the block is
         dropped as repeated / out of order, or no hop completed)."""
+        self._check_block(a)
+        verdict, detail = self.gate.check(a)
+        if verdict in ("repeated", "out_of_order"):
+            return []
+        if verdict != "ok":
+            self.reset(f"{verdict}: {detail}")
+        self.gate.accept(a)
+        return self.feed(a)
+
+    def _check_block(self, a) -> np.ndarray:
         x = np.asarray(a.block)
         if x.ndim != 2 or x.shape[1] != len(self.channel_names) or x.shape[0] != a.frames:
             raise ValueError(f"block shaped {x.shape} does not match {a.frames} frames of "
@@ -129,12 +179,12 @@ class StreamingPredictor:
             # The next accepted block follows a hole: start over, as after a gap.
             self.reset("refused block: NaN or Inf")
             raise ValueError("audio block contains NaN or Inf")
-        verdict, detail = self.gate.check(a)
-        if verdict in ("repeated", "out_of_order"):
-            return []
-        if verdict != "ok":
-            self.reset(f"{verdict}: {detail}")
-        self.gate.accept(a)
+        return x
+
+    def feed(self, a) -> list[StreamEstimate]:
+        """``push`` without the continuity gate: for a caller that has judged ``a`` the next
+        block of the stream (and called ``reset`` where it is not)."""
+        x = self._check_block(a)
         if self._origin is None:
             self._origin, self._origin_ns = int(a.first_sample_index), int(a.stamp_ns)
         first_frame = self.features.n_frames
@@ -162,6 +212,17 @@ class StreamingPredictor:
         speed = float(np.hypot(vx, vz))
         d = (vx / speed, vz / speed) if speed > 0 else (0.0, 0.0)
         return Prediction(float(p), slipping, vx, vz, speed, d, self.window_s, t)
+
+    def trial_outputs(self, audio: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A whole ``(n, C)`` recording from a zero state (offline, batched; equal to pushing
+        it block by block): frame end sample indices (exclusive, from the recording's first
+        sample), p and the raw (ungated) velocity per frame."""
+        from .streaming import stream_logmel
+        frames = stream_logmel(np.asarray(audio, np.float32), self.feature_config,
+                               self.sample_rate)
+        p, v = self.offline(frames)
+        ends = self.features.frame_end_samples(np.arange(frames.shape[0]))
+        return ends, np.asarray(p), np.asarray(v)
 
     def offline(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Batched torch forward over ``(T, C, M)`` frames from a zero state: p, raw v."""

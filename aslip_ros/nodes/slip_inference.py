@@ -42,6 +42,9 @@ window replaces the waiting one (counted as ``hops_superseded``: the freshest es
 what a controller needs). torch runs with ``torch_threads`` (1) and the model is warmed up
 (the first calls pay torch's lazy initialisation) before the node subscribes to audio, so
 the first published estimates already come at the hop rate.
+
+Streaming checkpoints (``aslip_stream``, ``inference_steps``): no window nor model thread, a
+SlipVector per 10 ms hop, state resets in ``stream_resets`` and ``last_reset_reason``.
 """
 
 from __future__ import annotations
@@ -64,6 +67,7 @@ from aslip_ros.learn.stream import RingBuffer, StreamGate
 from aslip_ros.msg import AudioFrame, SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
+from aslip_ros.nodes.inference_steps import StreamStep, load_predictor
 
 #: The audio subscription: the sensor QoS (best effort, volatile) with a 1 s queue at 10 ms
 #: blocks. With the default 10-deep queue, a process starved of CPU for 100 ms (two busy
@@ -109,11 +113,9 @@ class SlipInference(Node):
         ]
         self.p = c.declare_params(self, specs, self._on_change)
         import torch
-
-        from aslip_ros.learn.predictor import Predictor
         torch.set_num_threads(int(self.p["torch_threads"]))
         try:
-            self.predictor = Predictor.from_checkpoint(self.p["checkpoint"])
+            self.predictor = load_predictor(self.p["checkpoint"], self.p["max_time_jump_s"])
         except (OSError, ValueError) as exc:
             raise c.ConfigError(f"cannot load checkpoint {self.p['checkpoint']!r}: {exc}") \
                 from exc
@@ -121,6 +123,8 @@ class SlipInference(Node):
         # The predictor holds the one decision threshold; -1 leaves the checkpoint's.
         pr.set_threshold(None if self.p["threshold"] < 0 else self.p["threshold"])
         self.source = pr.model_type
+        self.dead_margin_db = float(self.p["dead_channel_margin_db"])
+        self.stream = StreamStep(pr) if pr.model_type == "aslip_stream" else None
         self.ring = RingBuffer(pr.window_samples, pr.n_channels)
         self.gate = StreamGate(self.p["max_time_jump_s"])
         self.hop_frames = max(1, int(round(self.p["hop_s"] * pr.sample_rate)))
@@ -137,10 +141,8 @@ class SlipInference(Node):
         self.arrivals = collections.deque(maxlen=500)
         self.last_error = ""
         self.refusal = ""
-        self.dead_margin_db = float(self.p["dead_channel_margin_db"])
         self.dead_windows = 0                    # windows withheld for a dead channel
         self.dead_recent: set = set()            # dead channels since the last diagnostics
-
         self.hops_superseded = 0
         # Double buffer between the audio callback and the inference thread, allocated once.
         self._back = np.zeros((pr.window_samples, pr.n_channels), np.float32)
@@ -148,17 +150,17 @@ class SlipInference(Node):
         self._job: Optional[tuple] = None        # (end stamp ns, t_in, calibration) of _back
         self._wake = threading.Condition(threading.Lock())
         self._stop = False
-
         # Warm-up before anything is subscribed: the first torch calls are slow (lazy
         # initialisation, allocator); a few passes keep them out of the live stream.
-        for _ in range(3):
+        for _ in range(0 if self.stream else 3):      # (StreamStep warmed its model up)
             pr.predict(self._front)
         self.pub_slip = self.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
         self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
         self.diag = c.Diagnostics(self, "aslip: slip_inference", self.source)
         self._worker = threading.Thread(target=self._infer_loop, name="slip_inference_model",
                                         daemon=True)
-        self._worker.start()
+        if self.stream is None:
+            self._worker.start()
         # The audio callback only gates, buffers and hands over: its own group, so neither
         # diagnostics nor metadata ever wait behind it (or it behind them).
         self.create_subscription(AudioFrame, c.AUDIO_TOPIC, self._on_audio, AUDIO_QOS,
@@ -169,9 +171,10 @@ class SlipInference(Node):
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(Trigger, "~/recalibrate", self._on_recalibrate,
                             callback_group=MutuallyExclusiveCallbackGroup())
+        hop = "streaming" if self.stream else f"hop {self.hop_frames} frames"
         c.ready(self, f"{self.source} model, {pr.n_channels} channels "
                       f"{pr.channel_names} at {pr.sample_rate:g} Hz, window "
-                      f"{pr.window_s * 1e3:.0f} ms, hop {self.hop_frames} frames, "
+                      f"{pr.window_s * 1e3:.0f} ms, {hop}, "
                       f"calibration {pr.calibration.method if pr.calibrated else 'none'}")
 
     # -- parameters -------------------------------------------------------------------------
@@ -199,20 +202,25 @@ class SlipInference(Node):
     def _on_recalibrate(self, request, response):
         """``~/recalibrate``: a new grasp; the calibration starts again from zero gain."""
         with self._lock:
-            self.predictor.reset_calibration()
+            if self.predictor.calibrated:
+                self.predictor.reset_calibration()
         response.success = self.predictor.calibrated
         response.message = "calibration reset" if response.success else \
             "the checkpoint has no per-grasp calibration"
         self.get_logger().info(f"~/recalibrate: {response.message}")
         return response
 
-    def _restart_window(self) -> None:
+    def _restart_window(self, reason: str) -> None:
         """The stream is not continuous here: a new window, and a new grasp to calibrate."""
+        if self.stream:
+            return self.stream.reset(reason)
         self.ring.reset()
         self.predictor.reset_calibration()
         self._since_hop = 0
 
     def _drop(self, reason: str, detail: str) -> None:
+        if self.stream and reason not in ("repeated", "out_of_order", "time_jump"):
+            self.stream.reset(f"dropped block ({reason})")    # the next one follows a hole
         self.drops[reason] += 1
         self.get_logger().warning(f"dropped AudioFrame ({reason}): {detail}",
                                   throttle_duration_sec=1.0)
@@ -254,7 +262,7 @@ class SlipInference(Node):
             # Re-anchor on this frame so a real clock step costs one window, not the stream.
             self._drop(verdict, detail)
             self.gate.accept(a)
-            self._restart_window()
+            self._restart_window(f"time jump: {detail}")
             return
         if verdict == "new_stream":
             # A restarted or re-numbered source: its blocks are good audio, only the old
@@ -262,16 +270,18 @@ class SlipInference(Node):
             self.stream_restarts += 1
             self.get_logger().warning(f"new audio stream: {detail}; window restarts",
                                       throttle_duration_sec=1.0)
-            self._restart_window()
+            self._restart_window(f"new stream: {detail}")
         if verdict == "gap":
             self.gaps += 1
             self.frames_lost += a.first_sample_index - self.gate.next_index
             self.get_logger().warning(f"audio gap: {detail}; window restarts",
                                       throttle_duration_sec=1.0)
-            self._restart_window()
+            self._restart_window(f"gap: {detail}")
         self.gate.accept(a)
         self.blocks_ok += 1
         self.refusal = ""
+        if self.stream:
+            return self._stream_block(a, t_in)
         self.ring.push(a.block)
         pr.push_audio(a.block)
         self._since_hop += a.frames
@@ -287,6 +297,25 @@ class SlipInference(Node):
             self._job = (a.end_stamp_ns, t_in, pr.calibration_offsets(),
                          pr.calibration_converged)
             self._wake.notify()
+
+    def _stream_block(self, a, t_in: float) -> None:
+        """A streaming checkpoint: every hop the block completes goes out (under the lock)."""
+        try:
+            msgs, dead = self.stream.block(a, self.source, self.p["frame_id"],
+                                           self.dead_margin_db)
+        except ValueError as exc:                  # a non-finite estimate: nothing goes out
+            self._drop("bad_estimate", str(exc))
+            return
+        if dead:
+            self._withhold(dead)
+            return
+        for out in msgs:
+            self.pub_slip.publish(out)
+            self.latency.append(time.perf_counter() - t_in)
+        self.published += len(msgs)
+        scale = self.p["marker_scale_s"]
+        if msgs:        # rviz needs only the newest arrow
+            self.pub_marker.publish(convert.slip_markers(msgs[-1], scale_s=scale))
 
     def _infer_loop(self) -> None:
         """The model thread: newest window in, SlipVector out."""
@@ -306,7 +335,8 @@ class SlipInference(Node):
                 dead = dead_channels(self._front, pr.channel_names, margin_db) \
                     if margin_db > 0 else []
                 if dead:
-                    self._withhold(dead)
+                    with self._lock:
+                        self._withhold(dead)
                     continue
                 try:
                     out = self._estimate(self._front, stamp_ns, offsets, converged)
@@ -339,10 +369,10 @@ class SlipInference(Node):
                                    self.p["frame_id"], direction_sigma=sigma)
 
     def _withhold(self, dead: list) -> None:
-        """A window with dead channels: counted, reported, no estimate published."""
-        with self._lock:
-            self.dead_windows += 1
-            self.dead_recent.update(dead)
+        """A window with dead channels: counted, reported, no estimate published (call with
+        the lock held)."""
+        self.dead_windows += 1
+        self.dead_recent.update(dead)
         self.get_logger().error(f"dead microphone channel(s) {', '.join(dead)}: "
                                 "no slip estimate published", throttle_duration_sec=1.0)
 
@@ -357,6 +387,8 @@ class SlipInference(Node):
 
     def _refuse(self, reason: str, detail: str) -> None:
         self.refusal = detail
+        if self.stream:
+            self.stream.reset(f"refused stream ({reason})")
         self.drops[reason] += 1
         self.get_logger().error(f"refusing the audio stream: {detail}",
                                 throttle_duration_sec=2.0)
@@ -378,7 +410,10 @@ class SlipInference(Node):
             names = self.predictor.channel_names
             dead = [n for n in names if n in self.dead_recent]
             self.dead_recent.clear()
-            cal = self.predictor.calibration_summary()
+            cal = None if self.stream else self.predictor.calibration_summary()
+            if self.stream:
+                values.update(stream_resets=self.predictor.resets,
+                              last_reset_reason=self.predictor.last_reset_reason)
         if cal is not None:
             gains = cal.pop("gain_db")
             values.update(cal)
