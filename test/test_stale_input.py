@@ -44,7 +44,8 @@ def test_killed_inference_stops_the_arm_in_time_and_for_good():
     # Seen from this (busy) test process, the stop command does follow the kill.
     assert e["stop_after_kill_s"] is not None and e["stop_after_kill_s"] <= 5.0, e
     assert e["moves_after_stop"] == 0, e
-    assert e["at_rest_after_slip_s"] is not None and \
+    # Measured from the scene's TCP reports; a run that lost them says so instead of a KeyError.
+    assert e.get("at_rest_after_slip_s") is not None and \
         e["at_rest_after_slip_s"] <= timeout + MARGIN_S + 0.2, e
 
 
