@@ -6,7 +6,8 @@ On disk a checkpoint is one ``torch.save`` file holding a dict of plain types on
      "meta": "<JSON document>",            # str: everything needed to rebuild and check
      "tensors": {name: torch.Tensor}}      # state dict (CNN) or SVM arrays
 
-The JSON document (``meta``) holds ``model_type`` ("aslip_cnn" or "svm"), ``model_config``,
+The JSON document (``meta``, built by ``checkpoint_meta``) holds ``model_type`` (a key of
+``backends.MODELS``: "aslip_cnn", "svm", "aslip_stream" or a registered one), ``model_config``,
 ``feature_config``, ``normalization`` (per-mel-bin mean/std, also inside the CNN's state
 dict as buffers), ``channel_names``, ``layout``, ``sample_rate`` (Hz, the stream's rate),
 ``window_s``, ``window_samples``, ``epsilon_m_s``, ``threshold`` and ``provenance``
@@ -31,7 +32,6 @@ from aslip_ros.util import atomic_path
 
 FORMAT = "aslip-checkpoint"
 VERSION = 1
-MODEL_TYPES = ("aslip_cnn", "svm", "aslip_stream")
 _REQUIRED = ("model_type", "model_config", "feature_config", "channel_names", "sample_rate",
              "window_s", "window_samples", "epsilon_m_s")
 _TYPES = {"int": (int,), "float": (int, float), "str": (str,), "None": (type(None),),
@@ -119,11 +119,11 @@ def validate_meta(meta: Any) -> list[str]:
 
     Checks required keys, JSON types and ranges, that the model and feature configs build,
     and that the parts agree: ``window_samples == round(window_s * sample_rate)``, a window
-    long enough for one feature frame, one CNN input per channel name, equal mel counts.
+    long enough for one feature frame, and the model type's own checks
+    (``backends.MODELS``: e.g. one CNN input per channel name, equal mel counts).
     """
+    from .backends import model_backend
     from .features import FeatureConfig
-    from .network import ModelConfig
-    from .svm import SvmConfig
 
     if not isinstance(meta, dict):
         return [f"metadata must be a JSON object, got {type(meta).__name__}"]
@@ -131,8 +131,10 @@ def validate_meta(meta: Any) -> list[str]:
     if missing:
         return [f"metadata lacks {missing}"]
     problems: list[str] = []
-    if meta["model_type"] not in MODEL_TYPES:
-        problems.append(f"unknown model_type {meta['model_type']!r} (known: {MODEL_TYPES})")
+    try:
+        backend = model_backend(meta["model_type"])
+    except ValueError as exc:
+        problems.append(str(exc))
     names = meta["channel_names"]
     if (not isinstance(names, list) or not names
             or not all(isinstance(n, str) and n for n in names) or len(set(names)) != len(names)):
@@ -160,29 +162,53 @@ def validate_meta(meta: Any) -> list[str]:
             fcfg.n_frames(meta["window_s"])
         except ValueError as exc:
             problems.append(f"feature_config: {exc}")
-    model_cls = ModelConfig if meta["model_type"] == "aslip_cnn" else SvmConfig
-    if meta["model_type"] == "aslip_stream":
-        from .streaming_model import StreamConfig as model_cls
-    mcfg, bad = _config(model_cls, meta["model_config"], "model_config")
+    mcfg, bad = _config(backend.config, meta["model_config"], "model_config")
     problems += bad
-    if isinstance(mcfg, ModelConfig):
-        if mcfg.n_channels != len(names):
-            problems.append(f"model_config.n_channels {mcfg.n_channels} != "
-                            f"{len(names)} channel_names")
-        if fcfg is not None and mcfg.n_mels != fcfg.n_mels:
-            problems.append(f"model_config.n_mels {mcfg.n_mels} != feature_config.n_mels "
-                            f"{fcfg.n_mels}")
-    elif meta["model_type"] == "aslip_stream" and mcfg is not None:
-        from .streaming import stream_meta_problems
-        problems += stream_meta_problems(meta, mcfg, fcfg)
-    elif isinstance(mcfg, SvmConfig) and mcfg.n_bands < 1:
-        problems.append(f"model_config.n_bands must be >= 1, got {mcfg.n_bands}")
+    if mcfg is not None:
+        problems += backend.meta_problems(meta, mcfg, fcfg)
     if "calibration" in meta:
         from .calibration import meta_problems
         problems += meta_problems(meta["calibration"], names,
                                   None if fcfg is None else fcfg.n_mels,
                                   None if fcfg is None else fcfg.hop / fcfg.sample_rate)
     return problems
+
+
+def dataset_layout(ds: Any, channels: Sequence[str]) -> str | None:
+    """The dataset's layout name, with the channels appended when a model uses a subset."""
+    if list(channels) == list(ds.channel_names):
+        return ds.layout
+    return f"{ds.layout}:{'+'.join(channels)}"
+
+
+def checkpoint_meta(model_type: str, model_config: Any, feature_config: Any, ds: Any,
+                    channels: Sequence[str], *, normalization: dict[str, Any] | None,
+                    provenance: dict[str, Any], threshold: float = 0.5,
+                    calibration: Any = None, window_s: float | None = None,
+                    window_samples: int | None = None, **extra: Any) -> dict[str, Any]:
+    """The checkpoint document of a model trained on dataset ``ds`` (a ``WindowSet``).
+
+    ``model_config`` and ``feature_config`` are config objects (``to_dict``), as is
+    ``calibration`` when given. Rate, epsilon and, unless given (a streaming model reads one
+    frame, not the dataset's window), window length come from the dataset; ``extra``
+    keys (``train_config``, ``loss_weights``, ``hop_s``, ``label``...) are added as they are.
+    Every trainer builds its document here; ``save_checkpoint`` validates it.
+    """
+    meta: dict[str, Any] = {
+        "model_type": model_type, "model_config": model_config.to_dict(),
+        "feature_config": feature_config.to_dict(), "normalization": normalization,
+        "channel_names": list(channels), "layout": dataset_layout(ds, channels),
+        "sample_rate": float(ds.sample_rate),
+        "window_s": float(ds.window_s if window_s is None else window_s),
+        "window_samples": int(ds.window_samples if window_samples is None
+                              else window_samples),
+        "epsilon_m_s": float(ds.epsilon), "threshold": float(threshold),
+    }
+    meta.update(extra)
+    meta["provenance"] = provenance
+    if calibration is not None:
+        meta["calibration"] = calibration.to_dict()
+    return meta
 
 
 def git_revision(start: str | os.PathLike | None = None) -> str | None:

@@ -1,4 +1,4 @@
-"""One inference interface over the CNN and the SVM baseline, built from a checkpoint alone.
+"""One inference interface over every window model, built from a checkpoint alone.
 
     p = Predictor.from_checkpoint("model.pt")
     p.check_stream(sample_rate, channel_names)     # CheckpointMismatch (a ValueError)
@@ -15,26 +15,28 @@ window offsets from the caller: offline ``calibration_frames.dataset_offsets``; 
 every accepted audio block to ``push_audio`` and pass ``calibration_offsets()`` with the
 window that ends with it (``reset_calibration()`` when a new grasp starts).
 
+The model itself is the checkpoint's backend (learn/backends.py: the CNN, the SVM
+baseline or a registered one); this class holds what every model shares: input checks,
+per-grasp calibration, the threshold and the gating.
+
 A model fed a window with a dead or disconnected microphone under-reports slip: live users
 check each window first with ``aslip_ros.learn.channel_check.dead_channels``.
 """
 
 from __future__ import annotations
 
+import functools
 import os
-import time
 from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
-import torch
 
+from .backends import model_backend
 from .calibration import CalibrationConstants
-from .calibration_frames import FrameCutter, StreamCalibration, remove_from_audio
+from .calibration_frames import FrameCutter, StreamCalibration
 from .checkpoint import Checkpoint, CheckpointMismatch, check_compatible, load_checkpoint
 from .features import FeatureConfig, LogMel
-from .network import ModelConfig, SlipNet, fuse_for_inference
-from .svm import SvmArrays, SvmFeaturizer
 
 
 @dataclass(frozen=True)
@@ -71,32 +73,6 @@ class BatchPrediction:
                           float(v[1]), speed, d, self.window_length, self.threshold)
 
 
-class _CnnBackend:
-    def __init__(self, ckpt: Checkpoint) -> None:
-        self.cfg = ModelConfig.from_dict(ckpt.meta["model_config"])
-        self.model = SlipNet(self.cfg)
-        try:
-            self.model.load_state_dict(ckpt.tensors)
-        except RuntimeError as exc:
-            raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
-        self.model = fuse_for_inference(self.model)
-
-    def infer_features(self, feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        with torch.inference_mode():
-            out = self.model(torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)))
-            prob = torch.sigmoid(out.logit)
-            d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
-            v = d * out.magnitude[:, None]
-        return prob.numpy(), v.numpy()
-
-
-class _SvmBackend:
-    def __init__(self, ckpt: Checkpoint, feature_cfg: FeatureConfig) -> None:
-        self.arrays = SvmArrays.from_tensors(ckpt.tensors)
-        n_bands = int(ckpt.meta["model_config"]["n_bands"])
-        self.featurizer = SvmFeaturizer(feature_cfg, float(ckpt.meta["sample_rate"]), n_bands)
-
-
 class Predictor:
     """Slip estimation for fixed-length multi-channel windows at the checkpoint's rate."""
 
@@ -108,16 +84,11 @@ class Predictor:
         self.set_threshold(threshold)
         self.window_samples = int(meta["window_samples"])
         self.window_s = float(meta["window_s"])
-        self.logmel = LogMel(self.feature_config, ckpt.sample_rate)
-        if ckpt.model_type == "aslip_cnn":
-            self._cnn: _CnnBackend | None = _CnnBackend(ckpt)
-            self._svm: _SvmBackend | None = None
-            if self._cnn.cfg.n_channels != len(ckpt.channel_names):
-                raise ValueError("checkpoint model channel count disagrees with channel_names")
-        elif ckpt.model_type == "svm":
-            self._cnn, self._svm = None, _SvmBackend(ckpt, self.feature_config)
-        else:
-            raise ValueError(f"unsupported model type {ckpt.model_type!r}")
+        backend = model_backend(ckpt.model_type)
+        if backend.streaming:
+            raise ValueError(f"a {ckpt.model_type!r} checkpoint runs per audio block: "
+                             "learn.streaming_predictor.StreamingPredictor")
+        self.backend = backend.from_checkpoint(ckpt)
         self.calibration: CalibrationConstants | None = None
         self._stream_cal: StreamCalibration | None = None
         if meta.get("calibration") is not None:
@@ -130,6 +101,12 @@ class Predictor:
     def from_checkpoint(cls, path: str | os.PathLike,
                         threshold: float | None = None) -> "Predictor":
         return cls(load_checkpoint(path), threshold=threshold)
+
+    @functools.cached_property
+    def logmel(self) -> LogMel:
+        """The log-mel features of the checkpoint's feature config at the stream's rate."""
+        own = getattr(self.backend, "logmel", None)
+        return own if own is not None else LogMel(self.feature_config, self.sample_rate)
 
     # --- what the checkpoint expects ------------------------------------------------------
     @property
@@ -258,27 +235,31 @@ class Predictor:
             if chunk.shape[0] == 0:
                 break
             off = None if offsets is None else offsets[s:s + batch_size]
-            if self._cnn is not None:
-                feats = self.logmel(chunk)
-                if off is not None:
-                    feats = feats - off[:, :, None, None]
-                p, v = self._cnn.infer_features(feats)
-            else:
-                if off is not None:
-                    chunk = remove_from_audio(chunk, off)
-                p, v = self._svm.arrays.predict(self._svm.featurizer(chunk))
+            p, v = self._checked(*self.backend.predict(chunk, off), chunk.shape[0])
             probs.append(p)
             vels.append(v)
         prob = np.concatenate(probs) if probs else np.zeros(0, np.float32)
         raw = np.concatenate(vels) if vels else np.zeros((0, 2), np.float32)
         return self._gate(prob, raw)
 
+    def _checked(self, p: Any, v: Any, n: int) -> tuple[np.ndarray, np.ndarray]:
+        p, v = np.asarray(p), np.asarray(v)
+        if p.shape != (n,) or v.shape != (n, 2):
+            raise ValueError(f"model {self.model_type!r} returned p {p.shape} and v {v.shape} "
+                             f"for {n} windows; expected ({n},) and ({n}, 2)")
+        if not (np.isfinite(p).all() and np.isfinite(v).all()):
+            raise ValueError(f"model {self.model_type!r} returned NaN or Inf")
+        return p, v
+
     def predict_features(self, feats: np.ndarray) -> BatchPrediction:
-        """CNN only: log-mel features (B, C, M, T) from ``LogMel`` (e.g. a training cache)."""
-        if self._cnn is None:
-            raise ValueError("predict_features needs a CNN checkpoint")
-        p, v = self._cnn.infer_features(np.asarray(feats, dtype=np.float32))
-        return self._gate(p, v)
+        """Log-mel features (B, C, M, T) from ``LogMel`` (e.g. a training cache), for a
+        model that reads them (the CNN)."""
+        infer = getattr(self.backend, "infer_features", None)
+        if infer is None:
+            raise ValueError(f"predict_features needs a model that reads log-mel features; "
+                             f"{self.model_type!r} does not")
+        feats = np.asarray(feats, dtype=np.float32)
+        return self._gate(*self._checked(*infer(feats), feats.shape[0]))
 
     def _gate(self, prob: np.ndarray, raw: np.ndarray) -> BatchPrediction:
         threshold = self._threshold      # read once: the decision and its report agree
@@ -286,23 +267,3 @@ class Predictor:
         vel = np.where(slipping[:, None], raw, 0.0).astype(np.float32)
         return BatchPrediction(prob.astype(np.float32), slipping, vel, raw.astype(np.float32),
                                self.window_s, threshold)
-
-
-def benchmark_latency(predictor: Predictor, n_iter: int = 300, n_warmup: int = 30,
-                      seed: int = 0) -> dict[str, float]:
-    """Seconds per single-window ``predict`` (features + model), after warm-up.
-
-    Uses whatever torch thread count is set; benchmarks call ``torch.set_num_threads(1)``.
-    """
-    rng = np.random.default_rng(seed)
-    w = (0.01 * rng.standard_normal((predictor.window_samples, predictor.n_channels))).astype(
-        np.float32)
-    for _ in range(n_warmup):
-        predictor.predict(w)
-    t = np.empty(n_iter)
-    for i in range(n_iter):
-        t0 = time.perf_counter()
-        predictor.predict(w)
-        t[i] = time.perf_counter() - t0
-    return {"p50_s": float(np.percentile(t, 50)), "p99_s": float(np.percentile(t, 99)),
-            "mean_s": float(t.mean()), "n_iter": n_iter}

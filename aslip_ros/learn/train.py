@@ -11,20 +11,16 @@ constants are fitted on the training trials and every window is read with its ow
 causal calibration removed (``calibration_frames``); the constants go into the checkpoint
 under ``calibration``. ``off`` trains on raw features as before.
 
-Log-mel features of every dataset window are computed once per (dataset, feature config,
-channels) with the shared ``features.LogMel`` and cached as a float16 ``.npy`` beside the
-dataset, memory-mapped on later runs; epochs then cost only the network.
+Log-mel features of every dataset window are cached once beside the dataset
+(learn/train_data.py); the CNN's epoch loop is learn/train_loop.py; every trainer writes
+its checkpoint document with ``checkpoint.checkpoint_meta``.
 """
 
 from __future__ import annotations
 
 import argparse
-import copy
 import dataclasses
 import datetime as _dt
-import hashlib
-import json
-import math
 import os
 import sys
 import time
@@ -35,21 +31,22 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import torch
 
-from aslip_ros.util import atomic_path
-
+from .backends import CNN, SvmBackend
 from .calibration import METHODS
 from .calibration_frames import remove_from_audio, training_calibration
-from .checkpoint import Checkpoint, load_checkpoint, save_checkpoint, git_revision
-from .data_io import WindowSet, open_dataset, select_windows
+from .checkpoint import (Checkpoint, checkpoint_meta, git_revision, load_checkpoint,
+                         save_checkpoint)
+from .data_io import WindowSet, open_dataset
 from .evaluate import compute_metrics
-from .features import FeatureConfig, LogMel, normalization_stats
-from .losses import LossWeights, slip_loss
+from .features import FeatureConfig, normalization_stats
+from .losses import LossWeights
 from .network import ModelConfig, SlipNet
 from .svm import SvmConfig, SvmFeaturizer, fit_svm
+from .train_data import Batches, feature_cache, split_windows
+from .train_loop import evaluate_loss, run_epochs
 
 STAGES = ("pretrain", "finetune", "scratch", "svm", "stream")
 CALIBRATIONS = ("off",) + METHODS
-_DB_TO_LOG_POWER = math.log(10.0) / 10.0  # +1 dB amplitude-power gain in natural-log power
 
 
 @dataclass
@@ -113,162 +110,11 @@ class TrainResult:
         return Checkpoint(meta=self.meta, tensors=self.tensors)
 
 
-# --- feature cache ------------------------------------------------------------------------
-
-def _cache_key(ds: WindowSet, fcfg: FeatureConfig, channels: Sequence[str]) -> str:
-    doc = json.dumps({"ds": ds.fingerprint(), "f": fcfg.to_dict(), "c": list(channels),
-                      "n": ds.window_samples, "v": 1}, sort_keys=True)
-    return hashlib.sha1(doc.encode()).hexdigest()[:16]
-
-
-def feature_cache(ds: WindowSet, fcfg: FeatureConfig, channels: Sequence[str],
-                  cache_dir: str | os.PathLike | None = None, progress: bool = False,
-                  chunk: int = 256) -> np.ndarray:
-    """Log-mel features of every window, ``(n_windows, C, M, T)`` float16, memory-mapped.
-
-    float16 halves memory and disk; log-mel values are O(10) and their float16 rounding
-    (~0.01) is far below the augmentation noise.
-    """
-    cols = ds.channel_indices(channels)
-    root = Path(cache_dir) if cache_dir else ds.root / ".feature_cache"
-    path = root / f"logmel-{_cache_key(ds, fcfg, channels)}.npy"
-    if path.is_file():
-        return np.load(path, mmap_mode="r")
-    logmel = LogMel(fcfg, ds.sample_rate)
-    shape = (len(ds), len(cols), fcfg.n_mels, logmel.n_frames(ds.window_samples))
-    try:
-        root.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        root = Path.home() / ".cache" / "aslip_ros" / "features"
-        root.mkdir(parents=True, exist_ok=True)
-        path = root / path.name
-    with atomic_path(path) as tmp:
-        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float16, shape=shape)
-        starts = range(0, len(ds), chunk)
-        if progress:
-            from tqdm import tqdm
-            starts = tqdm(starts, desc="features", unit="chunk", leave=False)
-        for s in starts:
-            out[s:s + chunk] = logmel(ds.window_audio(np.arange(s, min(s + chunk, len(ds))),
-                                                      cols))
-        out.flush()
-        del out
-    return np.load(path, mmap_mode="r")
-
-
-# --- helpers ------------------------------------------------------------------------------
+# --- steps -------------------------------------------------------------------------------
 
 def _seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed % (2 ** 32))
-
-
-def _augment(x: np.ndarray, mean: np.ndarray, rng: np.random.Generator,
-             cfg: TrainConfig) -> np.ndarray:
-    """Random gain (log-domain offset) and SpecAugment masks filled with the bin means."""
-    b, c, m, t = x.shape
-    gain = rng.uniform(-cfg.gain_db, cfg.gain_db, (b, 1)) + rng.uniform(
-        -cfg.channel_gain_db, cfg.channel_gain_db, (b, c))
-    x = x + (gain * _DB_TO_LOG_POWER)[:, :, None, None].astype(np.float32)
-    fmax = m // 8 if cfg.freq_mask < 0 else cfg.freq_mask
-    fill = np.broadcast_to(mean[None, None, :, None], x.shape)
-    if fmax > 0:
-        w = rng.integers(0, fmax + 1, b)
-        f0 = rng.integers(0, m - w + 1)
-        fr = np.arange(m)
-        mask = (fr >= f0[:, None]) & (fr < (f0 + w)[:, None])
-        x = np.where(mask[:, None, :, None], fill, x)
-    if cfg.time_mask > 0 and t > cfg.time_mask:
-        w = rng.integers(0, cfg.time_mask + 1, b)
-        t0 = rng.integers(0, t - w + 1)
-        tr = np.arange(t)
-        mask = (tr >= t0[:, None]) & (tr < (t0 + w)[:, None])
-        x = np.where(mask[:, None, None, :], fill, x)
-    return np.ascontiguousarray(x, dtype=np.float32)
-
-
-def _epoch_indices(idx: np.ndarray, slip: np.ndarray, ratio: float,
-                   rng: np.random.Generator) -> np.ndarray:
-    """All slip windows plus at most ``ratio`` no-slip windows per slip window, shuffled."""
-    pos, neg = idx[slip[idx]], idx[~slip[idx]]
-    if pos.size == 0:
-        chosen = neg
-    else:
-        n_neg = min(neg.size, int(round(ratio * pos.size)))
-        chosen = np.concatenate([pos, rng.choice(neg, n_neg, replace=False)])
-    return rng.permutation(chosen)
-
-
-class _Batches:
-    """Tensors for index batches from the feature cache and labels."""
-
-    def __init__(self, feats: np.ndarray, ds: WindowSet,
-                 offsets: np.ndarray | None = None) -> None:
-        self.feats = feats
-        self.offsets = offsets          # (n_windows, C) per-grasp calibration, or None
-        all_idx = np.arange(len(ds))
-        self.v = ds.velocity(all_idx)
-        self.slip = ds.slip(all_idx)
-        self.prev = ds.previous_index()
-
-    def labels(self, b: np.ndarray) -> dict[str, torch.Tensor]:
-        prev = self.prev[b]
-        valid = prev >= 0
-        pv = np.where(valid[:, None], self.v[np.maximum(prev, 0)], 0.0).astype(np.float32)
-        valid &= self.slip[np.maximum(prev, 0)]
-        return {"v_true": torch.from_numpy(self.v[b]),
-                "slip": torch.from_numpy(self.slip[b]),
-                "prev_v_true": torch.from_numpy(pv),
-                "prev_valid": torch.from_numpy(valid)}
-
-    def x(self, b: np.ndarray) -> np.ndarray:
-        # Sorted reads are much faster on a memory map; restore the batch order after.
-        order = np.argsort(b)
-        out = np.empty((b.size,) + self.feats.shape[1:], dtype=np.float32)
-        out[order] = self.feats[b[order]]
-        if self.offsets is not None:
-            out -= self.offsets[b][:, :, None, None]
-        return out
-
-
-def _evaluate_loss(model: SlipNet, data: _Batches, idx: np.ndarray,
-                   weights: LossWeights, bs: int = 1024) -> tuple[float, dict[str, np.ndarray]]:
-    model.eval()
-    total, n = 0.0, 0
-    probs, vels = [], []
-    with torch.inference_mode():
-        for s in range(0, idx.size, bs):
-            b = idx[s:s + bs]
-            out = model(torch.from_numpy(data.x(b)))
-            loss, _ = slip_loss(out, speed_scale=model.cfg.speed_scale, weights=weights,
-                                **data.labels(b))
-            total += float(loss) * b.size
-            n += b.size
-            d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
-            probs.append(torch.sigmoid(out.logit).numpy())
-            vels.append((d * out.magnitude[:, None]).numpy())
-    pred = {"prob": np.concatenate(probs) if probs else np.zeros(0),
-            "v": np.concatenate(vels) if vels else np.zeros((0, 2))}
-    return total / max(n, 1), pred
-
-
-def _split(ds: WindowSet, cfg: TrainConfig, log: Callable[[str], None]
-           ) -> tuple[np.ndarray, np.ndarray]:
-    kw = dict(induced=cfg.induced, objects=cfg.objects, conditions=cfg.conditions,
-              seed=cfg.split_seed)
-    tr = select_windows(ds, "train", **kw)
-    va = select_windows(ds, "val", **kw)
-    if tr.size == 0:
-        raise ValueError(f"no training windows in {ds.root} with these filters")
-    if va.size == 0:
-        # Validating on the training set would report training numbers as "val".
-        from aslip_ros.data.dataset import split_summary
-        raise ValueError(
-            f"no validation trials in {ds.root} with these filters: the split by trial gives "
-            f"{split_summary(ds.trials, cfg.split_seed)}; validation needs trials that are "
-            "not trained on: record and export more trials (of one object and condition, 3 "
-            "give a validation trial, 5 a test trial too) or loosen the filters")
-    return tr, va
 
 
 def _provenance(ds: WindowSet, cfg: TrainConfig, init: str | None) -> dict[str, Any]:
@@ -280,13 +126,54 @@ def _provenance(ds: WindowSet, cfg: TrainConfig, init: str | None) -> dict[str, 
                         "conditions": cfg.to_dict()["conditions"]}}
 
 
-def _layout(ds: WindowSet, channels: Sequence[str]) -> str | None:
-    if list(channels) == ds.channel_names:
-        return ds.layout
-    return f"{ds.layout}:{'+'.join(channels)}"
-
-
 # --- CNN ----------------------------------------------------------------------------------
+
+def _open_init(ds: WindowSet, cfg: TrainConfig, init: str | os.PathLike | None
+               ) -> Checkpoint | None:
+    """The checkpoint to finetune from, checked against the dataset (None without one)."""
+    init_ckpt = load_checkpoint(init) if init else None
+    if cfg.stage == "finetune" and init_ckpt is None:
+        raise ValueError("--stage finetune needs --init <checkpoint>")
+    if init_ckpt is None:
+        return None
+    if init_ckpt.model_type != CNN:
+        raise ValueError("--init must be a CNN checkpoint")
+    init_ckpt.check_compatible(ds.sample_rate, [ds.channel_names[c] for c in
+                                                ds.channel_indices(init_ckpt.channel_names)])
+    if int(init_ckpt.meta["window_samples"]) != ds.window_samples:
+        raise ValueError("the --init checkpoint was trained on another window length")
+    return init_ckpt
+
+
+def _build_model(ds: WindowSet, init_ckpt: Checkpoint | None, feats: np.ndarray,
+                 tr: np.ndarray, channels: list[str], fcfg: FeatureConfig,
+                 model_options: dict[str, Any] | None, rng: np.random.Generator) -> SlipNet:
+    """The init checkpoint's network, or a new one normalised on the training windows with
+    the median training slip speed as its speed scale."""
+    if init_ckpt is not None:
+        model = SlipNet(ModelConfig.from_dict(init_ckpt.meta["model_config"]))
+        model.load_state_dict(init_ckpt.tensors)
+        return model
+    mean, std = normalization_stats(feats[np.sort(tr)] if tr.size <= 20000 else
+                                    feats[np.sort(rng.choice(tr, 20000, replace=False))])
+    slip_speed = ds.speed(tr)[ds.slip(tr)]
+    scale = float(np.median(slip_speed)) if slip_speed.size else 0.02
+    mcfg = ModelConfig(n_channels=len(channels), n_mels=fcfg.n_mels,
+                       speed_scale=max(scale, 1e-4), **dict(model_options or {}))
+    model = SlipNet(mcfg)
+    model.set_normalization(mean, std)
+    return model
+
+
+def _cnn_meta(ds: WindowSet, cfg: TrainConfig, model: SlipNet, fcfg: FeatureConfig,
+              channels: list[str], weights: LossWeights, cal: Any, prov: dict[str, Any]
+              ) -> dict[str, Any]:
+    return checkpoint_meta(
+        CNN, model.cfg, fcfg, ds, channels, provenance=prov, calibration=cal,
+        normalization={"mean": model.feat_mean.tolist(), "std": model.feat_std.tolist(),
+                       "scope": "per mel bin over training windows, channels and frames"},
+        loss_weights=weights.to_dict(), train_config=cfg.to_dict())
+
 
 def train_cnn(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig | None = None,
               model_options: dict[str, Any] | None = None,
@@ -297,116 +184,43 @@ def train_cnn(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
     torch.set_num_threads(max(1, cfg.threads))
     _seed_everything(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    init_ckpt = load_checkpoint(init) if init else None
-    if cfg.stage == "finetune" and init_ckpt is None:
-        raise ValueError("--stage finetune needs --init <checkpoint>")
-    if init_ckpt is not None:
-        if init_ckpt.model_type != "aslip_cnn":
-            raise ValueError("--init must be a CNN checkpoint")
+    init_ckpt = _open_init(ds, cfg, init)
+    if init_ckpt is not None:     # the init's channels and features: its weights read those
         channels = init_ckpt.channel_names
-        init_ckpt.check_compatible(ds.sample_rate, [ds.channel_names[c]
-                                                    for c in ds.channel_indices(channels)])
-        if int(init_ckpt.meta["window_samples"]) != ds.window_samples:
-            raise ValueError("the --init checkpoint was trained on another window length")
         feature_config = FeatureConfig.from_dict(init_ckpt.meta["feature_config"])
     channels = list(channels or ds.channel_names)
     fcfg = feature_config or FeatureConfig()
 
     t0 = time.perf_counter()
     feats = feature_cache(ds, fcfg, channels, cache_dir, progress=cfg.progress)
-    tr, va = _split(ds, cfg, log)
+    tr, va = split_windows(ds, cfg)
     reuse = None if init_ckpt is None else init_ckpt.meta.get("calibration")
     cal, offsets = training_calibration(ds, cfg.calibration, channels, fcfg, tr, va, reuse,
                                         log)
     t_feat = time.perf_counter() - t0
-    data = _Batches(feats, ds, offsets)
+    data = Batches(feats, ds, offsets)
 
-    if init_ckpt is not None:
-        mcfg = ModelConfig.from_dict(init_ckpt.meta["model_config"])
-        model = SlipNet(mcfg)
-        model.load_state_dict(init_ckpt.tensors)
-    else:
-        mean, std = normalization_stats(feats[np.sort(tr)] if tr.size <= 20000 else
-                                        feats[np.sort(rng.choice(tr, 20000, replace=False))])
-        slip_speed = ds.speed(tr)[ds.slip(tr)]
-        scale = float(np.median(slip_speed)) if slip_speed.size else 0.02
-        opts = dict(model_options or {})
-        mcfg = ModelConfig(n_channels=len(channels), n_mels=fcfg.n_mels,
-                           speed_scale=max(scale, 1e-4), **opts)
-        model = SlipNet(mcfg)
-        model.set_normalization(mean, std)
+    model = _build_model(ds, init_ckpt, feats, tr, channels, fcfg, model_options, rng)
     if cfg.stage == "finetune":
         model.freeze_encoder()
-    params = [p for p in model.parameters() if p.requires_grad]
-    opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
-    feat_mean = model.feat_mean.numpy().copy()
+    fit = run_epochs(model, data, tr, va, cfg, weights, rng, log)
 
-    best = (math.inf, -1, copy.deepcopy(model.state_dict()))
-    history: list[dict[str, float]] = []
-    t_start = time.perf_counter()
-    stop_reason = "max_epochs"
-    for epoch in range(cfg.epochs):
-        model.train()
-        order = _epoch_indices(tr, data.slip, cfg.noslip_ratio, rng)
-        n_batches = max(1, order.size // cfg.batch_size)  # drop the ragged tail (BN stability)
-        batches = range(n_batches)
-        if cfg.progress:
-            from tqdm import tqdm
-            batches = tqdm(batches, desc=f"epoch {epoch}", unit="batch", leave=False)
-        run_loss = 0.0
-        for i in batches:
-            b = order[i * cfg.batch_size:(i + 1) * cfg.batch_size]
-            x = torch.from_numpy(_augment(data.x(b), feat_mean, rng, cfg))
-            out = model(x)
-            loss, _ = slip_loss(out, speed_scale=mcfg.speed_scale, weights=weights,
-                                **data.labels(b))
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            run_loss += float(loss.detach())
-        val_loss, _ = _evaluate_loss(model, data, va, weights)
-        history.append({"epoch": epoch, "train_loss": run_loss / n_batches,
-                        "val_loss": val_loss, "time_s": time.perf_counter() - t_start})
-        if cfg.progress:
-            log(f"epoch {epoch:3d}  train {run_loss / n_batches:.4f}  val {val_loss:.4f}")
-        if val_loss < best[0]:
-            best = (val_loss, epoch, copy.deepcopy(model.state_dict()))
-        elif epoch - best[1] >= cfg.patience:
-            stop_reason = "early_stopping"
-            break
-        if time.perf_counter() - t_start > cfg.time_budget_s:
-            stop_reason = "time_budget"
-            break
-    model.load_state_dict(best[2])
-    t_train = time.perf_counter() - t_start
-
-    _, pred = _evaluate_loss(model, data, va, weights)
+    _, pred = evaluate_loss(model, data, va, weights)
     val_metrics = compute_metrics(pred["prob"], pred["v"], data.v[va], data.slip[va],
                                   ds.window_s)
     prov = _provenance(ds, cfg, str(init) if init else None)
     if init_ckpt is not None:
         prov["init_provenance"] = {k: init_ckpt.meta.get("provenance", {}).get(k)
                                    for k in ("dataset", "stage", "seed", "git_revision")}
-    prov.update(metrics={"val": val_metrics, "best_val_loss": best[0]},
-                training={"best_epoch": best[1], "epochs_run": len(history),
-                          "stop_reason": stop_reason, "train_time_s": t_train,
+    prov.update(metrics={"val": val_metrics, "best_val_loss": fit.best_loss},
+                training={"best_epoch": fit.best_epoch, "epochs_run": len(fit.history),
+                          "stop_reason": fit.stop_reason, "train_time_s": fit.train_time_s,
                           "feature_time_s": t_feat, "n_train_windows": int(tr.size),
                           "n_val_windows": int(va.size)})
-    meta = {
-        "model_type": "aslip_cnn", "model_config": mcfg.to_dict(),
-        "feature_config": fcfg.to_dict(),
-        "normalization": {"mean": model.feat_mean.tolist(), "std": model.feat_std.tolist(),
-                          "scope": "per mel bin over training windows, channels and frames"},
-        "channel_names": channels, "layout": _layout(ds, channels),
-        "sample_rate": ds.sample_rate, "window_s": ds.window_s,
-        "window_samples": ds.window_samples, "epsilon_m_s": ds.epsilon, "threshold": 0.5,
-        "loss_weights": weights.to_dict(), "train_config": cfg.to_dict(), "provenance": prov,
-    }
-    if cal is not None:
-        meta["calibration"] = cal.to_dict()
+    meta = _cnn_meta(ds, cfg, model, fcfg, channels, weights, cal, prov)
     model.eval()
     tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
-    return TrainResult(meta=meta, tensors=tensors, history=history, model=model)
+    return TrainResult(meta=meta, tensors=tensors, history=fit.history, model=model)
 
 
 # --- SVM ----------------------------------------------------------------------------------
@@ -419,7 +233,7 @@ def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
     channels = list(channels or ds.channel_names)
     cols = ds.channel_indices(channels)
     fcfg = feature_config or FeatureConfig()
-    tr, va = _split(ds, cfg, log)
+    tr, va = split_windows(ds, cfg)
     cal, offsets = training_calibration(ds, cfg.calibration, channels, fcfg, tr, va, None,
                                         log)
     slip_all = ds.slip(np.arange(len(ds)))
@@ -448,18 +262,11 @@ def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
     prov.update(metrics={"val": val_metrics},
                 training={"train_time_s": time.perf_counter() - t0,
                           "n_train_windows": int(tr.size), "n_val_windows": int(va.size)})
-    meta = {
-        "model_type": "svm", "model_config": svm_config.to_dict(),
-        "feature_config": fcfg.to_dict(),
-        "normalization": {"mean": arrays.mean.tolist(), "std": arrays.std.tolist(),
-                          "scope": "per handcrafted feature over training windows"},
-        "channel_names": channels, "layout": _layout(ds, channels),
-        "sample_rate": ds.sample_rate, "window_s": ds.window_s,
-        "window_samples": ds.window_samples, "epsilon_m_s": ds.epsilon, "threshold": 0.5,
-        "train_config": cfg.to_dict(), "provenance": prov,
-    }
-    if cal is not None:
-        meta["calibration"] = cal.to_dict()
+    meta = checkpoint_meta(
+        SvmBackend.model_type, svm_config, fcfg, ds, channels, provenance=prov,
+        calibration=cal, train_config=cfg.to_dict(),
+        normalization={"mean": arrays.mean.tolist(), "std": arrays.std.tolist(),
+                       "scope": "per handcrafted feature over training windows"})
     return TrainResult(meta=meta, tensors=arrays.to_tensors(), history=[], model=arrays)
 
 

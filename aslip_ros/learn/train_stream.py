@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from .checkpoint import git_revision, save_checkpoint
+from .checkpoint import checkpoint_meta, git_revision, save_checkpoint
 from .data_io import WindowSet, open_dataset, trial_splits
 from .features import FeatureConfig
 from .streaming import StreamingLogMel, stream_logmel
@@ -283,24 +283,21 @@ def stream_meta(ds: WindowSet, cfg: StreamTrainConfig, mcfg: StreamConfig,
     """The checkpoint document: what the model expects and what its outputs mean."""
     factor = int(round(ds.sample_rate / fcfg.sample_rate))
     frame_s = fcfg.n_fft / fcfg.sample_rate
-    return {
-        "model_type": MODEL_TYPE, "model_config": mcfg.to_dict(),
-        "feature_config": fcfg.to_dict(),
-        "normalization": {"mean": model.feat_mean.tolist(), "std": model.feat_std.tolist(),
-                          "scope": "per mel bin over training frames and channels"},
-        "channel_names": channels, "layout": ds.layout, "sample_rate": ds.sample_rate,
+    return checkpoint_meta(
+        MODEL_TYPE, mcfg, fcfg, ds, channels,
+        normalization={"mean": model.feat_mean.tolist(), "std": model.feat_std.tolist(),
+                       "scope": "per mel bin over training frames and channels"},
         # One frame is the audio an estimate reads directly; the state carries the rest.
-        "window_s": frame_s, "window_samples": fcfg.n_fft * factor,
-        "hop_s": fcfg.hop / fcfg.sample_rate, "epsilon_m_s": ds.epsilon, "threshold": 0.5,
-        "label": {"kind": "slip_velocity_now",
-                  "describes": "the last audio sample of each frame",
-                  "smoother": {"method": "savitzky_golay", **smoother.to_dict()},
-                  "frame": "grasp plane (x, z), m/s"},
-        "train_config": asdict(cfg),
-        "provenance": {"dataset": str(ds.root), "git_revision": git_revision(),
-                       "seed": cfg.seed, "split_seed": cfg.split_seed, "stage": "stream",
-                       "torch": torch.__version__},
-    }
+        window_s=frame_s, window_samples=fcfg.n_fft * factor,
+        hop_s=fcfg.hop / fcfg.sample_rate,
+        label={"kind": "slip_velocity_now",
+               "describes": "the last audio sample of each frame",
+               "smoother": {"method": "savitzky_golay", **smoother.to_dict()},
+               "frame": "grasp plane (x, z), m/s"},
+        train_config=asdict(cfg),
+        provenance={"dataset": str(ds.root), "git_revision": git_revision(),
+                    "seed": cfg.seed, "split_seed": cfg.split_seed, "stage": "stream",
+                    "torch": torch.__version__})
 
 
 def run_from_args(args: argparse.Namespace) -> int:

@@ -1,0 +1,147 @@
+"""The CNN's epoch loop: augmentation, balanced epochs, early stopping, a time budget."""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+import torch
+
+from .losses import LossWeights, slip_loss
+from .network import SlipNet
+from .train_data import Batches
+
+if TYPE_CHECKING:
+    from .train import TrainConfig
+
+_DB_TO_LOG_POWER = math.log(10.0) / 10.0  # +1 dB amplitude-power gain in natural-log power
+
+
+def augment(x: np.ndarray, mean: np.ndarray, rng: np.random.Generator,
+            cfg: "TrainConfig") -> np.ndarray:
+    """Random gain (log-domain offset) and SpecAugment masks filled with the bin means."""
+    b, c, m, t = x.shape
+    gain = rng.uniform(-cfg.gain_db, cfg.gain_db, (b, 1)) + rng.uniform(
+        -cfg.channel_gain_db, cfg.channel_gain_db, (b, c))
+    x = x + (gain * _DB_TO_LOG_POWER)[:, :, None, None].astype(np.float32)
+    fmax = m // 8 if cfg.freq_mask < 0 else cfg.freq_mask
+    fill = np.broadcast_to(mean[None, None, :, None], x.shape)
+    if fmax > 0:
+        w = rng.integers(0, fmax + 1, b)
+        f0 = rng.integers(0, m - w + 1)
+        fr = np.arange(m)
+        mask = (fr >= f0[:, None]) & (fr < (f0 + w)[:, None])
+        x = np.where(mask[:, None, :, None], fill, x)
+    if cfg.time_mask > 0 and t > cfg.time_mask:
+        w = rng.integers(0, cfg.time_mask + 1, b)
+        t0 = rng.integers(0, t - w + 1)
+        tr = np.arange(t)
+        mask = (tr >= t0[:, None]) & (tr < (t0 + w)[:, None])
+        x = np.where(mask[:, None, None, :], fill, x)
+    return np.ascontiguousarray(x, dtype=np.float32)
+
+
+def epoch_indices(idx: np.ndarray, slip: np.ndarray, ratio: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """All slip windows plus at most ``ratio`` no-slip windows per slip window, shuffled."""
+    pos, neg = idx[slip[idx]], idx[~slip[idx]]
+    if pos.size == 0:
+        chosen = neg
+    else:
+        n_neg = min(neg.size, int(round(ratio * pos.size)))
+        chosen = np.concatenate([pos, rng.choice(neg, n_neg, replace=False)])
+    return rng.permutation(chosen)
+
+
+def evaluate_loss(model: SlipNet, data: Batches, idx: np.ndarray, weights: LossWeights,
+                  bs: int = 1024) -> tuple[float, dict[str, np.ndarray]]:
+    """Mean loss over ``idx`` and the model's p(slip) and ungated velocity there."""
+    model.eval()
+    total, n = 0.0, 0
+    probs, vels = [], []
+    with torch.inference_mode():
+        for s in range(0, idx.size, bs):
+            b = idx[s:s + bs]
+            out = model(torch.from_numpy(data.x(b)))
+            loss, _ = slip_loss(out, speed_scale=model.cfg.speed_scale, weights=weights,
+                                **data.labels(b))
+            total += float(loss) * b.size
+            n += b.size
+            d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
+            probs.append(torch.sigmoid(out.logit).numpy())
+            vels.append((d * out.magnitude[:, None]).numpy())
+    pred = {"prob": np.concatenate(probs) if probs else np.zeros(0),
+            "v": np.concatenate(vels) if vels else np.zeros((0, 2))}
+    return total / max(n, 1), pred
+
+
+@dataclass
+class Fit:
+    """What the epoch loop leaves: the best epoch (its weights are loaded) and the run."""
+
+    best_loss: float
+    best_epoch: int
+    stop_reason: str              # max_epochs | early_stopping | time_budget
+    train_time_s: float
+    history: list[dict[str, float]] = field(default_factory=list)
+
+
+def _train_epoch(model: SlipNet, data: Batches, order: np.ndarray, opt: torch.optim.Optimizer,
+                 feat_mean: np.ndarray, rng: np.random.Generator, cfg: "TrainConfig",
+                 weights: LossWeights, label: str) -> float:
+    """One pass over ``order``; the mean training loss."""
+    model.train()
+    n_batches = max(1, order.size // cfg.batch_size)  # drop the ragged tail (BN stability)
+    batches: Any = range(n_batches)
+    if cfg.progress:
+        from tqdm import tqdm
+        batches = tqdm(batches, desc=label, unit="batch", leave=False)
+    run_loss = 0.0
+    for i in batches:
+        b = order[i * cfg.batch_size:(i + 1) * cfg.batch_size]
+        x = torch.from_numpy(augment(data.x(b), feat_mean, rng, cfg))
+        out = model(x)
+        loss, _ = slip_loss(out, speed_scale=model.cfg.speed_scale, weights=weights,
+                            **data.labels(b))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        run_loss += float(loss.detach())
+    return run_loss / n_batches
+
+
+def run_epochs(model: SlipNet, data: Batches, tr: np.ndarray, va: np.ndarray,
+               cfg: "TrainConfig", weights: LossWeights, rng: np.random.Generator,
+               log: Callable[[str], None]) -> Fit:
+    """Adam on the trainable weights until ``cfg.epochs``, ``cfg.patience`` epochs without a
+    better validation loss, or ``cfg.time_budget_s``; the best epoch's weights are loaded."""
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    feat_mean = model.feat_mean.numpy().copy()
+    best = (math.inf, -1, copy.deepcopy(model.state_dict()))
+    history: list[dict[str, float]] = []
+    t_start = time.perf_counter()
+    stop_reason = "max_epochs"
+    for epoch in range(cfg.epochs):
+        order = epoch_indices(tr, data.slip, cfg.noslip_ratio, rng)
+        train_loss = _train_epoch(model, data, order, opt, feat_mean, rng, cfg, weights,
+                                  f"epoch {epoch}")
+        val_loss, _ = evaluate_loss(model, data, va, weights)
+        history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss,
+                        "time_s": time.perf_counter() - t_start})
+        if cfg.progress:
+            log(f"epoch {epoch:3d}  train {train_loss:.4f}  val {val_loss:.4f}")
+        if val_loss < best[0]:
+            best = (val_loss, epoch, copy.deepcopy(model.state_dict()))
+        elif epoch - best[1] >= cfg.patience:
+            stop_reason = "early_stopping"
+            break
+        if time.perf_counter() - t_start > cfg.time_budget_s:
+            stop_reason = "time_budget"
+            break
+    model.load_state_dict(best[2])
+    return Fit(best[0], best[1], stop_reason, time.perf_counter() - t_start, history)
