@@ -219,3 +219,35 @@ def test_unwritable_checkpoint_path_is_one_error_naming_it(tmp_path, cnn_ckpt):
     with pytest.raises(OSError, match=f"cannot write checkpoint {blocker / 'm.pt'}"):
         save_checkpoint(blocker / "m.pt", _good_meta(), net.state_dict())
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "m.pt"]
+
+
+def test_checkpoint_meta_is_the_document_every_trainer_writes(tmp_path):
+    from types import SimpleNamespace
+
+    from aslip_ros.learn.checkpoint import checkpoint_meta
+    ds = SimpleNamespace(channel_names=NAMES, layout="4mic", sample_rate=48000.0,
+                         window_s=0.2, window_samples=9600, epsilon=0.005)
+    fcfg = FeatureConfig()
+    full = checkpoint_meta("aslip_cnn", ModelConfig(width=4, n_mels=fcfg.n_mels), fcfg, ds,
+                           NAMES, normalization=None, provenance={"seed": 1},
+                           train_config={"lr": 1e-3})
+    assert full["layout"] == "4mic" and full["threshold"] == 0.5
+    assert (full["window_s"], full["window_samples"], full["epsilon_m_s"]) == (0.2, 9600, 0.005)
+    assert full["train_config"] == {"lr": 1e-3} and "calibration" not in full
+    net = SlipNet(ModelConfig(width=4, n_mels=fcfg.n_mels))
+    assert load_checkpoint(save_checkpoint(tmp_path / "m.pt", full,
+                                           net.state_dict())).meta["provenance"] == {"seed": 1}
+    # A channel subset names itself in the layout; a streaming model reads one frame.
+    cal = SimpleNamespace(to_dict=lambda: {"method": "background"})
+    sub = checkpoint_meta("aslip_stream", ModelConfig(n_channels=2), fcfg, ds, NAMES[:2],
+                          normalization=None, provenance={}, window_s=0.032,
+                          window_samples=1536, calibration=cal, hop_s=0.01)
+    assert sub["layout"] == "4mic:left_front+left_back"
+    assert (sub["window_s"], sub["window_samples"], sub["hop_s"]) == (0.032, 1536, 0.01)
+    assert sub["calibration"] == {"method": "background"}
+
+
+def test_an_unknown_model_type_is_refused_with_the_known_ones_named(cnn_ckpt, tmp_path):
+    meta = dict(load_checkpoint(cnn_ckpt[0]).meta, model_type="transformer")
+    with pytest.raises(ValueError, match="unknown model_type 'transformer'.*aslip_cnn.*svm"):
+        save_checkpoint(tmp_path / "x.pt", meta, {})

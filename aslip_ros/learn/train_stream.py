@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
+from .backends import StreamBackend
 from .checkpoint import checkpoint_meta, git_revision, save_checkpoint
 from .data_io import WindowSet, open_dataset, trial_splits
 from .features import FeatureConfig
@@ -32,7 +33,7 @@ from .streaming import StreamingLogMel, stream_logmel
 from aslip_ros.data.stream_labels import DEFAULT_SMOOTHER, Smoother, frame_labels, load_track
 from .streaming_model import StreamConfig, StreamNet, offline_outputs
 
-MODEL_TYPE = "aslip_stream"
+MODEL_TYPE = StreamBackend.model_type
 _DB = math.log(10.0) / 10.0      # +1 dB of power in natural-log mel units
 
 
