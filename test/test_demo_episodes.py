@@ -27,6 +27,7 @@ pytestmark = pytest.mark.ros
 
 ROOT = Path(__file__).resolve().parents[1]
 CNN = ROOT / "models" / "aslip_cnn.pt"
+STREAM = ROOT / "results" / "lag" / "stream.pt"       # the streaming model (docs/streaming.md)
 STOP_ERROR_BOUND_M = 0.015
 # Below the paper's A-SLIP overall pose RMSE (15.8 mm); the demo's aim (8 mm) is not met.
 TRACK_RMSE_BOUND_M = 0.015
@@ -57,7 +58,7 @@ def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_pa
     _check_slip_stop(result, traj)
 
 
-def _slip_stop_episode(rclpy_context, ros_env, tmp_path):
+def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_log=None):
     from std_msgs.msg import String
 
     from aslip_ros.experiments.demo_episode import StopSettings
@@ -71,6 +72,9 @@ def _slip_stop_episode(rclpy_context, ros_env, tmp_path):
     tmp_path.mkdir(parents=True, exist_ok=True)
     bus = Bus(rclpy_context, name=f"aslip_test_bus_{tmp_path.name}")
     bus.listen(String, RESULT_TOPIC, c.LATCHED_QOS)
+    if slip_log is not None:
+        from aslip_ros.msg import SlipVector
+        bus.listen(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
     traj = tmp_path / "wall_push.npz"
     ctl_params = {"approach_speed_m_s": s.approach_speed_m_s,
                   "retract_distance_m": s.retract_distance_m,
@@ -83,7 +87,8 @@ def _slip_stop_episode(rclpy_context, ros_env, tmp_path):
         return [json.loads(m.data) for m in bus.messages(RESULT_TOPIC)
                 if json.loads(m.data).get("final")]
 
-    with NodeProcess("slip_inference", ros_env, {"checkpoint": _checkpoint()}) as inf, \
+    with NodeProcess("slip_inference", ros_env,
+                     {"checkpoint": checkpoint or _checkpoint()}) as inf, \
             NodeProcess("slip_stop", ros_env, ctl_params) as ctl:
         inf.wait_ready()
         ctl.wait_ready()
@@ -94,6 +99,8 @@ def _slip_stop_episode(rclpy_context, ros_env, tmp_path):
             assert bus.wait(lambda: bool(final()), timeout=40.0), \
                 ctl.output[-3000:] + inf.output[-2000:]
             sim.stop()
+    if slip_log is not None:
+        slip_log.extend(bus.messages(c.SLIP_TOPIC))
     bus.close()
     return final()[0], traj
 
@@ -114,6 +121,26 @@ def _check_slip_stop(result, traj):
     assert 0.0 < o.stopping_error_m <= STOP_ERROR_BOUND_M, o
     # The controller's own reading (newest TCP pose against its start pose) agrees.
     assert result["stopping_distance_m"] == pytest.approx(o.stopping_error_m, abs=2e-3)
+
+
+def test_slip_stop_episode_with_the_streaming_model(rclpy_context, ros_env, tmp_path):
+    """The streaming checkpoint in slip_inference closes the slip-stop loop: the controller
+    acts on its per-hop estimates and stops the arm on slip, within the CNN's bound."""
+    from aslip_ros.experiments.demo import MAX_RERUNS
+    assert STREAM.is_file(), STREAM
+    for attempt in range(1 + MAX_RERUNS):
+        slips: list = []
+        result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path / f"try{attempt}",
+                                          str(STREAM), slips)
+        if not result["reason"].startswith("stale"):
+            break
+    else:
+        _skip_if_far_beyond_real_time(result["reason"])
+    assert result["reason"] == "slip", result
+    assert len(slips) > 50 and {m.source for m in slips} == {"aslip_stream"}
+    assert all(abs(m.window_length - 0.032) < 1e-6 for m in slips)     # float32 field
+    assert any(m.slipping for m in slips)
+    _check_slip_stop(result, traj)             # stopped after touching, within the bound
 
 
 def test_slip_track_episode_composed_in_one_process():
