@@ -18,6 +18,7 @@ from aslip_ros.data.bags import (AUDIO_TYPE, CUSTOM_DATA_KEY, DEFAULT_TOPICS,
                                  METADATA_FORMAT, METADATA_VERSION, POSE_FRAMES, POSE_TYPE,
                                  SLIP_TYPE, STRING_TYPE, BagError, Topics, _qos, _time_msg,
                                  typestore)
+from aslip_ros import frames
 from aslip_ros.util import atomic_path
 
 
@@ -31,7 +32,7 @@ class BagWriter:
 
     def __init__(self, path: str | os.PathLike, *, metadata: Mapping | None = None,
                  topics: Topics = DEFAULT_TOPICS, start_ns: int = 0,
-                 overwrite: bool = False, audio_frame_id: str = "aslip_gripper"):
+                 overwrite: bool = False, audio_frame_id: str = frames.GRIPPER):
         self.path = Path(path)
         if self.path.exists() and not overwrite:
             raise BagError(f"{self.path} exists already (pass overwrite=True to replace it)")
@@ -160,7 +161,7 @@ class BagWriter:
         self.write(getattr(self.topics, which), POSE_TYPE, msg, ns, qos="sensor")
 
     def write_slip_truth(self, t_end: float, vx: float, vz: float, window_s: float,
-                         threshold_m_s: float, frame_id: str = "aslip_grasp_plane") -> None:
+                         threshold_m_s: float, frame_id: str = frames.GRASP_PLANE) -> None:
         """A ``SlipVector`` from ground truth (source ``mocap_truth``) ending at ``t_end``."""
         T = self._T
         speed = float(np.hypot(vx, vz))

@@ -61,10 +61,21 @@ def shipped_models(models_dir: str | Path) -> dict | None:
     return man
 
 
+def aslip(argv: list[str]) -> int:
+    """``aslip train|evaluate ARGS`` through the subcommand's own parser and ``run`` (the
+    same defaults as the command line, without importing the command line above this floor)."""
+    import argparse
+
+    from aslip_ros.learn import evaluate, train
+    module = {"train": train, "evaluate": evaluate}[argv[0]]
+    parser = argparse.ArgumentParser(prog=f"aslip {argv[0]}")
+    module.add_arguments(parser)
+    return int(module.run(parser.parse_args(argv[1:])) or 0)
+
+
 def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data/demo",
                  progress: bool = True, threads: int = 2) -> dict:
     """Simulate, export, train and evaluate; returns the manifest written to models_dir."""
-    from aslip_ros.cli import main as aslip
     from aslip_ros.data.export import ExportConfig, export
     from aslip_ros.data.simulate import simulate
 
