@@ -77,3 +77,68 @@ def test_unsupported_rate_ratios_are_refused_with_a_clear_error():
     f = StreamingLogMel(FeatureConfig(), 48000.0, 2)
     with pytest.raises(ValueError, match=r"\(n, 2\)"):
         f.push(np.zeros((10, 3), np.float32))
+
+
+# ------------------------------------------------------------------ aslip evaluate (stream)
+
+@pytest.fixture(scope="module")
+def stream_dataset(tmp_path_factory):
+    from aslip_ros.data.export import export
+    from aslip_ros.data.synthetic import write_synthetic_bag
+    from test_learn_streaming_model import NAMES
+    root = tmp_path_factory.mktemp("stream_eval")
+    for i, v in enumerate([(0.02, 0.0, 0.0), (0.0, 0.0, -0.03), (0.0, 0.0, 0.0)]):
+        write_synthetic_bag(root / "bags" / f"t{i}", duration_s=1.2, slip_velocity=v,
+                            seed=i, channel_names=NAMES)
+    export([root / "bags"], root / "ds", window_s=0.2, hop_s=0.1, progress=False)
+    return root / "ds"
+
+
+def test_evaluate_scores_a_streaming_checkpoint_at_each_window_end(stream_dataset, tmp_path):
+    """Each window gets the estimate a live StreamingPredictor fed the trial block by block
+    had produced last when the window ended; the window's own label scores it."""
+    from aslip_ros.learn.data_io import open_dataset
+    from aslip_ros.learn.evaluate import evaluate_checkpoint, predict_split
+    from aslip_ros.learn.streaming_predictor import StreamingPredictor
+    from test_learn_streaming_model import blocks, make_checkpoint
+    ckpt = make_checkpoint(tmp_path / "s.pt", threshold=0.5)
+    p = predict_split(ckpt, stream_dataset, "all")
+    ds = open_dataset(stream_dataset)
+    assert p["index"].size == len(ds.windows) > 20 and p["window_s"] == ds.window_s
+    assert len(set(p["prob"].round(5))) > 5
+    for k in range(len(ds.trials)):
+        live = StreamingPredictor.from_checkpoint(ckpt)
+        ests = [e for b in blocks(np.asarray(ds.audio(k)), 480, start_index=0)
+                for e in live.push(b)]
+        at = np.array([e.sample_index for e in ests])
+        rows = np.flatnonzero(p["trial"] == k)
+        for r in rows:
+            end = int(ds.windows["start"][p["index"][r]]) + ds.window_samples
+            e = ests[np.flatnonzero(at <= end)[-1]]
+            assert end - e.sample_index < 480                 # at most one hop old
+            assert p["prob"][r] == pytest.approx(e.prediction.probability, abs=1e-5)
+            np.testing.assert_allclose(p["raw_velocity"][r], e.raw_velocity, atol=1e-6)
+        np.testing.assert_allclose(p["true_velocity"][rows],
+                                   ds.velocity(p["index"][rows]), atol=0)
+    res = evaluate_checkpoint(ckpt, stream_dataset, "all")
+    assert res["model_type"] == "aslip_stream" and res["calibration"] is None
+    assert res["overall"]["n_windows"] == p["index"].size
+    assert 0.0 <= res["overall"]["detection_accuracy"] <= 1.0
+    assert res["overall"]["window_s"] == ds.window_s and res["overall"]["threshold"] == 0.5
+
+
+def test_aslip_evaluate_cli_on_a_streaming_checkpoint(stream_dataset, tmp_path, capsys):
+    import json
+
+    from aslip_ros import cli
+    from test_learn_streaming_model import make_checkpoint
+    ckpt = make_checkpoint(tmp_path / "s.pt")
+    out = tmp_path / "m.json"
+    assert cli.main(["evaluate", "--checkpoint", str(ckpt), "--dataset", str(stream_dataset),
+                     "--split", "all", "--threads", "1", "--json", str(out)]) == 0
+    assert "aslip_stream" in capsys.readouterr().out
+    assert json.loads(out.read_text())["overall"]["n_windows"] > 20
+    other = make_checkpoint(tmp_path / "o.pt", channel_names=["x0", "x1"])
+    assert cli.main(["evaluate", "--checkpoint", str(other), "--dataset", str(stream_dataset),
+                     "--split", "all", "--threads", "1"]) == 1
+    assert "x0" in capsys.readouterr().err

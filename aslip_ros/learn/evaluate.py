@@ -13,6 +13,17 @@ Definitions (inputs in SI; the report converts to the paper's degrees and millim
   e = |s_hat - s*| * window_s over the same slip windows (s = speed, ungated), RMSE
   sqrt(mean(e^2)) and the population std of |e|. ``magnitude_rmse_gated_mm`` repeats it
   over all windows with the gated speed (zero below threshold), i.e. what a controller sees.
+
+Streaming checkpoints (``aslip_stream``) are scored on the same windows and labels: the
+estimator runs over each trial's audio from its start (a zero state, as the live node after
+a reset) and each window gets the newest estimate available at its end (the last frame
+ending at or before it, up to one 10 ms hop earlier), i.e. what ``slip_inference`` had
+published when the window closed. The window's label is its mean velocity while the
+estimate is the velocity *now*, so on changing slip the two differ by the model's whole
+advantage in lag; in exchange the numbers compare with the window models' over identical
+rows (the lag against the true velocity is ``experiments.lag``'s measure). Displacement
+errors use the dataset's window length; trials with audio gaps are left out (live, the gap
+would reset the state; their files join the segments).
 """
 
 from __future__ import annotations
@@ -27,8 +38,10 @@ import numpy as np
 
 from aslip_ros.util import write_json
 
-from .checkpoint import CheckpointMismatch
+from .checkpoint import CheckpointMismatch, load_checkpoint
 from .data_io import open_dataset, select_windows
+
+STREAM_MODEL = "aslip_stream"
 
 
 def compute_metrics(prob: np.ndarray, raw_velocity: np.ndarray, true_velocity: np.ndarray,
@@ -84,31 +97,25 @@ def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "tes
     """Run a checkpoint over a dataset split; per-window predictions and labels.
 
     Dataset channels are picked by the checkpoint's channel names, so a single-microphone
-    model evaluates on a 4-microphone dataset; rate and window length must match exactly.
+    model evaluates on a 4-microphone dataset; rate and window length must match exactly
+    (a streaming checkpoint: the rate; see the module docstring).
     Returns ``prob``, ``raw_velocity``, ``true_velocity``, ``slip``, ``trial`` (per window),
     ``index`` (window indices), ``window_s``, ``threshold`` and the ``predictor`` and
     ``dataset`` used.
     """
-    from .predictor import Predictor
-
-    pred = predictor or Predictor.from_checkpoint(checkpoint, threshold=threshold)
+    pred = predictor or _load(checkpoint, threshold)
     ds = open_dataset(dataset)
     cols = ds.channel_indices(pred.channel_names)
     check = pred.checkpoint
     check.check_compatible(ds.sample_rate, [ds.channel_names[c] for c in cols])
+    if pred.model_type == STREAM_MODEL:
+        idx = _selected(ds, dataset, split, induced, objects, conditions, split_seed)
+        return _predict_stream(pred, ds, cols, idx)
     if ds.window_samples != pred.window_samples:
         raise CheckpointMismatch(
             f"dataset windows are {ds.window_s * 1e3:g} ms ({ds.window_samples} samples), the "
             f"checkpoint expects {pred.window_s * 1e3:g} ms ({pred.window_samples} samples)")
-    idx = select_windows(ds, split, induced=induced, objects=objects, conditions=conditions,
-                         seed=split_seed)
-    if idx.size == 0:
-        from aslip_ros.data.dataset import split_summary
-        hint = ("" if split == "all" else
-                f"; the split by trial gives {split_summary(ds.trials, split_seed)}: "
-                "--split all evaluates every trial (for a dataset held out from training)")
-        raise ValueError(f"no windows in split {split!r} of {dataset} with these filters"
-                         + hint)
+    idx = _selected(ds, dataset, split, induced, objects, conditions, split_seed)
     offsets = None
     if pred.calibration is not None:
         # The checkpoint's causal per-grasp calibration, each trial a grasp from its start.
@@ -128,13 +135,63 @@ def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "tes
             "dataset": ds}
 
 
+def _load(checkpoint: str | Path, threshold: float | None):
+    """A Predictor, or a StreamingPredictor for a streaming checkpoint."""
+    ckpt = load_checkpoint(checkpoint)
+    if ckpt.model_type == STREAM_MODEL:
+        from .streaming_predictor import StreamingPredictor
+        return StreamingPredictor(ckpt, threshold=threshold)
+    from .predictor import Predictor
+    return Predictor.from_checkpoint(checkpoint, threshold=threshold)
+
+
+def _selected(ds, dataset, split, induced, objects, conditions, split_seed) -> np.ndarray:
+    """The split's window indices; ValueError (with a hint) when there are none."""
+    idx = select_windows(ds, split, induced=induced, objects=objects, conditions=conditions,
+                         seed=split_seed)
+    if idx.size == 0:
+        from aslip_ros.data.dataset import split_summary
+        hint = ("" if split == "all" else
+                f"; the split by trial gives {split_summary(ds.trials, split_seed)}: "
+                "--split all evaluates every trial (for a dataset held out from training)")
+        raise ValueError(f"no windows in split {split!r} of {dataset} with these filters"
+                         + hint)
+    return idx
+
+
+def _predict_stream(pred, ds, cols, idx: np.ndarray) -> dict[str, Any]:
+    """``predict_split`` for a StreamingPredictor: per trial from its start, the newest
+    estimate at each window's end (module docstring)."""
+    trial = np.asarray(ds.windows["trial"][idx])
+    end = np.asarray(ds.windows["start"][idx], np.int64) + ds.window_samples
+    prob, raw = np.zeros(idx.size), np.zeros((idx.size, 2))
+    keep = np.zeros(idx.size, bool)
+    for k in np.unique(trial):
+        if int(ds.trials[k].get("audio_gaps") or 0):
+            continue
+        ends, p, v = pred.trial_outputs(np.asarray(ds.audio(k))[:, cols])
+        rows = np.flatnonzero(trial == k)
+        j = np.searchsorted(ends, end[rows], side="right") - 1
+        ok = j >= 0                      # a window ending before the first frame has none
+        prob[rows[ok]], raw[rows[ok]] = p[j[ok]], v[j[ok]]
+        keep[rows[ok]] = True
+    if not keep.any():
+        raise ValueError("no window of the split has a streaming estimate (trials with audio "
+                         "gaps are left out, and the first frame needs "
+                         f"{pred.window_s * 1e3:g} ms of audio)")
+    idx = idx[keep]
+    return {"prob": prob[keep], "raw_velocity": raw[keep], "true_velocity": ds.velocity(idx),
+            "slip": ds.slip(idx), "trial": trial[keep], "index": idx, "window_s": ds.window_s,
+            "threshold": pred.threshold, "predictor": pred, "dataset": ds}
+
+
 def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str = "test",
                         **kw: Any) -> dict[str, Any]:
     """Run a checkpoint over a dataset split; returns overall, per-object, per-condition metrics
     (keyword arguments: those of :func:`predict_split`)."""
     p = predict_split(checkpoint, dataset, split, **kw)
     pred, ds, idx = p["predictor"], p["dataset"], p["index"]
-    args = (p["prob"], p["raw_velocity"], p["true_velocity"], p["slip"], pred.window_s,
+    args = (p["prob"], p["raw_velocity"], p["true_velocity"], p["slip"], p["window_s"],
             pred.threshold)
     return {
         "checkpoint": str(checkpoint), "dataset": str(dataset), "split": split,

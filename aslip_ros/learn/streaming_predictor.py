@@ -111,9 +111,18 @@ class StreamingPredictor:
         return int(self.meta["window_samples"])
 
     @property
+    def layout(self) -> str | None:
+        return self.meta.get("layout")
+
+    @property
     def calibrated(self) -> bool:
         """False: the streaming model has no per-grasp calibration."""
         return False
+
+    @property
+    def calibration(self) -> None:
+        """None: no per-grasp calibration (the Predictor's interface)."""
+        return None
 
     @property
     def fresh(self) -> bool:
