@@ -134,7 +134,7 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
     """One ``fault`` or ``load`` episode; returns its measurements."""
     from domain_coordinator import domain_id
 
-    from aslip_ros.nodes.bench import NodeChild
+    from aslip_ros.nodes.process import NodeProcess
 
     from aslip_ros.experiments.demo_episode import StopSettings
     from aslip_ros.scene.layouts import get_object
@@ -154,15 +154,15 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
                    PYTHONUNBUFFERED="1")
         traj = Path(tmp) / "traj.npz"
         probe = _Probe(did)
-        inf = NodeChild("slip_inference", {"checkpoint": checkpoint}, env)
-        stop = NodeChild("slip_stop", ctl, env)
+        inf = NodeProcess("slip_inference", env, {"checkpoint": checkpoint})
+        stop = NodeProcess("slip_stop", env, ctl)
         procs = [inf, stop]
         try:
             if not (inf.ready.wait(60) and stop.ready.wait(60)):
                 return dict(out, error="nodes did not start")
             scene = {"scenario": "wall_push", "seed": seed, "object": obj,
                      "wall_distance_m": 0.0, "trajectory_out": str(traj)}
-            sim = NodeChild("scene_sim", scene, env)
+            sim = NodeProcess("scene_sim", env, scene)
             procs.append(sim)
             if not _wait(lambda: probe.meta is not None, 30):
                 return dict(out, error="no scene metadata")

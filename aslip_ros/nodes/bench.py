@@ -19,66 +19,20 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
 from aslip_ros import topics
-from aslip_ros.util import die_with_parent
+from aslip_ros.nodes.process import NodeProcess
 
 _CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def launcher(name: str) -> str:
-    """The installed launcher of node ``name`` (``<prefix>/lib/aslip_ros/<name>``)."""
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        path = Path(prefix) / "lib" / "aslip_ros" / name
-        if prefix and path.is_file():
-            return str(path)
-    raise FileNotFoundError(f"node executable {name} not found: source install/setup.bash")
 
 
 def _cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / _CLK_TCK  # utime + stime
-
-
-class NodeChild:
-    """A node executable in a child process tied to this one; output drained by a thread
-    (``lines``), ``ready`` set at the node's readiness line. Benchmarks use it."""
-
-    def __init__(self, name: str, params: dict, env: dict) -> None:
-        args = [sys.executable, launcher(name), "--ros-args"]
-        for k, v in params.items():
-            value = json.dumps(v) if isinstance(v, (list, str)) else v
-            args += ["-p", f"{k}:={value}"]
-        self.proc = subprocess.Popen(args, env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True,
-                                     preexec_fn=die_with_parent)
-        self.lines: list[str] = []
-        self.ready = threading.Event()
-        threading.Thread(target=self._drain, daemon=True).start()
-
-    def _drain(self) -> None:
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip())
-            if "ready" in line:
-                self.ready.set()
-
-    def stop(self, sig: int = signal.SIGTERM) -> None:
-        """Signal the node, wait for it (kill it after 10 s)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
 
 
 def _env(domain: int) -> dict:
@@ -175,8 +129,8 @@ def measure_node_latency(checkpoint: str, duration_s: float = 30.0,
 
     with domain_id() as dom:
         env = _env(dom)
-        capture = NodeChild("audio_capture", {"source": "sim"}, env)
-        infer = NodeChild("slip_inference", {"checkpoint": str(checkpoint)}, env)
+        capture = NodeProcess("audio_capture", env, {"source": "sim"})
+        infer = NodeProcess("slip_inference", env, {"checkpoint": str(checkpoint)})
         cpu0: list[float] = []
         try:
             for n in (capture, infer):
@@ -225,7 +179,7 @@ def measure_capture_stream(duration_s: float = 600.0) -> dict:
 
     with domain_id() as dom:
         env = _env(dom)
-        capture = NodeChild("audio_capture", {"source": "sim"}, env)
+        capture = NodeProcess("audio_capture", env, {"source": "sim"})
         try:
             if not capture.ready.wait(120):
                 raise RuntimeError("audio_capture did not start:\n"
