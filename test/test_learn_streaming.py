@@ -142,3 +142,24 @@ def test_aslip_evaluate_cli_on_a_streaming_checkpoint(stream_dataset, tmp_path, 
     assert cli.main(["evaluate", "--checkpoint", str(other), "--dataset", str(stream_dataset),
                      "--split", "all", "--threads", "1"]) == 1
     assert "x0" in capsys.readouterr().err
+
+
+def test_warm_up_and_feed_leave_a_predictor_as_fresh_as_a_new_one(tmp_path):
+    """The node's path: warm_up, then feed (no gate) with reset where the node restarts."""
+    from aslip_ros.learn.streaming_predictor import StreamingPredictor
+    from test_learn_streaming_model import audio, blocks, make_checkpoint, outputs
+    ckpt = make_checkpoint(tmp_path / "s.pt")
+    bl = blocks(audio(n=14400, seed=2), 480)
+    ref = StreamingPredictor.from_checkpoint(ckpt)
+    want = outputs([e for b in bl for e in ref.push(b)])
+    p = StreamingPredictor.from_checkpoint(ckpt)
+    p.warm_up()
+    assert p.fresh and p.resets == 0
+    got = outputs([e for b in bl for e in p.feed(b)])
+    assert got[0].size == want[0].size == 27
+    np.testing.assert_allclose(got[0], want[0], atol=1e-6)
+    assert not p.fresh
+    p.reset("gap")
+    assert p.fresh and p.resets == 1 and p.last_reset_reason == "gap"
+    again = [e for b in bl[5:] for e in p.feed(b)]
+    assert again[0].sample_index == bl[5].first_sample_index + 1536     # a new history
