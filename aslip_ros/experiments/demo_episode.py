@@ -174,8 +174,11 @@ def warm_up(checkpoint: str) -> None:
     """
     if checkpoint in _WARM:
         return
-    from aslip_ros.learn.predictor import Predictor
-    pred = Predictor.from_checkpoint(checkpoint)
+    from aslip_ros.nodes.inference_steps import STREAM_MODEL, load_predictor
+    pred = load_predictor(checkpoint, max_time_jump_s=0.05)
+    if pred.model_type == STREAM_MODEL:     # numpy per hop: slip_inference warms it up itself
+        _WARM.add(checkpoint)
+        return
     window = np.zeros((int(pred.meta["window_samples"]), len(pred.meta["channel_names"])),
                       dtype=np.float32)
     for _ in range(3):
