@@ -137,3 +137,21 @@ def test_out_of_range_start_value_is_refused_in_the_nodes_words(ros_env):
     assert "window_s: must lie in [0.005, 2.0], got 5.0" in out
     assert "stale_timeout_s: must be finite and > 0" in out
     assert "Traceback" not in out
+
+
+def test_a_node_takes_parameter_overrides_through_its_constructor(rclpy_context):
+    """Composed in one process, a node gets its parameters as ``parameter_overrides`` (its
+    ``**kwargs`` reach rclpy's Node), checked by the same declarations as from a launch."""
+    from rclpy.parameter import Parameter
+
+    from aslip_ros.nodes.common import ConfigError
+    from aslip_ros.nodes.mocap_bridge import MocapBridge
+    node = MocapBridge(context=rclpy_context,
+                       parameter_overrides=[Parameter("rate_hz", value=50.0)])
+    try:
+        assert node.get_parameter("rate_hz").value == 50.0
+    finally:
+        node.destroy_node()
+    with pytest.raises(ConfigError, match=r"rate_hz: must lie in \[1.0, 1000.0\]"):
+        MocapBridge(context=rclpy_context,
+                    parameter_overrides=[Parameter("rate_hz", value=5000.0)])

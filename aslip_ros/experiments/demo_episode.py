@@ -7,8 +7,9 @@ MultiThreadedExecutor. Every message still goes through DDS topics exactly as be
 separate executables (composing the nodes in one process changes only that); only the process
 start-up (importing torch and rclpy costs seconds) is shared between episodes.
 
-Node parameters go in through a ``--params-file`` keyed by node name, the way ``ros2 run``
-and the launch files give them, so the nodes run unmodified. The scene's true trajectory
+Node parameters go in as ``parameter_overrides`` of each node's constructor (its
+``**kwargs`` reach ``rclpy.node.Node``, as in a composed rclpy process), checked by the same
+declarations as from a launch file. The scene's true trajectory
 (``World.trajectory()``) and the wall contacts are read from the scene node at the end.
 """
 
@@ -17,7 +18,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -87,25 +87,10 @@ class Episode:
         return f"{self.task}-{self.method}-{self.object}-{self.trial:02d}"
 
 
-def _yaml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_yaml_value(x) for x in v) + "]"
-    if isinstance(v, float):
-        return repr(float(v))
-    return str(v)
-
-
-def params_yaml(nodes: dict) -> str:
-    """A ROS 2 parameter file for ``{node_name: {param: value}}`` (types preserved)."""
-    lines = []
-    for name, params in nodes.items():
-        lines += [f"{name}:", "  ros__parameters:"]
-        lines += [f"    {k}: {_yaml_value(v)}" for k, v in params.items()]
-    return "\n".join(lines) + "\n"
+def overrides(params: dict) -> list:
+    """``parameter_overrides`` for a node constructor from ``{name: value}`` (types kept)."""
+    from rclpy.parameter import Parameter
+    return [Parameter(k, value=v) for k, v in params.items()]
 
 
 def node_params(ep: Episode, length_m: float) -> dict:
@@ -174,9 +159,10 @@ def warm_up(checkpoint: str) -> None:
     """
     if checkpoint in _WARM:
         return
-    from aslip_ros.nodes.inference_steps import STREAM_MODEL, load_predictor
+    from aslip_ros.learn.backends import model_backend
+    from aslip_ros.nodes.inference_steps import load_predictor
     pred = load_predictor(checkpoint, max_time_jump_s=0.05)
-    if pred.model_type == STREAM_MODEL:     # numpy per hop: slip_inference warms it up itself
+    if model_backend(pred.model_type).streaming:   # slip_inference warms it up itself
         _WARM.add(checkpoint)
         return
     window = np.zeros((int(pred.meta["window_samples"]), len(pred.meta["channel_names"])),
@@ -205,44 +191,38 @@ def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
     warm_up(str(ep.checkpoint))
     length = get_object(ep.object).length_m
     t_wall0 = time.monotonic()
-    fd, yaml_path = tempfile.mkstemp(prefix="aslip-demo-", suffix=".yaml")
-    with os.fdopen(fd, "w") as f:
-        f.write(params_yaml(node_params(ep, length)))
+    params = node_params(ep, length)
     nodes = []
     executor = None
-    try:
-        with domain_id() as did:
-            rclpy.init(args=["--ros-args", "--params-file", yaml_path], domain_id=did,
-                       signal_handler_options=SignalHandlerOptions.NO)
-            try:
-                rec = _Recorder()
-                nodes.append(rec.node)
-                infer = SlipInference()
-                nodes.append(infer)
-                ctl = Controller()
-                nodes.append(ctl)
-                # The scene last: its clock starts now, and nothing should miss its start.
-                sim = SceneSim()
-                nodes.append(sim)
-                executor = _make_executor()
-                for n in nodes:
-                    executor.add_node(n)
-                outcome = _spin(ep, executor, sim, ctl, rec, t_wall0)
-                # Input arrival gaps and stop latency, as the controller saw them.
-                timing = dict(ctl.inputs.values(), **ctl.stop_latency())
-                ctl.before_shutdown()
-                out = _score(ep, sim, rec, length, outcome)
-                out["controller_timing"] = timing
-                if ep.task == "slip_track":
-                    out["controller_reason"] = ctl.task.reason if ctl.task else "not started"
-            finally:
-                if executor is not None:
-                    executor.shutdown(timeout_sec=2.0)
-                for n in nodes:
-                    n.destroy_node()
-                rclpy.try_shutdown()
-    finally:
-        os.unlink(yaml_path)
+    with domain_id() as did:
+        rclpy.init(domain_id=did, signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            rec = _Recorder()
+            nodes.append(rec.node)
+            infer = SlipInference(parameter_overrides=overrides(params["slip_inference"]))
+            nodes.append(infer)
+            ctl = Controller(parameter_overrides=overrides(params[ep.task]))
+            nodes.append(ctl)
+            # The scene last: its clock starts now, and nothing should miss its start.
+            sim = SceneSim(parameter_overrides=overrides(params["scene_sim"]))
+            nodes.append(sim)
+            executor = _make_executor()
+            for n in nodes:
+                executor.add_node(n)
+            outcome = _spin(ep, executor, sim, ctl, rec, t_wall0)
+            # Input arrival gaps and stop latency, as the controller saw them.
+            timing = dict(ctl.inputs.values(), **ctl.stop_latency())
+            ctl.before_shutdown()
+            out = _score(ep, sim, rec, length, outcome)
+            out["controller_timing"] = timing
+            if ep.task == "slip_track":
+                out["controller_reason"] = ctl.task.reason if ctl.task else "not started"
+        finally:
+            if executor is not None:
+                executor.shutdown(timeout_sec=2.0)
+            for n in nodes:
+                n.destroy_node()
+            rclpy.try_shutdown()
     out["wall_s"] = round(time.monotonic() - t_wall0, 3)
     if not keep_trace:
         out.pop("trace", None)

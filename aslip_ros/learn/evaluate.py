@@ -38,10 +38,9 @@ import numpy as np
 
 from aslip_ros.util import write_json
 
+from .backends import model_backend
 from .checkpoint import CheckpointMismatch, load_checkpoint
 from .data_io import open_dataset, select_windows
-
-STREAM_MODEL = "aslip_stream"
 
 
 def compute_metrics(prob: np.ndarray, raw_velocity: np.ndarray, true_velocity: np.ndarray,
@@ -108,7 +107,7 @@ def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "tes
     cols = ds.channel_indices(pred.channel_names)
     check = pred.checkpoint
     check.check_compatible(ds.sample_rate, [ds.channel_names[c] for c in cols])
-    if pred.model_type == STREAM_MODEL:
+    if model_backend(pred.model_type).streaming:
         idx = _selected(ds, dataset, split, induced, objects, conditions, split_seed)
         return _predict_stream(pred, ds, cols, idx)
     if ds.window_samples != pred.window_samples:
@@ -138,9 +137,9 @@ def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "tes
 def _load(checkpoint: str | Path, threshold: float | None):
     """A Predictor, or a StreamingPredictor for a streaming checkpoint."""
     ckpt = load_checkpoint(checkpoint)
-    if ckpt.model_type == STREAM_MODEL:
-        from .streaming_predictor import StreamingPredictor
-        return StreamingPredictor(ckpt, threshold=threshold)
+    backend = model_backend(ckpt.model_type)
+    if backend.streaming:
+        return backend.from_checkpoint(ckpt, threshold=threshold)
     from .predictor import Predictor
     return Predictor.from_checkpoint(checkpoint, threshold=threshold)
 

@@ -54,7 +54,8 @@ class StreamingPredictor:
 
     def __init__(self, ckpt: Checkpoint, threshold: float | None = None,
                  max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S) -> None:
-        if ckpt.model_type != "aslip_stream":
+        from .backends import model_backend
+        if not model_backend(ckpt.model_type).streaming:
             raise ValueError(f"StreamingPredictor needs an aslip_stream checkpoint, got "
                              f"{ckpt.model_type!r} (window models use learn.predictor)")
         from .stream import StreamGate

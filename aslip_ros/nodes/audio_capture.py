@@ -71,8 +71,9 @@ def _source(v) -> Optional[str]:
 class AudioCapture(LifecycleNode):
     """Publishes audio blocks from the configured source."""
 
-    def __init__(self) -> None:
-        super().__init__("audio_capture")
+    def __init__(self, **kwargs) -> None:
+        """``kwargs`` go to ``rclpy`` (e.g. ``parameter_overrides``, ``context``)."""
+        super().__init__("audio_capture", **kwargs)
         specs = [
             c.Param("source", "sim", "audio source", c.Rule(_source, _SOURCE_CHOICES),
                     read_only=True),

@@ -58,8 +58,9 @@ def message_class(type_name: str):
 class Recorder(Node):
     """Subscribes to the requested topics as they appear and writes what arrives."""
 
-    def __init__(self) -> None:
-        super().__init__("bag_recorder")
+    def __init__(self, **kwargs) -> None:
+        """``kwargs`` go to ``rclpy`` (e.g. ``parameter_overrides``, ``context``)."""
+        super().__init__("bag_recorder", **kwargs)
         specs = [
             c.Param("output", "aslip_bag", "bag directory to create (rosbag2, mcap)",
                     c.non_empty, read_only=True),

@@ -114,8 +114,8 @@ class ControllerNode(LifecycleNode):
 
     task_name = "controller"
 
-    def __init__(self, name: str) -> None:
-        super().__init__(name)
+    def __init__(self, name: str, **kwargs) -> None:
+        super().__init__(name, **kwargs)
         self.p = c.declare_params(self, arm_params() + self.task_params(), self._on_change,
                                   self.cross_check)
         self._lock = threading.Lock()

@@ -19,21 +19,72 @@ state, at most once until audio is fed again.
 
 from __future__ import annotations
 
-from aslip_ros.learn.channel_check import dead_channels
-from aslip_ros.nodes import convert
+import collections
+from dataclasses import dataclass, field
 
-STREAM_MODEL = "aslip_stream"
+from aslip_ros.learn.channel_check import DEAD_MARGIN_DB, dead_channels
+from aslip_ros.nodes import common as c
+from aslip_ros.nodes import convert
 
 
 def load_predictor(path: str, max_time_jump_s: float):
-    """The predictor for the checkpoint at ``path``; OSError / ValueError when unusable."""
+    """The predictor for the checkpoint at ``path``: the model registry says whether its
+    model streams (``learn.backends``); OSError / ValueError when unusable."""
+    from aslip_ros.learn.backends import model_backend
     from aslip_ros.learn.checkpoint import load_checkpoint
-    ckpt = load_checkpoint(path)
-    if ckpt.model_type == STREAM_MODEL:
-        from aslip_ros.learn.streaming_predictor import StreamingPredictor
-        return StreamingPredictor(ckpt, max_time_jump_s=max_time_jump_s)
     from aslip_ros.learn.predictor import Predictor
-    return Predictor.from_checkpoint(path)
+    ckpt = load_checkpoint(path)
+    backend = model_backend(ckpt.model_type)
+    if backend.streaming:
+        return backend.from_checkpoint(ckpt, max_time_jump_s=max_time_jump_s)
+    return Predictor(ckpt)
+
+
+@dataclass
+class StreamStats:
+    """What the node counts about its input and output (reported in its diagnostics)."""
+
+    drops: collections.Counter = field(default_factory=collections.Counter)  # per reason
+    blocks_in: int = 0
+    blocks_ok: int = 0
+    frames_lost: int = 0
+    gaps: int = 0
+    stream_restarts: int = 0
+    published: int = 0
+    dead_windows: int = 0                 # windows withheld for a dead channel
+    hops_superseded: int = 0
+    #: AudioFrame received -> SlipVector published [s], and block arrival times.
+    latency: collections.deque = field(default_factory=lambda: collections.deque(maxlen=2000))
+    arrivals: collections.deque = field(default_factory=lambda: collections.deque(maxlen=500))
+    last_error: str = ""
+    refusal: str = ""
+    dead_recent: set = field(default_factory=set)   # dead channels since the last diagnostics
+
+
+def inference_params() -> list:
+    """The node's parameters, with their ranges."""
+    return [
+        c.Param("checkpoint", "", "model checkpoint (.pt) from `aslip train`", c.non_empty,
+                read_only=True),
+        c.Param("hop_s", 0.01, "run the model every hop_s of new audio [s]",
+                c.in_range(0.001, 1.0)),
+        c.Param("threshold", -1.0, "slip probability threshold; -1 = the checkpoint's",
+                c.off_or(-1.0, c.in_range(0.0, 1.0), "the checkpoint's")),
+        c.Param("max_time_jump_s", 0.05,
+                "a stamp this far off its sample index is a time jump [s]", c.positive),
+        c.Param("frame_id", convert.GRASP_FRAME, "frame of the published slip",
+                c.non_empty, read_only=True),
+        c.Param("marker_scale_s", 2.0, "rviz arrow length per slip speed [m per m/s]",
+                c.positive),
+        c.Param("torch_threads", 1, "CPU threads for the model",
+                c.int_range(1, 64), read_only=True),
+        c.Param("diagnostics_period_s", 1.0, "diagnostics period [s]",
+                c.in_range(0.05, 60.0), read_only=True),
+        c.Param("dead_channel_margin_db", DEAD_MARGIN_DB,
+                "withhold the estimate when a channel is this far below the median of "
+                "the others or digitally silent [dB]; 0 = no check",
+                c.off_or(0.0, c.in_range(20.0, 120.0), "off")),
+    ]
 
 
 class StreamStep:

@@ -81,8 +81,9 @@ def bridge_params() -> list:
 class MocapBridge(Node):
     """Ground-truth slip from motion capture."""
 
-    def __init__(self) -> None:
-        super().__init__("mocap_bridge")
+    def __init__(self, **kwargs) -> None:
+        """``kwargs`` go to ``rclpy`` (e.g. ``parameter_overrides``, ``context``)."""
+        super().__init__("mocap_bridge", **kwargs)
         self.p = c.declare_params(self, bridge_params(), self.p_update,
                                   cross_check=_frames_differ)
         from aslip_ros.data import labels

@@ -95,8 +95,9 @@ class PacedScene:
 class SceneSim(Node):
     """The simulated world, its sensors and its arm, on topics."""
 
-    def __init__(self) -> None:
-        super().__init__("scene_sim")
+    def __init__(self, **kwargs) -> None:
+        """``kwargs`` go to ``rclpy`` (e.g. ``parameter_overrides``, ``context``)."""
+        super().__init__("scene_sim", **kwargs)
         specs = scene_params() + [
             c.Param("block_s", 0.01, "audio block length [s]", c.in_range(0.001, 0.1),
                     read_only=True),

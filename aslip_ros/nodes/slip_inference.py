@@ -49,7 +49,6 @@ SlipVector per 10 ms hop, state resets in ``stream_resets`` and ``last_reset_rea
 
 from __future__ import annotations
 
-import collections
 import threading
 import time
 from typing import Optional
@@ -62,12 +61,14 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from aslip_ros.learn.channel_check import DEAD_MARGIN_DB, dead_channels
+from aslip_ros.learn.backends import model_backend
+from aslip_ros.learn.channel_check import dead_channels
 from aslip_ros.learn.stream import RingBuffer, StreamGate
 from aslip_ros.msg import AudioFrame, SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
-from aslip_ros.nodes.inference_steps import StreamStep, load_predictor
+from aslip_ros.nodes.inference_steps import (StreamStats, StreamStep, inference_params,
+                                             load_predictor)
 
 #: The audio subscription: the sensor QoS (best effort, volatile) with a 1 s queue at 10 ms
 #: blocks. With the default 10-deep queue, a process starved of CPU for 100 ms (two busy
@@ -87,31 +88,10 @@ DROP_REASONS = ("no_channels", "bad_rate", "empty", "ragged", "non_finite", "out
 class SlipInference(Node):
     """Runs the slip model on the live audio stream."""
 
-    def __init__(self) -> None:
-        super().__init__("slip_inference")
-        specs = [
-            c.Param("checkpoint", "", "model checkpoint (.pt) from `aslip train`", c.non_empty,
-                    read_only=True),
-            c.Param("hop_s", 0.01, "run the model every hop_s of new audio [s]",
-                    c.in_range(0.001, 1.0)),
-            c.Param("threshold", -1.0, "slip probability threshold; -1 = the checkpoint's",
-                    c.off_or(-1.0, c.in_range(0.0, 1.0), "the checkpoint's")),
-            c.Param("max_time_jump_s", 0.05,
-                    "a stamp this far off its sample index is a time jump [s]", c.positive),
-            c.Param("frame_id", convert.GRASP_FRAME, "frame of the published slip",
-                    c.non_empty, read_only=True),
-            c.Param("marker_scale_s", 2.0, "rviz arrow length per slip speed [m per m/s]",
-                    c.positive),
-            c.Param("torch_threads", 1, "CPU threads for the model",
-                    c.int_range(1, 64), read_only=True),
-            c.Param("diagnostics_period_s", 1.0, "diagnostics period [s]",
-                    c.in_range(0.05, 60.0), read_only=True),
-            c.Param("dead_channel_margin_db", DEAD_MARGIN_DB,
-                    "withhold the estimate when a channel is this far below the median of "
-                    "the others or digitally silent [dB]; 0 = no check",
-                    c.off_or(0.0, c.in_range(20.0, 120.0), "off")),
-        ]
-        self.p = c.declare_params(self, specs, self._on_change)
+    def __init__(self, **kwargs) -> None:
+        """``kwargs`` go to ``rclpy.node.Node`` (e.g. ``parameter_overrides``, ``context``)."""
+        super().__init__("slip_inference", **kwargs)
+        self.p = c.declare_params(self, inference_params(), self._on_change)
         import torch
         torch.set_num_threads(int(self.p["torch_threads"]))
         try:
@@ -124,26 +104,13 @@ class SlipInference(Node):
         pr.set_threshold(None if self.p["threshold"] < 0 else self.p["threshold"])
         self.source = pr.model_type
         self.dead_margin_db = float(self.p["dead_channel_margin_db"])
-        self.stream = StreamStep(pr) if pr.model_type == "aslip_stream" else None
+        self.stream = StreamStep(pr) if model_backend(pr.model_type).streaming else None
         self.ring = RingBuffer(pr.window_samples, pr.n_channels)
         self.gate = StreamGate(self.p["max_time_jump_s"])
         self.hop_frames = max(1, int(round(self.p["hop_s"] * pr.sample_rate)))
         self._since_hop = 0
         self._lock = threading.Lock()
-        self.drops = collections.Counter()
-        self.blocks_in = 0
-        self.blocks_ok = 0
-        self.frames_lost = 0
-        self.gaps = 0
-        self.stream_restarts = 0
-        self.published = 0
-        self.latency = collections.deque(maxlen=2000)
-        self.arrivals = collections.deque(maxlen=500)
-        self.last_error = ""
-        self.refusal = ""
-        self.dead_windows = 0                    # windows withheld for a dead channel
-        self.dead_recent: set = set()            # dead channels since the last diagnostics
-        self.hops_superseded = 0
+        self.stats = StreamStats()
         # Double buffer between the audio callback and the inference thread, allocated once.
         self._back = np.zeros((pr.window_samples, pr.n_channels), np.float32)
         self._front = np.zeros_like(self._back)
@@ -221,21 +188,21 @@ class SlipInference(Node):
     def _drop(self, reason: str, detail: str) -> None:
         if self.stream and reason not in ("repeated", "out_of_order", "time_jump"):
             self.stream.reset(f"dropped block ({reason})")    # the next one follows a hole
-        self.drops[reason] += 1
+        self.stats.drops[reason] += 1
         self.get_logger().warning(f"dropped AudioFrame ({reason}): {detail}",
                                   throttle_duration_sec=1.0)
 
     def _on_audio(self, msg: AudioFrame) -> None:
         t_in = time.perf_counter()
-        self.blocks_in += 1
-        self.arrivals.append(time.monotonic())
+        self.stats.blocks_in += 1
+        self.stats.arrivals.append(time.monotonic())
         try:
             with self._lock:
                 self._handle(msg, t_in)
         except Exception as exc:  # noqa: BLE001 - a bad frame must never take the node down
-            self.last_error = f"{type(exc).__name__}: {exc}"
-            self.drops["internal_error"] += 1
-            self.get_logger().error(f"inference failed: {self.last_error}",
+            self.stats.last_error = f"{type(exc).__name__}: {exc}"
+            self.stats.drops["internal_error"] += 1
+            self.get_logger().error(f"inference failed: {self.stats.last_error}",
                                     throttle_duration_sec=1.0)
 
     def _handle(self, msg: AudioFrame, t_in: float) -> None:
@@ -267,19 +234,19 @@ class SlipInference(Node):
         if verdict == "new_stream":
             # A restarted or re-numbered source: its blocks are good audio, only the old
             # anchor is void. No frames are counted lost (the index difference means nothing).
-            self.stream_restarts += 1
+            self.stats.stream_restarts += 1
             self.get_logger().warning(f"new audio stream: {detail}; window restarts",
                                       throttle_duration_sec=1.0)
             self._restart_window(f"new stream: {detail}")
         if verdict == "gap":
-            self.gaps += 1
-            self.frames_lost += a.first_sample_index - self.gate.next_index
+            self.stats.gaps += 1
+            self.stats.frames_lost += a.first_sample_index - self.gate.next_index
             self.get_logger().warning(f"audio gap: {detail}; window restarts",
                                       throttle_duration_sec=1.0)
             self._restart_window(f"gap: {detail}")
         self.gate.accept(a)
-        self.blocks_ok += 1
-        self.refusal = ""
+        self.stats.blocks_ok += 1
+        self.stats.refusal = ""
         if self.stream:
             return self._stream_block(a, t_in)
         self.ring.push(a.block)
@@ -292,7 +259,7 @@ class SlipInference(Node):
         with self._wake:
             np.copyto(self._back, self.ring.window())
             if self._job is not None:
-                self.hops_superseded += 1
+                self.stats.hops_superseded += 1
             # The calibration as of this window's end, whenever the model gets to it.
             self._job = (a.end_stamp_ns, t_in, pr.calibration_offsets(),
                          pr.calibration_converged)
@@ -311,8 +278,8 @@ class SlipInference(Node):
             return
         for out in msgs:
             self.pub_slip.publish(out)
-            self.latency.append(time.perf_counter() - t_in)
-        self.published += len(msgs)
+            self.stats.latency.append(time.perf_counter() - t_in)
+        self.stats.published += len(msgs)
         scale = self.p["marker_scale_s"]
         if msgs:        # rviz needs only the newest arrow
             self.pub_marker.publish(convert.slip_markers(msgs[-1], scale_s=scale))
@@ -346,17 +313,17 @@ class SlipInference(Node):
                     continue
                 self.pub_slip.publish(out)
                 with self._lock:
-                    self.latency.append(time.perf_counter() - t_in)
-                    self.published += 1
+                    self.stats.latency.append(time.perf_counter() - t_in)
+                    self.stats.published += 1
                 self.pub_marker.publish(convert.slip_markers(
                     out, scale_s=self.p["marker_scale_s"]))
             except Exception as exc:  # noqa: BLE001 - the thread must outlive a bad window
                 if self._stop:
                     return
                 with self._lock:
-                    self.last_error = f"{type(exc).__name__}: {exc}"
-                    self.drops["internal_error"] += 1
-                self.get_logger().error(f"inference failed: {self.last_error}",
+                    self.stats.last_error = f"{type(exc).__name__}: {exc}"
+                    self.stats.drops["internal_error"] += 1
+                self.get_logger().error(f"inference failed: {self.stats.last_error}",
                                         throttle_duration_sec=1.0)
 
     def _estimate(self, window: np.ndarray, stamp_ns: int, offsets: Optional[np.ndarray],
@@ -371,8 +338,8 @@ class SlipInference(Node):
     def _withhold(self, dead: list) -> None:
         """A window with dead channels: counted, reported, no estimate published (call with
         the lock held)."""
-        self.dead_windows += 1
-        self.dead_recent.update(dead)
+        self.stats.dead_windows += 1
+        self.stats.dead_recent.update(dead)
         self.get_logger().error(f"dead microphone channel(s) {', '.join(dead)}: "
                                 "no slip estimate published", throttle_duration_sec=1.0)
 
@@ -386,30 +353,31 @@ class SlipInference(Node):
         super().destroy_node()
 
     def _refuse(self, reason: str, detail: str) -> None:
-        self.refusal = detail
+        self.stats.refusal = detail
         if self.stream:
             self.stream.reset(f"refused stream ({reason})")
-        self.drops[reason] += 1
+        self.stats.drops[reason] += 1
         self.get_logger().error(f"refusing the audio stream: {detail}",
                                 throttle_duration_sec=2.0)
 
     # -- diagnostics --------------------------------------------------------------------------
 
     def _diagnose(self) -> None:
+        st = self.stats
         with self._lock:
-            lat = np.array(self.latency) * 1e3
-            arr = list(self.arrivals)
-            values = {"blocks_received": self.blocks_in, "blocks_accepted": self.blocks_ok,
-                      "blocks_dropped": sum(self.drops.values()), "gaps": self.gaps,
-                      "stream_restarts": self.stream_restarts,
-                      "frames_lost": self.frames_lost, "estimates_published": self.published,
-                      "hops_superseded": self.hops_superseded,
-                      "dead_channel_windows": self.dead_windows,
+            lat = np.array(st.latency) * 1e3
+            arr = list(st.arrivals)
+            values = {"blocks_received": st.blocks_in, "blocks_accepted": st.blocks_ok,
+                      "blocks_dropped": sum(st.drops.values()), "gaps": st.gaps,
+                      "stream_restarts": st.stream_restarts,
+                      "frames_lost": st.frames_lost, "estimates_published": st.published,
+                      "hops_superseded": self.stats.hops_superseded,
+                      "dead_channel_windows": self.stats.dead_windows,
                       "threshold": self.predictor.threshold, "model": self.source}
-            values.update({f"dropped_{k}": v for k, v in sorted(self.drops.items())})
+            values.update({f"dropped_{k}": v for k, v in sorted(self.stats.drops.items())})
             names = self.predictor.channel_names
-            dead = [n for n in names if n in self.dead_recent]
-            self.dead_recent.clear()
+            dead = [n for n in names if n in self.stats.dead_recent]
+            self.stats.dead_recent.clear()
             cal = None if self.stream else self.predictor.calibration_summary()
             if self.stream:
                 values.update(stream_resets=self.predictor.resets,
@@ -427,17 +395,17 @@ class SlipInference(Node):
                           latency_p99_ms=float(np.percentile(lat, 99)),
                           latency_max_ms=float(lat.max()))
         level, message = c.Diagnostics.OK, "running"
-        if self.refusal:
-            level, message = c.Diagnostics.ERROR, f"stream refused: {self.refusal}"
+        if self.stats.refusal:
+            level, message = c.Diagnostics.ERROR, f"stream refused: {self.stats.refusal}"
         elif dead:
             level, message = c.Diagnostics.ERROR, (f"dead microphone channel(s): "
                                                    f"{', '.join(dead)}; no estimates published")
-        elif self.drops:
-            level, message = c.Diagnostics.WARN, f"{sum(self.drops.values())} frames dropped"
+        elif self.stats.drops:
+            level, message = c.Diagnostics.WARN, f"{sum(self.stats.drops.values())} frames dropped"
         elif not recent:
             level, message = c.Diagnostics.WARN, "no audio"
-        if self.last_error:
-            values["last_error"] = self.last_error
+        if self.stats.last_error:
+            values["last_error"] = self.stats.last_error
         self.diag.publish(level, message, values)
 
 

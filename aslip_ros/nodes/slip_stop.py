@@ -39,11 +39,12 @@ class SlipStopNode(ControllerNode):
 
     task_name = "slip_stop"
 
-    def __init__(self) -> None:
+    def __init__(self, **kwargs) -> None:
+        """``kwargs`` go to ``rclpy`` (e.g. ``parameter_overrides``, ``context``)."""
         self._result_pub = None
         self._stopped_at: Optional[float] = None
         self._final_sent = False
-        super().__init__("slip_stop")
+        super().__init__("slip_stop", **kwargs)
         self._result_pub = self.create_publisher(String, RESULT_TOPIC, c.LATCHED_QOS)
 
     def task_params(self) -> list:

@@ -25,9 +25,10 @@ class SlipTrackNode(ControllerNode):
 
     task_name = "slip_track"
 
-    def __init__(self) -> None:
+    def __init__(self, **kwargs) -> None:
+        """``kwargs`` go to ``rclpy`` (e.g. ``parameter_overrides``, ``context``)."""
         self._t_start: Optional[float] = None
-        super().__init__("slip_track")
+        super().__init__("slip_track", **kwargs)
 
     def task_params(self) -> list:
         """Control-law parameters (SI)."""
