@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_nodes_support import Bus, NodeProcess
+from node_support import Bus, NodeProcess
 
 pytestmark = pytest.mark.ros
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from test_nodes_capture import start_when_discovered
-from test_nodes_support import Bus, NodeProcess
+from node_support import Bus, NodeProcess
 
 pytestmark = pytest.mark.ros
 

@@ -167,7 +167,7 @@ def test_slip_inference_runs_a_model_declared_as_an_entry_point(
     from aslip_ros.msg import AudioFrame, SlipVector
     from aslip_ros.nodes import common as c
     from aslip_ros.nodes import convert
-    from test_nodes_support import Bus, NodeProcess
+    from node_support import Bus, NodeProcess
 
     ds = open_dataset(dataset)
     backends.register_model(LevelModel)

@@ -85,7 +85,7 @@ def test_stream_check():
 
 def test_one_threshold_decides_and_is_reported(tmp_path):
     """p = 0.65, between the checkpoint's 0.5 and a user's 0.8: the set threshold decides."""
-    from test_nodes_support import make_checkpoint
+    from node_support import make_checkpoint
     ckpt = make_checkpoint(tmp_path / "p.pt", slip_logit=float(np.log(0.65 / 0.35)))
     p = Predictor.from_checkpoint(ckpt)
     w = window(p)

@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from test_nodes_support import Bus, NodeProcess
+from node_support import Bus, NodeProcess
 
 pytestmark = pytest.mark.ros
 

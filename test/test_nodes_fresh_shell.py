@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from test_nodes_support import node_exe
+from node_support import node_exe
 
 pytestmark = pytest.mark.ros
 

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from test_nodes_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint
+from node_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint
 
 pytestmark = pytest.mark.ros
 

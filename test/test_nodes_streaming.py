@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_nodes_support import SCENE_NAMES, Bus, NodeProcess
+from node_support import SCENE_NAMES, Bus, NodeProcess
 
 pytestmark = pytest.mark.ros
 

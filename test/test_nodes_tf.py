@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from test_nodes_support import Bus, NodeProcess
+from node_support import Bus, NodeProcess
 
 pytestmark = pytest.mark.ros
 

@@ -67,7 +67,7 @@ def _thread_nices(pid: int) -> list:
 @pytest.mark.parametrize("setting, expected", [(None, util.DEFAULT_NICE), ("0", 0)])
 def test_node_process_and_all_its_threads_run_at_the_node_priority(ros_env, setting,
                                                                    expected):
-    from test_nodes_support import NodeProcess
+    from node_support import NodeProcess
     env = dict(ros_env)
     env.pop("ASLIP_NICE", None)
     if setting is not None:
