@@ -112,3 +112,16 @@ def test_summary_counts_reruns_per_cell():
     assert cells["chips_can"]["stale_final"] == 1 and cells["chips_can"]["successes"] == 1
     assert cells["pla_rod"]["reruns"] == 0
     assert cells["overall"]["reruns"] == 3 and cells["overall"]["trials"] == 3
+
+
+def test_methods_table_lists_every_method_of_the_run():
+    rows = [{"task": "slip_stop", "method": m, "object": "chips_can", "trial": 0,
+             "success": True, "stopping_error_m": e}
+            for m, e in (("aslip", 0.008), ("svm", 0.009), ("stream", 0.007))]
+    rows += [{"task": "slip_track", "method": "stream", "object": "chips_can", "trial": 0,
+              "pose_rmse_m": 0.012}]
+    table = dm.methods_table(dm.summarize(rows))
+    lines = {ln.split("|")[1].strip(): ln for ln in table.splitlines() if ln.startswith("| ")}
+    assert set(lines) == {"method", "aslip", "stream", "svm"}
+    assert "1/1" in lines["stream"] and "7.0" in lines["stream"] and "12.0" in lines["stream"]
+    assert lines["svm"].rstrip().endswith("| - |")          # svm ran no slip-track episode

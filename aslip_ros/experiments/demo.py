@@ -42,7 +42,10 @@ from aslip_ros.experiments.demo_episode import (TASKS, Episode, StopSettings, Tr
 from aslip_ros.experiments.demo_models import OBJECTS
 from aslip_ros.util import write_json, write_text
 
-METHODS = ("aslip", "svm")
+METHODS = ("aslip", "svm", "stream")
+#: The causal streaming estimator's checkpoint in --models (docs/streaming.md; trained by
+#: ``python -m aslip_ros.experiments.lag``, not by --train-models).
+STREAM_NAME = "aslip_stream.pt"
 #: Repeats of a trial that a watchdog ended on stale input (a stalled machine).
 MAX_RERUNS = 2
 #: Seeds are disjoint from the training set's (simulate derives those from seed 0).
@@ -58,6 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--train-data", default="data/demo", help="scratch data for --train-models")
     p.add_argument("--cnn", default=None, help="A-SLIP checkpoint (default: --models)")
     p.add_argument("--svm", default=None, help="SVM checkpoint (default: --models)")
+    p.add_argument("--stream", default=None,
+                   help=f"streaming checkpoint (default: --models/{STREAM_NAME})")
     p.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks")
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     p.add_argument("--objects", default=",".join(OBJECTS), help="comma-separated objects")
@@ -153,7 +158,8 @@ def resolve_models(args) -> dict:
     from aslip_ros.experiments import demo_models
     d = Path(args.models)
     if args.cnn and args.svm:
-        return {"aslip": Path(args.cnn), "svm": Path(args.svm), "source": "command line"}
+        return {"aslip": Path(args.cnn), "svm": Path(args.svm),
+                "stream": Path(args.stream or d / STREAM_NAME), "source": "command line"}
     man = demo_models.shipped_models(d)
     if man is None:
         print(f"[demo] no checkpoints in {d} for this scene version "
@@ -164,7 +170,8 @@ def resolve_models(args) -> dict:
     else:
         source = f"shipped ({d / demo_models.MANIFEST})"
     return {"aslip": Path(args.cnn or d / man["files"]["aslip"]),
-            "svm": Path(args.svm or d / man["files"]["svm"]), "source": source,
+            "svm": Path(args.svm or d / man["files"]["svm"]),
+            "stream": Path(args.stream or d / STREAM_NAME), "source": source,
             "test_metrics": man.get("test_metrics")}
 
 
@@ -215,7 +222,7 @@ def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True
                "units": "mm", "paper_table3": dm.PAPER_TABLE3,
                "table": dm.summarize(ok), "episodes": results,
                "errors": [r for r in results if "error" in r]}
-    table = dm.format_table(summary["table"])
+    table = dm.format_table(summary["table"]) + dm.methods_table(summary["table"])
     head = (f"# Table III in the scene ({meta['command']})\n\n"
             f"Slip-stop cells: successes/trials, |Delta x| mean ± std [mm] over all trials "
             f"(failures included); slip-track: pose RMSE mean ± std [mm]. Paper columns from "
@@ -267,6 +274,11 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     models = resolve_models(args)
+    missing = [m for m in methods if not Path(models[m]).is_file()]
+    if missing:
+        print(f"aslip demo: no checkpoint for {missing}: {[str(models[m]) for m in missing]}",
+              file=sys.stderr)
+        return 1
     stop = replace(StopSettings(), approach_speed_m_s=args.approach_speed,
                    retract_speed_m_s=args.retract_speed)
     track = replace(TrackSettings(), duration_s=args.track_duration, gain=args.gain)
@@ -281,7 +293,7 @@ def run(args: argparse.Namespace) -> int:
             else "aslip demo", "tasks": tasks, "methods": methods, "objects": objects,
             "trials": args.trials, "workers": args.workers, "cpus": os.cpu_count(),
             "stop_settings": asdict(stop), "track_settings": asdict(track),
-            "checkpoints": {m: str(models[m]) for m in METHODS},
+            "checkpoints": {m: str(models[m]) for m in methods},
             "models_source": models["source"], "model_test_metrics": models.get("test_metrics"),
             "scene_version": demo_models.scene_version(), "host": platform.node(),
             "episodes_s": round(time.perf_counter() - t_run, 1),
@@ -290,7 +302,7 @@ def run(args: argparse.Namespace) -> int:
             "episodes_behind": sum(1 for r in results if r.get("skipped_blocks", 0) > 0),
             "reruns": sum(len(r.get("reruns", [])) for r in results)}
     summary = write_outputs(out, results, meta, plots=not args.no_plots)
-    print(dm.format_table(summary["table"]))
+    print(dm.format_table(summary["table"]) + dm.methods_table(summary["table"]))
     print(f"results: {out / 'summary.json'}, {out / 'table.md'}")
     if summary.get("plots"):
         print("plots: " + ", ".join(str(p) for p in summary["plots"]))

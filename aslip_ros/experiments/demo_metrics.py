@@ -245,3 +245,20 @@ def format_table(summary: dict, methods: Sequence[str] = ("svm", "aslip")) -> st
         cells.append(f"{p[3][0]:.1f} ± {p[3][1]:.1f}")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def methods_table(summary: dict) -> str:
+    """Every method of this run side by side, overall: slip-stop successes and |error|, and
+    slip-track pose RMSE (mean ± std, mm)."""
+    stop = summary.get("slip_stop", {})
+    track = summary.get("slip_track", {})
+    methods = sorted(set(stop) | set(track))
+    lines = ["", "| method | slip-stop successes | slip-stop error mm | slip-track RMSE mm |",
+             "|---|---|---|---|"]
+    for m in methods:
+        c = stop.get(m, {}).get("overall")
+        t = track.get(m, {}).get("overall")
+        lines.append(f"| {m} | " + (f"{c['successes']}/{c['trials']}" if c else "-") + " | "
+                     + (_fmt(c["mean_mm"], c["std_mm"]) if c else "-") + " | "
+                     + (_fmt(t["mean_mm"], t["std_mm"]) if t else "-") + " |")
+    return "\n".join(lines) + "\n"

@@ -12,7 +12,7 @@ import numpy as np
 
 from aslip_ros.util import atomic_path
 
-COLORS = {"aslip": "tab:blue", "svm": "tab:orange"}
+COLORS = {"aslip": "tab:blue", "svm": "tab:orange", "stream": "tab:green"}
 #: The slip-stop figure's zoom on the stop: the last seconds of each episode [s].
 ZOOM_S = 1.0
 
@@ -35,7 +35,7 @@ class _Episodes:
         self.out = Path(out)
         self.results = results
         self.objects = sorted({r["object"] for r in results})
-        self.methods = [m for m in ("aslip", "svm") if any(r["method"] == m for r in results)]
+        self.methods = [m for m in COLORS if any(r["method"] == m for r in results)]
 
     def has(self, task: str) -> bool:
         return any(r["task"] == task for r in self.results)
