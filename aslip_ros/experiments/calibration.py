@@ -44,8 +44,7 @@ def scenario(variant: str, split: str, k: int, duration_s: float) -> sc.Scenario
     scn = sc.external_induced(seed=seed, object=list(OBJECTS)[k % len(OBJECTS)],
                               duration_s=duration_s, sample_rate=RATE,
                               condition="robot_stationary")
-    scn = sc.coupling_variant(scn)
-    return sc.one_sided_variant(scn) if variant == "one_sided" else scn
+    return sc.VARIANTS[variant](scn)
 
 
 def render_trial(scn: sc.Scenario) -> dict[str, np.ndarray]:

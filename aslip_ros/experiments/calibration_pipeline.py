@@ -117,10 +117,7 @@ def convergence(args: argparse.Namespace) -> None:
             scn = sc.external_induced(seed=90000 + i, object=list(SCENE_OBJECTS)[i % 5],
                                       duration_s=30.0, sample_rate=48000.0,
                                       condition="robot_stationary")
-            scn = sc.coupling_variant(scn)
-            if variant == "one_sided":
-                scn = sc.one_sided_variant(scn)
-            world = World(scn)
+            world = World(sc.VARIANTS[variant](scn))
             audio = np.concatenate([c.audio for c in world.stream(block_frames=4800)])
             est = offsets_at(cutter.frames(audio), cutter.count(times * 48000), k)
             truth = relative_log_gain(world.synth.gain)
