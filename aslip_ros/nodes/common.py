@@ -286,11 +286,17 @@ def _name(factory) -> str:
 
 
 def _leave(code: int) -> None:
-    """Flush Python's and C's output buffers (rcutils logs through C stdio), then exit."""
+    """Flush Python's and C's output buffers (rcutils logs through C stdio), then exit.
+
+    Nothing here may stop the exit: after ``ros2 launch`` died (SIGTERM ends it without
+    stopping its nodes), stdout and stderr are broken pipes and a flush raises."""
     import ctypes
     import os
-    sys.stdout.flush()
-    sys.stderr.flush()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
     try:
         ctypes.CDLL(None).fflush(None)
     except (OSError, AttributeError):
@@ -331,8 +337,11 @@ def _exit_after(seconds: float, name: str) -> None:
     import os
 
     def force() -> None:
-        print(f"[{name}] shutdown took over {seconds:g} s; exiting now", file=sys.stderr,
-              flush=True)
+        try:
+            print(f"[{name}] shutdown took over {seconds:g} s; exiting now", file=sys.stderr,
+                  flush=True)
+        except (OSError, ValueError):   # a broken pipe (the launch is gone) must not stop it
+            pass
         os._exit(0)
 
     timer = threading.Timer(seconds, force)
