@@ -257,7 +257,7 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
             executor.spin_once(timeout_sec=0.05)
         code = int(getattr(node, "exit_code", 0) or 0)
     except (ConfigError, ParameterException) as exc:
-        print(f"[{_name(factory)}] refused to start: {exc}", file=sys.stderr, flush=True)
+        _say(f"[{_name(factory)}] refused to start: {exc}")
         code = EXIT_CONFIG
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -268,8 +268,7 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
                 try:
                     hook()
                 except Exception as exc:  # noqa: BLE001 - shutdown must go on
-                    print(f"[{_name(factory)}] error while shutting down: {exc}",
-                          file=sys.stderr, flush=True)
+                    _say(f"[{_name(factory)}] error while shutting down: {exc}")
         if executor is not None:
             # Before destroying the node, so no callback runs on a destroyed entity.
             executor.shutdown(timeout_sec=2.0)
@@ -279,6 +278,15 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     if exit_process:
         _leave(code)
     return code
+
+
+def _say(line: str) -> None:
+    """One line on stderr, if it can still be written: once the launch is gone, stderr is
+    a broken pipe, and nothing on the way out may raise."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 def _name(factory) -> str:
@@ -337,11 +345,7 @@ def _exit_after(seconds: float, name: str) -> None:
     import os
 
     def force() -> None:
-        try:
-            print(f"[{name}] shutdown took over {seconds:g} s; exiting now", file=sys.stderr,
-                  flush=True)
-        except (OSError, ValueError):   # a broken pipe (the launch is gone) must not stop it
-            pass
+        _say(f"[{name}] shutdown took over {seconds:g} s; exiting now")
         os._exit(0)
 
     timer = threading.Timer(seconds, force)
