@@ -198,7 +198,7 @@ def run_episodes(episodes: list[Episode], workers: int, trace_dir: Path,
     lines = sum(len(p.read_text(errors="replace").splitlines())
                 for p in log_dir.glob("worker-*.log"))
     if lines:
-        print(f"[demo] the nodes logged {lines} lines (warnings and errors): "
+        print(f"[demo] the nodes logged {lines} lines: "
               f"{log_dir}/worker-*.log", file=sys.stderr, flush=True)
     return [r for r in results if r is not None]
 
