@@ -49,6 +49,7 @@ ablation: setup
 
 bench: setup
 	$(ASLIP) bench --out results/bench
+	$(VENV)/bin/python -m aslip_ros.experiments.lag --out results/lag --cache results/lag/cache/scale120
 
 stability: setup
 	$(ASLIP) stability --out results/stability
