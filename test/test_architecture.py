@@ -83,3 +83,37 @@ def test_the_check_sees_an_upward_import(tmp_path):
     targets = [t for t, _ in _imports(p, "aslip_ros.data.x")]
     assert targets == ["aslip_ros.learn"]
     assert _floor(targets[0]) > _floor("aslip_ros.data.x")
+
+
+#: Size limits of a module and a function [lines]; beyond them the docstring must say why
+#: (and use the word "lines" when it does).
+MAX_FILE_LINES, MAX_FUNCTION_LINES = 450, 80
+
+
+def _oversized(path: Path, name: str) -> list:
+    src = path.read_text()
+    tree = ast.parse(src)
+    out = []
+    n_lines = src.count("\n")
+    if n_lines > MAX_FILE_LINES and "lines" not in (ast.get_docstring(tree) or ""):
+        out.append(f"{name}: {n_lines} lines")
+    for n in ast.walk(tree):
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            length = n.end_lineno - n.lineno + 1
+            if length > MAX_FUNCTION_LINES and "lines" not in (ast.get_docstring(n) or ""):
+                out.append(f"{name}:{n.lineno} {n.name}: {length} lines")
+    return out
+
+
+def test_modules_and_functions_a_reader_can_hold_in_their_head():
+    found = [x for p, _ in _modules() for x in _oversized(p, str(p.relative_to(ROOT)))]
+    assert not found, found
+
+
+def test_the_size_check_sees_a_long_function_unless_it_says_why(tmp_path):
+    p = tmp_path / "long.py"
+    body = "    x = 1\n" * 90
+    p.write_text("def f():\n" + body)
+    assert _oversized(p, "long.py") == ["long.py:1 f: 91 lines"]
+    p.write_text('def f():\n    """One table of 90 lines: kept whole."""\n' + body)
+    assert _oversized(p, "long.py") == []
