@@ -7,19 +7,7 @@ import pytest
 
 from aslip_ros.control.arm import Arm, ArmError
 from aslip_ros.control.limits import ArmLimits, LimitedArm
-
-
-class Clock:
-    def __init__(self):
-        self.t = 100.0
-        self.sleeps = []
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, s):
-        self.sleeps.append(s)
-        self.t += s
+from fake_clock import FakeClock
 
 
 class RecordingArm:
@@ -51,7 +39,7 @@ class RecordingArm:
 
 
 def limited(**kw):
-    clock = Clock()
+    clock = FakeClock(100.0)
     kw.setdefault("max_acc_m_s2", 1000.0)
     arm = RecordingArm()
     wrapped = LimitedArm(arm, ArmLimits(**kw), clock=clock, sleep=clock.sleep)

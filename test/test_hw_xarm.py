@@ -15,21 +15,9 @@ import pytest
 from aslip_ros.control.arm import Arm, ArmError
 from aslip_ros.hw.xarm import (MODE_CARTESIAN_VELOCITY, STATE_STOP, XArmAdapter, XArmConfig,
                                XArmError, describe_code)
+from fake_clock import FakeClock
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-class FakeClock:
-    def __init__(self):
-        self.t = 100.0
-        self.sleeps = []
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, s):
-        self.sleeps.append(s)
-        self.t += s
 
 
 class FakeXArmAPI:
@@ -117,7 +105,7 @@ class StreamingXArmAPI(FakeXArmAPI):
 
 
 def make(api=None, **cfg):
-    clock = FakeClock()
+    clock = FakeClock(100.0)
     api = api or FakeXArmAPI('192.168.1.10')
     cfg.setdefault('ip', '192.168.1.10')
     cfg.setdefault('mode_settle_s', 0.0)
@@ -465,7 +453,7 @@ def test_slip_stop_trial_through_the_adapter():
     from aslip_ros.control.command import apply_command
     from aslip_ros.control.slip_stop import SlipStop, SlipStopConfig, StopReason
 
-    clock = FakeClock()
+    clock = FakeClock(100.0)
     api = IntegratingXArmAPI(clock, 'x', position_mm=(400.0, 0.0, 300.0))
     arm = XArmAdapter(XArmConfig(ip='x', mode_settle_s=0.0, max_acc_m_s2=2.0),
                       api_factory=lambda ip: api, clock=clock, sleep=clock.sleep)

@@ -38,6 +38,17 @@ def _tuple3(name: str, value: Sequence[float]) -> Tuple[float, float, float]:
     return tuple(float(x) for x in as_vector3(value, name))  # type: ignore[return-value]
 
 
+def checked_command(v_xyz_m_s: Any, duration_s: Any) -> Tuple[np.ndarray, float]:
+    """A velocity command's vector and duration, validated: three finite components and a
+    finite duration above zero (to an arm SDK, 0 or less often means "never stop").
+    ValueError otherwise."""
+    v = as_vector3(v_xyz_m_s, 'velocity')
+    duration = float(duration_s)
+    if not math.isfinite(duration) or duration <= 0.0:
+        raise ValueError(f'duration must be finite and > 0 s, got {duration_s}')
+    return v, duration
+
+
 @dataclass(frozen=True)
 class ArmLimits:
     """The limits every command obeys (SI units, ``link_base``).
@@ -133,10 +144,7 @@ class LimitedArm:
         """
         with self._lock:
             try:
-                v = as_vector3(v_xyz_m_s, 'velocity')
-                duration = float(duration_s)
-                if not math.isfinite(duration) or duration <= 0.0:
-                    raise ValueError(f'duration must be finite and > 0 s, got {duration_s}')
+                v, duration = checked_command(v_xyz_m_s, duration_s)
             except ValueError as exc:
                 self._stop_quietly()
                 raise self._error(f'refused command: {exc}') from exc

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from typing import Any, Callable, Optional, Sequence, Tuple
@@ -13,7 +12,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from aslip_ros.control.arm import ArmError
-from aslip_ros.control.frames import as_vector3
+from aslip_ros.control.limits import checked_command
 from aslip_ros.hw.xarm_codes import controller_error_text as _controller_error_text
 from aslip_ros.hw.xarm_codes import controller_warn_text as _controller_warn_text
 from aslip_ros.hw.xarm_codes import describe_code
@@ -122,11 +121,8 @@ class XArmDriver:
                 raise XArmError('velocity mode is not enabled (after connect() or stop(), call '
                                 'enable_velocity_mode())')
             try:
-                v = as_vector3(v_xyz_m_s, 'velocity')
-                duration = float(duration_s)
-                if not math.isfinite(duration) or duration <= 0.0:
-                    # duration <= 0 means "never stop" to the SDK: never let it through.
-                    raise ValueError(f'duration must be finite and > 0 s, got {duration_s}')
+                # duration <= 0 means "never stop" to the SDK: never let it through.
+                v, duration = checked_command(v_xyz_m_s, duration_s)
             except ValueError as exc:
                 self._stop_quietly()
                 raise XArmError(f'refused command: {exc}') from exc
