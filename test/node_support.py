@@ -16,6 +16,13 @@ import numpy as np
 
 from aslip_ros.nodes.process import NodeProcess, node_exe, ros_args  # noqa: F401 - for tests
 
+
+def header_ns(msg) -> int:
+    """A stamped message's header stamp in nanoseconds."""
+    from aslip_ros.audio_frame import stamp_to_ns
+    return stamp_to_ns(msg.header.stamp)
+
+
 SCENE_NAMES = ["left_front_top", "left_rear_bottom", "right_front_bottom", "right_rear_top"]
 
 
@@ -78,6 +85,20 @@ class Bus:
         """Decoded ``/aslip/diagnostics`` JSON documents whose name contains ``name_part``."""
         docs = [json.loads(m.data) for m in self.messages("/aslip/diagnostics")]
         return [d for d in docs if name_part in d["name"]]
+
+    def latest_diagnostics(self, name_part: str, predicate=lambda v: True,
+                           timeout: float = 20.0):
+        """The values of the newest diagnostics of ``name_part`` once they satisfy
+        ``predicate`` (None if they do not in time)."""
+        found = []
+
+        def ok() -> bool:
+            docs = self.diagnostics(name_part)
+            if docs and predicate(docs[-1]["values"]):
+                found.append(docs[-1]["values"])
+                return True
+            return False
+        return found[-1] if self.wait(ok, timeout) else None
 
     def set_params(self, node_name: str, values: dict, timeout: float = 10.0) -> list:
         """Set parameters on a remote node; returns the SetParametersResult list."""

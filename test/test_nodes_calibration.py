@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from node_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint
+from node_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint, header_ns
 
 pytestmark = pytest.mark.ros
 
@@ -104,21 +104,9 @@ def live(tmp_path_factory):
             rclpy.try_shutdown(context=ctx)
 
 
-def _stamp_ns(m) -> int:
-    return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-
-
-def _diag(bus, predicate=lambda v: True, timeout=20.0):
-    """The newest diagnostics values that satisfy ``predicate`` (None if none in time)."""
-    found = []
-
-    def ok():
-        docs = bus.diagnostics("slip_inference")
-        if docs and predicate(docs[-1]["values"]):
-            found.append(docs[-1]["values"])
-            return True
-        return False
-    return found[-1] if bus.wait(ok, timeout) else None
+def _diag(bus, predicate=lambda v: True):
+    """slip_inference's newest diagnostics values once they satisfy ``predicate``."""
+    return bus.latest_diagnostics("slip_inference", predicate)
 
 
 def test_streaming_calibration_in_the_node_equals_offline(live):
@@ -138,7 +126,7 @@ def test_streaming_calibration_in_the_node_equals_offline(live):
     t0 = stream.stamp_ns
     stream.feed(audio)
     end = stream.stamp_ns
-    assert bus.wait(lambda: any(_stamp_ns(m) == end for m in bus.messages(SLIP)), 20), \
+    assert bus.wait(lambda: any(header_ns(m) == end for m in bus.messages(SLIP)), 20), \
         proc.output[-3000:]
     total = FrameCutter(Predictor.from_checkpoint(ckpt).feature_config, RATE).count(
         audio.shape[0])
@@ -151,9 +139,9 @@ def test_streaming_calibration_in_the_node_equals_offline(live):
     k = p.calibration
     cutter = FrameCutter(p.feature_config, RATE)
     frames = cutter.frames(audio)
-    msgs = [m for m in bus.messages(SLIP) if t0 < _stamp_ns(m) <= end]
+    msgs = [m for m in bus.messages(SLIP) if t0 < header_ns(m) <= end]
     assert len(msgs) >= 20                     # superseded hops are skipped, not wrong
-    ends = np.array([round((_stamp_ns(m) - t0) * RATE / 1e9) for m in msgs])
+    ends = np.array([round((header_ns(m) - t0) * RATE / 1e9) for m in msgs])
     offs = window_offsets(frames, ends, cutter, k)
     assert np.abs(offs[-1]).max() > 0.5        # the calibration moves the features
     sigmas, moved = set(), 0.0

@@ -15,6 +15,8 @@ import time
 import numpy as np
 import pytest
 
+from aslip_ros.audio_frame import stamp_to_ns
+
 pytestmark = pytest.mark.ros
 
 CALL_S = 0.005
@@ -92,10 +94,6 @@ class FakeSDK:
             return [c for c in self.calls if c[0] == "vc_set_cartesian_velocity"]
 
 
-def _stamp_ns(m):
-    return m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-
-
 def test_arm_io_never_holds_up_slip_and_pose_callbacks(ros_domain, monkeypatch):
     import rclpy
     from geometry_msgs.msg import PoseStamped
@@ -171,7 +169,7 @@ def test_arm_io_never_holds_up_slip_and_pose_callbacks(ros_domain, monkeypatch):
         assert len(tcp) > 10
         report_ns = np.array([w for w, _ in sdk.reports])
         for m in tcp[-10:]:
-            assert np.min(np.abs(report_ns - _stamp_ns(m))) < 2_000_000
+            assert np.min(np.abs(report_ns - stamp_to_ns(m.header.stamp))) < 2_000_000
         # The slip stream dies: a stop, and no velocity command after it, even when the
         # stream comes back (the stop is latched until the node is activated again).
         deadline = time.monotonic() + 10

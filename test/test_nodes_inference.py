@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from node_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint
+from node_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint, header_ns
 
 pytestmark = pytest.mark.ros
 
@@ -22,10 +22,6 @@ def known_ckpt(tmp_path_factory):
     """A model that always answers p = sigmoid(4) with velocity (0.02, -0.01) m/s."""
     return make_checkpoint(tmp_path_factory.mktemp("ckpt") / "known.pt", slip_logit=4.0,
                            velocity=(0.02, -0.01))
-
-
-def _stamp_ns(m) -> int:
-    return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
 
 
 def _listen(bus):
@@ -143,7 +139,7 @@ class Feeder:
         while time.monotonic() < deadline:
             self.good(1)
             end = self.stamp_ns
-            if self.bus.wait(lambda: any(_stamp_ns(m) == end
+            if self.bus.wait(lambda: any(header_ns(m) == end
                                          for m in self.bus.messages(SLIP)), 1.0):
                 return True
         return False
@@ -230,7 +226,7 @@ def test_forward_gap_restarts_the_window_and_is_counted(live_inference):
 def _estimates_resume(bus, feeder, since_ns: int, within_s: float = 0.5) -> bool:
     """Feed 0.6 s of good audio; True once an estimate covers audio in (since, since+within]."""
     feeder.good(60)
-    return bus.wait(lambda: any(since_ns < _stamp_ns(m) <= since_ns + int(within_s * 1e9)
+    return bus.wait(lambda: any(since_ns < header_ns(m) <= since_ns + int(within_s * 1e9)
                                 for m in bus.messages(SLIP)), 10)
 
 
@@ -263,7 +259,7 @@ def test_a_restarted_or_jumped_stream_is_estimated_again_within_half_a_second(
         feeder.index += 480
         feeder.stamp_ns += 10_000_000
     assert _estimates_resume(bus, feeder, since), \
-        f"{[_stamp_ns(m) - since for m in bus.messages(SLIP)][:5]}\n{proc.output[-3000:]}"
+        f"{[header_ns(m) - since for m in bus.messages(SLIP)][:5]}\n{proc.output[-3000:]}"
     after = _diag_values(bus)
     assert after["stream_restarts"] > before["stream_restarts"]
     assert after["frames_lost"] - before["frames_lost"] < 48000
@@ -286,13 +282,13 @@ def test_a_node_starved_of_cpu_loses_no_audio(live_inference):
     finally:
         proc.proc.send_signal(signal.SIGCONT)
     last = feeder.stamp_ns
-    assert bus.wait(lambda: any(_stamp_ns(m) == last for m in bus.messages(SLIP)), 10), \
+    assert bus.wait(lambda: any(header_ns(m) == last for m in bus.messages(SLIP)), 10), \
         proc.output
     after = _diag_values(bus)
     assert after["gaps"] == before["gaps"], (before, after)
     assert after["blocks_accepted"] - before["blocks_accepted"] >= 30
     # (Which of the queued hops get an estimate is not asserted: the newest supersedes.)
-    assert all(_stamp_ns(m) > since for m in bus.messages(SLIP))
+    assert all(header_ns(m) > since for m in bus.messages(SLIP))
 
 
 def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inference):
@@ -325,9 +321,9 @@ def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inferenc
     # The microphone comes back: estimates flow again once a window holds its signal, and
     # none was published for a window wholly without it.
     feeder.good(12)
-    assert bus.wait(lambda: any(_stamp_ns(m) > last_dead for m in bus.messages(SLIP)), 10), \
+    assert bus.wait(lambda: any(header_ns(m) > last_dead for m in bus.messages(SLIP)), 10), \
         proc.output
-    stamps = [_stamp_ns(m) for m in bus.messages(SLIP)]
+    stamps = [header_ns(m) for m in bus.messages(SLIP)]
     assert not [t for t in stamps if first_dead + window_ns <= t <= last_dead], stamps
     assert bus.wait(lambda: bus.diagnostics("slip_inference")[-1]["level"] < 2, 5)
     healthy = [d for d in bus.diagnostics("slip_inference") if d["level"] < 2][-1]
@@ -339,7 +335,7 @@ def test_dead_channel_withholds_estimates_with_an_error_diagnostic(live_inferenc
     bus.clear(SLIP)
     first_dead = feeder.stamp_ns
     feeder.good(12, silent=(1,))
-    assert bus.wait(lambda: any(_stamp_ns(m) >= first_dead + window_ns
+    assert bus.wait(lambda: any(header_ns(m) >= first_dead + window_ns
                                 for m in bus.messages(SLIP)), 10), proc.output
     assert all(r.successful for r in bus.set_params("slip_inference",
                                                     {"dead_channel_margin_db": 40.0}))

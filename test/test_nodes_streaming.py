@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from node_support import SCENE_NAMES, Bus, NodeProcess
+from node_support import SCENE_NAMES, Bus, NodeProcess, header_ns
 
 pytestmark = pytest.mark.ros
 
@@ -112,23 +112,6 @@ def _settle(bus, stream) -> bool:
     return bool(bus.messages(SLIP))
 
 
-def _stamp_ns(m) -> int:
-    return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-
-
-def _diag(bus, predicate=lambda v: True, timeout=20.0):
-    """The newest slip_inference diagnostics values satisfying ``predicate`` (or None)."""
-    found = []
-
-    def ok():
-        docs = bus.diagnostics("slip_inference")
-        if docs and predicate(docs[-1]["values"]):
-            found.append(docs[-1]["values"])
-            return True
-        return False
-    return found[-1] if bus.wait(ok, timeout) else None
-
-
 def _resets_after(bus, before, n_blocks) -> int:
     """``stream_resets`` once the node has taken ``n_blocks`` more than at ``before``."""
     v = _diag(bus, lambda v: v["blocks_accepted"] >= before["blocks_accepted"] + n_blocks)
@@ -149,13 +132,13 @@ def _published(bus, blocks, proc):
     """The SlipVectors stamped inside ``blocks``, once the last hop's one has arrived."""
     t0, t1 = blocks[0].stamp_ns, blocks[-1].end_stamp_ns
     want_last = _offline(blocks)[-1].stamp_ns
-    assert bus.wait(lambda: any(_stamp_ns(m) == want_last for m in bus.messages(SLIP)), 20), \
+    assert bus.wait(lambda: any(header_ns(m) == want_last for m in bus.messages(SLIP)), 20), \
         proc.output[-3000:]
-    return [m for m in bus.messages(SLIP) if t0 <= _stamp_ns(m) <= t1]
+    return [m for m in bus.messages(SLIP) if t0 <= header_ns(m) <= t1]
 
 
 def _assert_equal(msgs, ests):
-    assert [_stamp_ns(m) for m in msgs] == [e.stamp_ns for e in ests]   # every hop, in order
+    assert [header_ns(m) for m in msgs] == [e.stamp_ns for e in ests]   # every hop, in order
     for m, e in zip(msgs, ests):
         p = e.prediction
         assert m.probability == pytest.approx(p.probability, abs=1e-5)
@@ -163,6 +146,11 @@ def _assert_equal(msgs, ests):
         assert m.slipping == p.slipping and m.threshold == 0.0
         assert m.window_length == pytest.approx(0.032)
         assert m.source == "aslip_stream" and m.direction_sigma == -1.0
+
+
+def _diag(bus, predicate=lambda v: True):
+    """slip_inference's newest diagnostics values once they satisfy ``predicate``."""
+    return bus.latest_diagnostics("slip_inference", predicate)
 
 
 def test_streaming_in_the_node_equals_offline(live):
@@ -178,7 +166,7 @@ def test_streaming_in_the_node_equals_offline(live):
     probs = np.array([m.probability for m in msgs])
     assert probs.max() - probs.min() > 0.1, probs    # the outputs follow the audio
     # Stamped at each frame's last sample: the first after 1536 samples of the stream.
-    assert _stamp_ns(msgs[0]) == blocks[0].stamp_ns + round(1535 * 1e9 / RATE)
+    assert header_ns(msgs[0]) == blocks[0].stamp_ns + round(1535 * 1e9 / RATE)
     v = _diag(bus, lambda v: v["blocks_accepted"] >= before["blocks_accepted"] + 150)
     assert v is not None and v["model"] == "aslip_stream", proc.output[-3000:]
     assert v["gaps"] == before["gaps"] + 1 and v["threshold"] == 0.0, v
@@ -244,7 +232,7 @@ def test_a_dropped_block_and_a_dead_channel_reset_the_state(live):
     after = stream.feed(stream_audio(30, seed=8))
     _assert_equal(_published(bus, after, proc), _offline(after))
     assert not [m for m in bus.messages(SLIP)
-                if dead_block.stamp_ns <= _stamp_ns(m) < dead_block.end_stamp_ns]
+                if dead_block.stamp_ns <= header_ns(m) < dead_block.end_stamp_ns]
     v = _diag(bus, lambda v: v["stream_resets"] >= n + 2)
     assert v["stream_resets"] == n + 2 and "dead channel" in v["last_reset_reason"], v
     assert v["dead_channel_windows"] >= 1
@@ -263,7 +251,7 @@ def test_a_mismatched_stream_is_refused(live, case):
     assert any(d["level"] == 2 and "stream refused" in d["message"] for d in docs[-20:]), \
         docs[-1]
     assert not [m for m in bus.messages(SLIP)
-                if sent[0].stamp_ns <= _stamp_ns(m) <= sent[-1].end_stamp_ns]
+                if sent[0].stamp_ns <= header_ns(m) <= sent[-1].end_stamp_ns]
     # The right stream again: estimates flow from a fresh state.
     after = stream.feed(stream_audio(10, seed=10))
     _assert_equal(_published(bus, after, proc), _offline(after))

@@ -283,3 +283,34 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     if problems:
         raise ValueError(f"{path}: not a usable checkpoint: " + "; ".join(problems))
     return Checkpoint(meta=meta, tensors=dict(tensors))
+
+
+class CheckpointFacts:
+    """What every predictor reports about its checkpoint (``self.checkpoint``): the model
+    type and the stream it expects."""
+
+    checkpoint: Checkpoint
+
+    @property
+    def meta(self) -> dict[str, Any]:
+        return self.checkpoint.meta
+
+    @property
+    def model_type(self) -> str:
+        return self.checkpoint.model_type
+
+    @property
+    def sample_rate(self) -> float:
+        return self.checkpoint.sample_rate
+
+    @property
+    def channel_names(self) -> list[str]:
+        return self.checkpoint.channel_names
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.channel_names)
+
+    @property
+    def layout(self) -> str | None:
+        return self.meta.get("layout")

@@ -35,7 +35,8 @@ import numpy as np
 from .backends import model_backend
 from .calibration import CalibrationConstants
 from .calibration_frames import FrameCutter, StreamCalibration
-from .checkpoint import Checkpoint, CheckpointMismatch, check_compatible, load_checkpoint
+from .checkpoint import (Checkpoint, CheckpointFacts, CheckpointMismatch, check_compatible,
+                         load_checkpoint)
 from .features import FeatureConfig, LogMel
 
 
@@ -73,7 +74,7 @@ class BatchPrediction:
                           float(v[1]), speed, d, self.window_length, self.threshold)
 
 
-class Predictor:
+class Predictor(CheckpointFacts):
     """Slip estimation for fixed-length multi-channel windows at the checkpoint's rate."""
 
     def __init__(self, ckpt: Checkpoint, threshold: float | None = None) -> None:
@@ -129,30 +130,6 @@ class Predictor:
             raise ValueError(f"threshold must be in [0, 1], got {t}")
         self._threshold = t       # one float store: a concurrent predict sees old or new
         return t
-
-    @property
-    def meta(self) -> dict[str, Any]:
-        return self.checkpoint.meta
-
-    @property
-    def model_type(self) -> str:
-        return self.checkpoint.model_type
-
-    @property
-    def sample_rate(self) -> float:
-        return self.checkpoint.sample_rate
-
-    @property
-    def channel_names(self) -> list[str]:
-        return self.checkpoint.channel_names
-
-    @property
-    def n_channels(self) -> int:
-        return len(self.channel_names)
-
-    @property
-    def layout(self) -> str | None:
-        return self.meta.get("layout")
 
     def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
         """Raise CheckpointMismatch (a ValueError) unless the stream matches the training."""

@@ -26,11 +26,11 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from .checkpoint import Checkpoint, check_compatible, load_checkpoint
+from .checkpoint import Checkpoint, CheckpointFacts, check_compatible, load_checkpoint
 from .features import FeatureConfig
 from .predictor import Prediction
 from .streaming import StreamingLogMel
@@ -49,7 +49,7 @@ class StreamEstimate:
     raw_velocity: tuple[float, float] = (0.0, 0.0)   # ungated (vx, vz), for evaluation
 
 
-class StreamingPredictor:
+class StreamingPredictor(CheckpointFacts):
     """Per-hop p(slip) and slip velocity from a stream of audio blocks."""
 
     def __init__(self, ckpt: Checkpoint, threshold: float | None = None,
@@ -88,32 +88,8 @@ class StreamingPredictor:
         return cls(load_checkpoint(path), threshold, max_time_jump_s)
 
     @property
-    def meta(self) -> dict[str, Any]:
-        return self.checkpoint.meta
-
-    @property
-    def sample_rate(self) -> float:
-        return self.checkpoint.sample_rate
-
-    @property
-    def channel_names(self) -> list[str]:
-        return self.checkpoint.channel_names
-
-    @property
-    def n_channels(self) -> int:
-        return len(self.checkpoint.channel_names)
-
-    @property
-    def model_type(self) -> str:
-        return self.checkpoint.model_type
-
-    @property
     def window_samples(self) -> int:
         return int(self.meta["window_samples"])
-
-    @property
-    def layout(self) -> str | None:
-        return self.meta.get("layout")
 
     @property
     def calibrated(self) -> bool:
