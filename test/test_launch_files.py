@@ -371,6 +371,49 @@ def test_a_node_dies_with_its_parent(ros_env, tmp_path):
             os.kill(child, signal.SIGKILL)
 
 
+def test_a_node_stuck_inside_a_c_call_still_exits_after_a_signal(ros_env):
+    """The main thread blocked in C for good (a relocked mutex: no signal interrupts it): the
+    node still starts its forced exit on SIGINT, because signals are taken on a thread of
+    their own, and exits before the launch would escalate to SIGKILL."""
+    code = (
+        "import ctypes\n"
+        "from rclpy.node import Node\n"
+        "from aslip_ros.nodes import common as c\n"
+        "libc = ctypes.CDLL(None)\n"
+        "mutex = ctypes.create_string_buffer(64)      # PTHREAD_MUTEX_INITIALIZER: zeros\n"
+        "class Stuck(Node):\n"
+        "    def __init__(self):\n"
+        "        super().__init__('stuck_in_c')\n"
+        "        self.create_timer(0.5, self.tick)\n"
+        "        c.ready(self)\n"
+        "    def tick(self):\n"
+        "        print('stuck now', flush=True)\n"
+        "        libc.pthread_mutex_lock(mutex)\n"
+        "        libc.pthread_mutex_lock(mutex)        # a default mutex: never returns\n"
+        "raise SystemExit(c.run_node(Stuck))\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], env=ros_env, cwd=str(HELPERS),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        end = time.monotonic() + 60
+        seen = ""
+        while "stuck now" not in seen and time.monotonic() < end and proc.poll() is None:
+            seen += proc.stdout.readline()
+        assert "stuck now" in seen, seen
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, _ = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            raise AssertionError("the node ignored SIGINT for 30 s") from None
+        took = time.monotonic() - t0
+        assert "exiting now" in out
+        assert took < 9.0, f"exit took {took:.1f} s"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+
+
 def test_a_node_whose_cleanup_hangs_still_exits_after_a_signal(ros_env):
     """Launch escalates to SIGKILL 10 s after SIGINT; a node exits well before that."""
     code = (

@@ -234,18 +234,17 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     (seen under load: the launch escalated to SIGTERM, which then killed the node, -15).
     Otherwise returns the exit code (``EXIT_CONFIG`` when the node refused its configuration).
     """
-    _tie_to_parent()
-    _raise_priority(_name(factory))
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
 
-    def on_signal(signum, _frame) -> None:
+    def on_signal(signum: int) -> None:
         if not stop.is_set():
             stop.set()
             _exit_after(EXIT_GRACE_S, _name(factory))
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
+    _watch_signals(on_signal)
+    _tie_to_parent()
+    _raise_priority(_name(factory))
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     executor = None
     code = 0
@@ -278,6 +277,23 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     if exit_process:
         _leave(code)
     return code
+
+
+def _watch_signals(handler: Callable[[int], None]) -> None:
+    """SIGINT and SIGTERM go to a thread of their own, which calls ``handler(signum)``.
+
+    A Python signal handler runs only when the main thread returns to the interpreter; a
+    node whose main thread was stuck inside a C call (seen once: mocap_bridge ignored the
+    launch's SIGINT and SIGTERM until SIGKILL) would never start its forced exit. The
+    signals are blocked before any other thread exists, so every thread (rclpy's, DDS's,
+    torch's) inherits the mask and only this one receives them."""
+    sigs = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+
+    def wait() -> None:
+        while True:
+            handler(signal.sigwait(sigs))
+    threading.Thread(target=wait, name="signals", daemon=True).start()
 
 
 def _say(line: str) -> None:
