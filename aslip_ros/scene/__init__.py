@@ -11,10 +11,10 @@ Usage (docs/design.md, "Scene streaming API")::
 
 from . import layouts, physics, scenarios
 from .layouts import LAYOUTS, OBJECTS, PADS, get_layout, get_object, get_pad
-from .physics import SCENE_VERSION, Acoustics
+from .physics import SCENE_VERSION, UNCOUPLED, Acoustics
 from .scenarios import Scenario
 from .world import Chunk, MocapSample, SimArm, World
 
-__all__ = ["SCENE_VERSION", "layouts", "physics", "scenarios", "LAYOUTS", "OBJECTS", "PADS",
-           "get_layout", "get_object", "get_pad", "Acoustics", "Scenario", "Chunk",
-           "MocapSample", "SimArm", "World"]
+__all__ = ["SCENE_VERSION", "UNCOUPLED", "layouts", "physics", "scenarios", "LAYOUTS",
+           "OBJECTS", "PADS", "get_layout", "get_object", "get_pad", "Acoustics", "Scenario",
+           "Chunk", "MocapSample", "SimArm", "World"]

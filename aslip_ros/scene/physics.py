@@ -11,8 +11,8 @@ ablation in ``scene/ablation.py`` shows a result that depends on it (docs/scene.
 - The source sits towards the leading edge of the contact, so microphones nearer that edge
   hear it louder (distance falloff); that level pattern is the only sign cue.
 - Nuisances that make detection near the slip threshold honest: slow normal-force variation,
-  per-trial gain mismatch, stick-slip and handling clicks, handling noise without slip, and a
-  microphone noise floor.
+  per-grasp coupling of each microphone (gain mismatch, and the hand's own path to it),
+  stick-slip and handling clicks, handling noise without slip, and a microphone noise floor.
 - Robot operating noise: common mode, gear-mesh lines tied to joint speed plus broadband,
   silent when the arm is still.
 
@@ -33,8 +33,9 @@ from .layouts import Layout, ObjectSpec, PadSpec
 #: Version of the scene's physics and motion defaults, written into every trial's metadata.
 #: Bump it whenever a default changes what the scene renders, so that datasets from older
 #: bags can be told apart. 1: the first scene. 2: smooth pads radiate from a spread-out
-#: contact (smooth_edge_fraction) and external pushes come closer together.
-SCENE_VERSION = 2
+#: contact (smooth_edge_fraction) and external pushes come closer together. 3: per-grasp
+#: coupling on (gain_mismatch_db 3, handling_path_db 1; :data:`UNCOUPLED` renders version 2).
+SCENE_VERSION = 3
 
 #: Noise columns drawn per sample; fixed so one seed gives the same noise for every layout.
 _COL_BB_LOW = slice(0, 2)
@@ -78,8 +79,8 @@ class Acoustics:
     falloff_m: float = 10.0e-3        # level ~ 1 / (1 + r / falloff)
     force_var_db: float = 2.0         # slow normal-force variation (std), both pads alike
     force_tau_s: float = 0.4
-    gain_mismatch_db: float = 0.0     # per-grasp coupling (+-dB); off by default (scene.md)
-    handling_path_db: float = 0.0     # per-grasp path difference of handling noise (+-dB)
+    gain_mismatch_db: float = 3.0     # per-grasp coupling of each microphone (+-dB; scene.md)
+    handling_path_db: float = 1.0     # per-grasp path difference of handling noise (+-dB)
     click_rate_slip_smooth: float = 300.0   # stick-slip clicks per (m/s) per s, smooth pad
     click_rate_slip_textured: float = 60.0
     click_rate_touch: float = 25.0    # handling clicks per second while touched
@@ -106,6 +107,11 @@ class Acoustics:
             raise ValueError("ridge duty cycles must lie in (0, 1)")
         if int(self.n_harmonics) != self.n_harmonics or self.n_harmonics < 1:
             raise ValueError("Acoustics.n_harmonics must be a positive integer")
+
+
+#: The scene without per-grasp coupling (scene version 2's sound): every microphone couples
+#: alike in every grasp. For ablations and for comparing with models of that scene.
+UNCOUPLED = Acoustics(gain_mismatch_db=0.0, handling_path_db=0.0)
 
 
 @lru_cache(maxsize=16)
@@ -218,7 +224,7 @@ class Synth:
         self._jac = q * rng.uniform(1.5, 3.5, 3)[:, None]
         self._robot_coupling = 10.0 ** (rng.uniform(-1, 1, c) / 20.0)
         # The hand reaches each microphone through its own path in the object; drawn from a
-        # separate stream so that the default (0 dB) renders exactly what it always did.
+        # separate stream so that 0 dB (:data:`UNCOUPLED`) renders exactly what version 2 did.
         path_rng = np.random.default_rng([int(seed), 0x4A7D])
         self._handling_path = (10.0 ** (path_rng.uniform(-1, 1, c) * acoustics.handling_path_db
                                         / 20.0)).astype(np.float32)
