@@ -25,3 +25,15 @@ def test_variant_is_recorded_and_not_mixed_with_other_bags(tmp_path):
     assert cli.main(ARGS + ["--variant", "one_sided", "-o", str(tmp_path / "cpl")]) == 1
     with pytest.raises(SystemExit):
         cli.main(ARGS + ["--variant", "loud", "-o", str(tmp_path / "x")])
+
+
+def test_simulate_knows_every_scene_variant():
+    from aslip_ros.data import simulate
+    from aslip_ros.scene import variants
+    assert set(simulate.VARIANTS) == set(variants.VARIANTS)
+
+
+@pytest.mark.parametrize("variant", ["contact", "confounders"])
+def test_new_variants_reach_the_bags(tmp_path, variant):
+    assert cli.main(ARGS + ["--variant", variant, "-o", str(tmp_path / variant)]) == 0
+    assert _meta(tmp_path / variant / TRIAL)["variant"] == variant

@@ -1,10 +1,12 @@
-"""Scene variants for per-grasp calibration: coupling per grasp and one-sided slip."""
+"""The held-out scene variants (scene/variants.py): each moves what it claims, within its
+sourced range, and the default scene is what it was."""
 
 import numpy as np
 import pytest
 
 from aslip_ros.scene import World
 from aslip_ros.scene import scenarios as sc
+from aslip_ros.scene import variants as va
 
 RATE = 16000.0
 
@@ -27,15 +29,20 @@ def slip_angles(scn, n_trials=6):
     return np.concatenate(out)
 
 
-def test_coupling_variant_draws_new_gains_per_grasp_within_range():
+def test_coupling_variant_draws_new_gains_per_grasp_within_a_wider_range():
     base = sc.external_induced(seed=1, duration_s=1.0, sample_rate=RATE)
-    assert base.acoustics.gain_mismatch_db == 0.0 and base.one_sided_fraction == 0.0
-    gains = [20 * np.log10(World(sc.coupling_variant(base.with_(seed=s))).synth.gain)
-             for s in range(8)]
-    g = np.array(gains)
-    assert np.all(np.abs(g) <= sc.COUPLING_DB) and g.std() > 1.0
-    assert not np.allclose(g[0], g[1])
-    np.testing.assert_array_equal(World(base).synth.gain, np.ones(4))
+    assert base.one_sided_fraction == 0.0
+    default_db = base.acoustics.gain_mismatch_db
+    assert sc.COUPLING_DB >= 2.0 * max(default_db, 1.0)        # wider than the scene's own
+
+    def gains(make):
+        return np.array([20 * np.log10(World(make(base.with_(seed=s))).synth.gain)
+                         for s in range(10)])
+    g, g0 = gains(sc.coupling_variant), gains(lambda s: s)
+    assert np.all(np.abs(g) <= sc.COUPLING_DB) and np.abs(g).max() > default_db
+    assert g.std() > 1.5 * g0.std() and not np.allclose(g[0], g[1])
+    flat = World(sc.coupling_variant(base, 0.0, 0.0)).synth.gain
+    np.testing.assert_array_equal(flat, np.ones(4))
 
 
 def test_handling_noise_path_makes_the_background_not_quite_common_mode():
@@ -65,7 +72,9 @@ def test_one_sided_variant_keeps_most_slip_in_one_sector():
 
 def test_default_scene_is_unchanged_by_the_new_knobs():
     base = sc.external_induced(seed=3, duration_s=2.0, sample_rate=RATE)
-    explicit = sc.coupling_variant(base, 0.0, 0.0).with_(one_sided_fraction=0.0)
+    ac = base.acoustics
+    explicit = sc.coupling_variant(base, ac.gain_mismatch_db, ac.handling_path_db).with_(
+        one_sided_fraction=0.0, no_slip_touch_fraction=0.2)
     _, a, v = render(base)
     _, b, u = render(explicit)
     np.testing.assert_array_equal(a, b)
@@ -77,3 +86,70 @@ def test_default_scene_is_unchanged_by_the_new_knobs():
 def test_bad_variant_parameters_are_refused(kw):
     with pytest.raises(ValueError, match="one_sided"):
         sc.external_induced(seed=0, **kw)
+
+
+def slip_level_pattern(scn, seeds):
+    """Per trial, each channel's slip level against the channel mean [dB] (a fixed push)."""
+    out = []
+    for s in seeds:
+        w, a, v = render(scn.with_(seed=s))
+        m = np.hypot(*v.T) > 0
+        lv = 10 * np.log10((a[m] ** 2).mean(axis=0))
+        out.append(lv - lv.mean())
+    return np.array(out)
+
+
+def test_contact_variant_seats_the_object_off_centre():
+    # No coupling, one scripted push along +x: only the contact position moves the pattern.
+    flat = sc.scripted(0, [(0.2, 2.8, 0.02, 0.0)], duration_s=3.0, sample_rate=RATE)
+    flat = sc.coupling_variant(flat, 0.0, 0.0)
+    off = sc.contact_variant(flat)
+    assert off.acoustics.contact_wander_m == va.CONTACT_OFFSET_M > flat.acoustics.contact_wander_m
+    assert off.acoustics.gain_mismatch_db == 0.0
+    seeds = range(8)
+    spread_default = slip_level_pattern(flat, seeds).std(axis=0).mean()
+    spread_off = slip_level_pattern(off, seeds).std(axis=0).mean()
+    assert spread_off > 1.5 * spread_default
+
+
+def count_touches(scn, t_end=200.0):
+    slip, touch = sc.agent_pushes(scn, np.random.default_rng(7))
+    t = np.arange(0.0, t_end, 1e-3)
+    s = np.hypot(*slip.evaluate(t).T) > 0
+    on = touch.evaluate(t)[:, 0] > 0
+    starts = np.flatnonzero(on[1:] & ~on[:-1]) + 1
+    ends = np.r_[np.flatnonzero(~on[1:] & on[:-1]) + 1, t.size]
+    slipped = [s[a:b].any() for a, b in zip(starts, ends)]
+    return 1.0 - np.mean(slipped), len(slipped)
+
+
+def test_confounders_variant_touches_without_slip_and_louder():
+    base = sc.external_induced(seed=2, duration_s=None)
+    conf = sc.confounders_variant(base)
+    share0, n0 = count_touches(base)
+    share1, n1 = count_touches(conf)
+    assert n0 > 100 and n1 > 100
+    assert abs(share0 - 0.2) < 0.08 and abs(share1 - va.NO_SLIP_TOUCH_FRACTION) < 0.1
+    a0, a1 = base.acoustics, conf.acoustics
+    assert a1.handling_level == 2 * a0.handling_level and a1.robot_level == 2 * a0.robot_level
+    assert a1.click_rate_touch == 2 * a0.click_rate_touch
+    assert a1.gain_mismatch_db == a0.gain_mismatch_db      # the scene's coupling is kept
+
+
+@pytest.mark.parametrize("value", [1.0, -0.1, 2.0])
+def test_bad_no_slip_touch_fraction_is_refused(value):
+    with pytest.raises(ValueError, match="no_slip_touch_fraction"):
+        sc.external_induced(seed=0, no_slip_touch_fraction=value)
+
+
+def test_every_variant_is_named_and_keeps_the_grasp():
+    assert set(sc.VARIANTS) == {"coupling", "one_sided", "contact", "confounders", "mocap"}
+    base = sc.external_induced(seed=5)
+    for name, make in sc.VARIANTS.items():
+        v = make(base)
+        assert v != base, name
+        assert (v.seed, v.object, v.layout, v.pad, v.condition) == \
+            (base.seed, base.object, base.layout, base.pad, base.condition)
+        # One variant, one axis: the coupling stays the scene's unless the variant is it.
+        if name != "coupling":
+            assert v.acoustics.gain_mismatch_db == base.acoustics.gain_mismatch_db, name

@@ -27,9 +27,9 @@ from aslip_ros.data.bags import BagError, BagReader, BagWriter
 KINDS = {"robot": "robot_induced", "external": "external_induced"}
 DEFAULT_START_NS = 1_700_000_000_000_000_000   # a fixed ROS time so bags are reproducible
 DEFAULT_BLOCK_FRAMES = 480
-#: Scene variants (docs/scene.md, ``scene.scenarios.VARIANTS``): per-grasp microphone
-#: coupling, that plus one-sided slip, and a lab's motion capture.
-VARIANTS = ("coupling", "one_sided", "mocap")
+#: Scene variants (docs/scene.md, ``scene.variants.VARIANTS``): wider per-grasp coupling,
+#: one-sided slip, off-centre contact, confounders without slip, a lab's motion capture.
+VARIANTS = ("coupling", "one_sided", "contact", "confounders", "mocap")
 
 
 def trial_seed(base_seed: int, kind: str, object: str, condition: str, index: int) -> int:
@@ -205,9 +205,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--out", type=Path, required=True,
                         help="directory for the bags (one sub-directory per trial)")
     parser.add_argument("--variant", choices=VARIANTS, default=None,
-                        help="scene variant: per-grasp microphone coupling; that with 80 %% "
-                             "of the slip one way; a lab's motion capture (100 Hz, 0.3 mm "
-                             "noise, 2 %% dropped frames) (default: the plain scene)")
+                        help="held-out scene variant (docs/scene.md): +-6 dB coupling; 80 %% "
+                             "of the slip one way; off-centre contact; confounders without "
+                             "slip; a lab's motion capture (default: the plain scene)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

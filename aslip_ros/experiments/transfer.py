@@ -2,23 +2,26 @@
 
 A lab's recordings differ from the project's scene in ways nobody tuned for. The protocol
 makes that measurable inside the project: every method is trained on the externally induced
-trials of one scene (``--train-on``, default: the default scene) and tested on every other
-scene in full (each held-out scene is a user's recording: all its trials are test trials),
-and on the training scene's own held-out test split.
+trials of one scene (``--train-on``, default: the default scene) and tested on every scene in
+full, as a user's recording is: all its trials are test trials. The training scene itself is
+tested on a fresh draw of it (other seeds, ``HELD_OUT_SEED``), not on the few trials its
+split keeps back, so every test set has as many trials as a held-out variant.
 
-Scenes (``aslip simulate --variant``, docs/scene.md): ``default``; ``coupling`` (per-grasp
-microphone coupling of +-3 dB and a hand-noise path per microphone); ``one_sided`` (that,
-with 80 % of the slip of a grasp within +-30 deg of one direction); ``mocap`` (a lab's
-motion capture: 100 Hz, 0.3 mm noise, 2 % dropped frames, 15 ms latency).
+Scenes (``aslip simulate --variant``, ``scene/variants.py``, docs/scene.md): ``default``
+(per-grasp coupling of +-3 dB); ``coupling`` (+-6 dB, hand-noise path +-2 dB); ``one_sided``
+(80 % of the slip of a grasp within +-30 deg of one direction); ``contact`` (the object
+seated off the pad centre, 5 mm); ``confounders`` (half the touches without slip, the hand
+and the arm louder); ``mocap`` (a lab's motion capture: 100 Hz, 0.3 mm, 2 % dropped, 15 ms).
 
-Methods: ``aslip`` (the package's CNN, ``--stage scratch``) and ``paper_svm`` (``--stage
-svm``), each with the per-grasp calibration (``background``, the default of ``aslip train``)
-and without it (``off``); the plain baselines of ``learn.baselines`` (a plain log-mel CNN and
-an RBF SVM on time-averaged log-mel), which have no calibration.
+Methods: ``aslip`` (what ``aslip train`` does by default) and ``paper_svm`` (``--stage
+svm``), both with the per-grasp calibration of ``aslip train`` (``background``); with
+``--methods`` also each without it (``*_uncalibrated``); the plain baselines of
+``learn.baselines`` (a plain log-mel CNN and an RBF SVM on time-averaged log-mel).
 
 Every metric carries a 95 % interval from a bootstrap over test trials; the table marks the
 best method of each column and every method whose interval overlaps the best one's (those
-cannot be told apart on these trials).
+cannot be told apart on these trials). ``transfer_targets`` compares ``aslip`` with the best
+baseline of each cell on the same trial resamples.
 
     python -m aslip_ros.experiments.transfer --out results/transfer       (make transfer)
 """
@@ -36,13 +39,18 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 
-SCENES = ("default", "coupling", "one_sided", "mocap")
+SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap")
 METHODS = ("aslip", "aslip_uncalibrated", "paper_svm", "paper_svm_uncalibrated",
            "plain_cnn", "plain_svm")
+#: The methods of ``make transfer``: the package's default, the paper's SVM, the plain ones.
+DEFAULT_METHODS = ("aslip", "paper_svm", "plain_cnn", "plain_svm")
 OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pla_rod")
 CONDITIONS = ("robot_stationary", "robot_moving", "robot_off")
 #: Seed offset per scene, so no held-out scene replays the training scene's motions.
-SCENE_SEED = {"default": 0, "coupling": 10_000, "one_sided": 20_000, "mocap": 30_000}
+SCENE_SEED = {"default": 0, "coupling": 10_000, "one_sided": 20_000, "mocap": 30_000,
+              "contact": 40_000, "confounders": 50_000}
+#: Seed offset of the fresh draw of the training scene that it is tested on.
+HELD_OUT_SEED = 500_000
 KEYS = (("detection_accuracy", "detection %", 100.0), ("direction_mae_deg", "direction deg", 1.0),
         ("magnitude_rmse_mm", "magnitude mm", 1.0))
 
@@ -53,8 +61,8 @@ class TransferConfig:
     data: Path = Path("data/transfer")   # bags, datasets and models (git-ignored)
     train_on: tuple[str, ...] = ("default",)
     test_on: tuple[str, ...] = SCENES
-    methods: tuple[str, ...] = METHODS
-    trials: int = 2                 # per object and condition
+    methods: tuple[str, ...] = DEFAULT_METHODS
+    trials: int = 2                 # per object and condition (30 trials per scene)
     duration_s: float = 10.0
     objects: tuple[str, ...] = OBJECTS
     seed: int = 0
@@ -63,24 +71,36 @@ class TransferConfig:
     threads: int = 1
     n_boot: int = 500
     progress: bool = True
+    merge: bool = False             # keep other methods' cached predictions in the tables
     extra: dict[str, Any] = field(default_factory=dict)
 
 
 # --- data ---------------------------------------------------------------------------------
 
-def scene_dataset(cfg: TransferConfig, scene: str, log: Callable[[str], None]) -> Path:
-    """The externally induced dataset of ``scene``: simulated and exported once, then reused."""
+def scene_root(cfg: TransferConfig) -> Path:
+    """Where this scene version's bags, datasets, models and predictions are cached: a scene
+    whose defaults changed (``SCENE_VERSION``) is simulated again, never mixed with the old."""
+    from aslip_ros.scene.physics import SCENE_VERSION
+    return cfg.data / f"scene-v{SCENE_VERSION}"
+
+
+def scene_dataset(cfg: TransferConfig, scene: str, log: Callable[[str], None],
+                  held_out: bool = False) -> Path:
+    """The externally induced dataset of ``scene`` (with ``held_out``: its fresh draw, other
+    seeds): simulated and exported once, then reused."""
     from aslip_ros.data.export import export
     from aslip_ros.data.simulate import simulate
-    bags = cfg.data / "bags" / scene
-    ds = cfg.data / "datasets" / scene
+    name = scene + ("-held-out" if held_out else "")
+    bags = scene_root(cfg) / "bags" / name
+    ds = scene_root(cfg) / "datasets" / name
     if (ds / "manifest.json").is_file():
         return ds
-    log(f"{scene}: simulating {cfg.trials * len(cfg.objects) * len(CONDITIONS)} trials")
+    log(f"{name}: simulating {cfg.trials * len(cfg.objects) * len(CONDITIONS)} trials")
     simulate(bags, "external", objects=cfg.objects, conditions=CONDITIONS, trials=cfg.trials,
-             duration_s=cfg.duration_s, seed=cfg.seed + SCENE_SEED[scene],
+             duration_s=cfg.duration_s,
+             seed=cfg.seed + SCENE_SEED[scene] + (HELD_OUT_SEED if held_out else 0),
              variant=None if scene == "default" else scene, progress=cfg.progress)
-    log(f"{scene}: exporting")
+    log(f"{name}: exporting")
     export([bags], ds)
     return ds
 
@@ -91,6 +111,11 @@ def _stage(method: str) -> tuple[str, str]:
     """(``aslip train`` stage, calibration) of a checkpoint method."""
     stage = "svm" if method.startswith("paper_svm") else "scratch"
     return stage, "off" if method.endswith("_uncalibrated") else "background"
+
+
+def aslip_recipe() -> str:
+    """What ``aslip train`` does by default, which the ``aslip`` method does too."""
+    return "aslip train --stage scratch --calibration background"
 
 
 def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
@@ -151,25 +176,64 @@ def score(cfg: TransferConfig, p: dict[str, np.ndarray]) -> dict[str, Any]:
 
 # --- the protocol -------------------------------------------------------------------------
 
+def _predictions_path(cfg: TransferConfig, train: str, test: str, method: str) -> Path:
+    return scene_root(cfg) / "predictions" / f"{train}--{test}" / f"{method}.npz"
+
+
+def _save_predictions(path: Path, p: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **{k: np.asarray(p[k]) for k in PRED_KEYS})
+    tmp.replace(path)
+
+
+def _load_predictions(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path) as z:
+        return {k: z[k] for k in PRED_KEYS}
+
+
+PRED_KEYS = ("prob", "raw_velocity", "true_velocity", "slip", "trial", "window_s")
+
+
+def test_sets(cfg: TransferConfig, train: str, log: Callable[[str], None]
+              ) -> dict[str, Path]:
+    """Each test scene's dataset for a model trained on ``train``: every trial of a held-out
+    scene, or the fresh draw of the training scene itself."""
+    return {test: scene_dataset(cfg, test, log, held_out=test == train)
+            for test in cfg.test_on}
+
+
 def run_protocol(cfg: TransferConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Train on each ``train_on`` scene, test on every ``test_on`` scene; the result table."""
-    datasets = {s: scene_dataset(cfg, s, log) for s in dict.fromkeys(cfg.train_on + cfg.test_on)}
+    from aslip_ros.experiments.transfer_targets import targets
     cells: dict[str, dict[str, dict[str, Any]]] = {}
+    preds: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     for train in cfg.train_on:
+        train_ds = scene_dataset(cfg, train, log)
+        tests = test_sets(cfg, train, log)
         for method in cfg.methods:
             t0 = time.perf_counter()
-            model = train_method(cfg, method, datasets[train], cfg.data / "models" / train,
+            model = train_method(cfg, method, train_ds, scene_root(cfg) / "models" / train,
                                  log)
             log(f"trained {method} on {train} ({time.perf_counter() - t0:.0f} s)")
-            for test in cfg.test_on:
-                split = "test" if test == train else "all"
-                res = score(cfg, predict(cfg, method, model, datasets[test], split))
-                cells.setdefault(f"{train} -> {test}", {})[method] = res
-                log(f"  {method}: {train} -> {test} ({split}): {_cell(res)}")
-    result = {"format": "aslip-transfer", "version": 1,
+            for test, ds in tests.items():
+                p = predict(cfg, method, model, ds, "all")
+                _save_predictions(_predictions_path(cfg, train, test, method), p)
+                log(f"  {method}: {train} -> {test}: {_cell(score(cfg, p))}")
+        for test in cfg.test_on:
+            cell = f"{train} -> {test}"
+            others = [m for m in METHODS if m not in cfg.methods] if cfg.merge else []
+            for method in list(cfg.methods) + others:
+                path = _predictions_path(cfg, train, test, method)
+                if path.is_file():
+                    preds.setdefault(cell, {})[method] = p = _load_predictions(path)
+                    cells.setdefault(cell, {})[method] = score(cfg, p)
+    result = {"format": "aslip-transfer", "version": 2,
               "config": {k: (str(v) if isinstance(v, Path) else v)
                          for k, v in asdict(cfg).items()},
-              "cells": cells}
+              "aslip_method": aslip_recipe(),
+              "cells": cells, "targets": {c: targets(p, cfg.n_boot, cfg.seed)
+                                          for c, p in preds.items()}}
     write_json(cfg.out / "transfer.json", result)
     write_text(cfg.out / "transfer.md", table_markdown(result))
     return result
@@ -206,9 +270,14 @@ def table_markdown(result: dict[str, Any]) -> str:
     lines = ["# Transfer: trained on one scene, tested on scenes no model saw", "",
              "Cells: value [95 % trial-bootstrap interval]. **Bold**: the best method of the "
              "column; *italic*: cannot be told apart from it (overlapping intervals).", ""]
+    from aslip_ros.experiments.transfer_targets import targets_markdown
+    lines += [f"`aslip`: {result.get('aslip_method', '')}. The training scene is tested on a "
+              "fresh draw of it (other seeds), every held-out scene on all its trials.", ""]
     for cell, rows in result["cells"].items():
         n = max((r.get("n_trials", 0) for r in rows.values()), default=0)
-        lines += [f"## {cell} ({n} test trials)", "",
+        train, test = cell.split(" -> ")
+        what = "fresh draw of the training scene, " if train == test else ""
+        lines += [f"## {cell} ({what}{n} test trials)", "",
                   "| method | " + " | ".join(h for _, h, _ in KEYS) + " |",
                   "|---|" + "---|" * len(KEYS)]
         marks = {key: best_and_ties(rows, key) for key, _, _ in KEYS}
@@ -220,6 +289,7 @@ def table_markdown(result: dict[str, Any]) -> str:
                 out.append(f"**{s}**" if m == best else f"*{s}*" if m in ties else s)
             lines.append(f"| {m} | " + " | ".join(out) + " |")
         lines.append("")
+    lines += targets_markdown(result.get("targets", {}))
     return "\n".join(lines)
 
 
@@ -228,7 +298,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", default="data/transfer", help="bags, datasets and models")
     p.add_argument("--train-on", default="default", help="comma-separated scenes to train on")
     p.add_argument("--test-on", default=",".join(SCENES), help="comma-separated scenes")
-    p.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
+    p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                   help=f"comma-separated methods out of {','.join(METHODS)}")
+    p.add_argument("--merge", action="store_true",
+                   help="tables also show the cached predictions of the methods not run")
     p.add_argument("--trials", type=int, default=2, help="trials per object and condition")
     p.add_argument("--duration", type=float, default=10.0, help="seconds per trial")
     p.add_argument("--time-budget", type=float, default=300.0,
@@ -253,7 +326,7 @@ def config_from_args(args: argparse.Namespace) -> TransferConfig:
                          methods=names(args.methods, METHODS, "method"), trials=args.trials,
                          duration_s=args.duration, time_budget_s=args.time_budget,
                          epochs=args.epochs, threads=args.threads,
-                         progress=not args.no_progress)
+                         progress=not args.no_progress, merge=args.merge)
     if args.quick:
         cfg.objects, cfg.trials, cfg.duration_s = OBJECTS[:2], 1, 4.0
         cfg.time_budget_s, cfg.epochs, cfg.n_boot = 20.0, 2, 50

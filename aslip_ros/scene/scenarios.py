@@ -31,11 +31,8 @@ _EXCURSION_M = 0.02
 #: Pause between an agent's touches [s] (uniform range) and the longest slide of one push [m].
 _TOUCH_GAP_S = (0.1, 0.8)
 _PUSH_TRAVEL_M = 0.04
-#: Per-grasp coupling range of the coupling variant [+-dB per microphone] (docs/scene.md).
-COUPLING_DB = 3.0
-#: Per-grasp path difference of handling noise to each microphone in that variant [+-dB]; the
-#: same spread the scene gives robot noise (``Synth._robot_coupling``).
-HANDLING_PATH_DB = 1.0
+#: Share of an agent's slipping pushes that are impulsive (the rest are sustained).
+_IMPULSIVE_SHARE = 0.4375
 
 
 @dataclass(frozen=True)
@@ -65,6 +62,7 @@ class Scenario:
     drag_speed_m_s: float = 0.04
     one_sided_fraction: float = 0.0
     one_sided_spread_rad: float = np.pi / 6.0
+    no_slip_touch_fraction: float = 0.2
     script: tuple[tuple[float, float, float, float], ...] = ()
     trial_id: str = ""
     acoustics: Acoustics = field(default_factory=Acoustics)
@@ -109,6 +107,9 @@ class Scenario:
         if not 0.0 <= self.one_sided_fraction <= 1.0:
             raise ValueError(f"one_sided_fraction must lie in [0, 1], got "
                              f"{self.one_sided_fraction}")
+        if not 0.0 <= self.no_slip_touch_fraction < 1.0:
+            raise ValueError(f"no_slip_touch_fraction must lie in [0, 1), got "
+                             f"{self.no_slip_touch_fraction}")
         if not 0.0 <= self.one_sided_spread_rad <= np.pi:
             raise ValueError(f"one_sided_spread_rad must lie in [0, pi], got "
                              f"{self.one_sided_spread_rad}")
@@ -287,41 +288,6 @@ def _is_one_sided(e: np.ndarray, scn: Scenario) -> bool:
     return bool(abs(d) <= scn.one_sided_spread_rad + 1e-12)
 
 
-def coupling_variant(scn: Scenario, gain_db: float = COUPLING_DB,
-                     path_db: float = HANDLING_PATH_DB) -> Scenario:
-    """``scn`` with per-grasp microphone coupling: each channel's gain uniform in +-gain_db,
-    and the hand's noise reaching each channel with its own +-path_db (not common mode)."""
-    return scn.with_(acoustics=replace(scn.acoustics, gain_mismatch_db=float(gain_db),
-                                       handling_path_db=float(path_db)))
-
-
-def one_sided_variant(scn: Scenario, fraction: float = 0.8,
-                      spread_rad: float = np.pi / 6.0) -> Scenario:
-    """``scn`` where ``fraction`` of the pushes go within +-spread_rad of one direction."""
-    return scn.with_(one_sided_fraction=float(fraction), one_sided_spread_rad=float(spread_rad))
-
-
-#: A lab's motion capture in the mocap variant (docs/scene.md): rate [Hz], per-axis marker
-#: noise [m], share of dropped frames, latency [s].
-LAB_MOCAP = {"mocap_rate_hz": 100.0, "mocap_noise_m": 3e-4, "mocap_drop_prob": 0.02,
-             "mocap_latency_s": 0.015}
-
-
-def mocap_variant(scn: Scenario) -> Scenario:
-    """``scn`` seen by a lab's motion capture: slower, noisier, with more dropped frames and
-    latency than the scene's default (``LAB_MOCAP``)."""
-    return scn.with_(**LAB_MOCAP)
-
-
-#: The scene variants by name (``aslip simulate --variant``): each maps a scenario to its
-#: variant. ``one_sided`` includes the coupling, as any real grasp has it.
-VARIANTS = {
-    "coupling": coupling_variant,
-    "one_sided": lambda scn: one_sided_variant(coupling_variant(scn)),
-    "mocap": mocap_variant,
-}
-
-
 def _slip_speed(rng: np.random.Generator, scn: Scenario, fast_max: float) -> float:
     """Slip speed: a share of slow slip near a few mm/s, the rest up to ``fast_max``."""
     if rng.random() < scn.slow_fraction:
@@ -378,14 +344,15 @@ def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, P
         preload = rng.uniform(0.05, 0.3)
         t0 = t_touch + preload
         kind = rng.random()
+        pushes = 1.0 - scn.no_slip_touch_fraction
         pulses = []
-        if kind < 0.35:                                   # impulsive push
+        if kind < _IMPULSIVE_SHARE * pushes:              # impulsive push
             dur = rng.uniform(0.04, 0.15)
             speed = float(rng.uniform(0.02, scn.max_slip_speed_m_s))
             e = _push_direction(rng, scn, planned)
             pulses.append((t0, t0 + dur, 0.5 * dur, e * speed, 0.0))
             planned = planned + e * speed * 0.5 * dur
-        elif kind < 0.8:                                  # sustained push, may curve
+        elif kind < pushes:                               # sustained push, may curve
             speed = _slip_speed(rng, scn, 0.06)
             dur = rng.uniform(0.3, 2.0)
             ramp = min(rng.uniform(0.05, 0.2), dur / 3.0)
@@ -439,3 +406,9 @@ def script_train(scn: Scenario) -> PulseTrain:
     def gen(t: float):
         return pulses, np.inf
     return PulseTrain(2, gen)
+
+
+# The variants live in their own module; re-exported here, where the scenarios are.
+from .variants import (COUPLING_DB, HANDLING_PATH_DB, LAB_MOCAP, VARIANTS,  # noqa: E402,F401
+                       confounders_variant, contact_variant, coupling_variant,
+                       mocap_variant, one_sided_variant)
