@@ -115,6 +115,6 @@ def test_train_help_documents_every_stage_and_its_default(capsys):
     text = " ".join(capsys.readouterr().out.split())
     i = text.rindex("--stage {")          # the option, not the usage line
     doc = text[i:text.index("--init INIT", i)]
-    assert "(default: scratch)" in doc
+    assert "(default: auto)" in doc
     for stage in STAGES:
         assert f"{stage}:" in doc, stage

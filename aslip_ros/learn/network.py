@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Sequence
 
 import torch
 from torch import nn
@@ -123,6 +123,10 @@ class TemporalAttentionPool(nn.Module):
         return (h * a).sum(dim=2)
 
 
+#: The encoder's sub-modules, input to output (``SlipNet.freeze_encoder(trainable=...)``).
+ENCODER_PARTS = ("attention", "conv2d", "conv1d", "pool")
+
+
 class Encoder(nn.Module):
     """Normalised log-mel ``(B, C, M, T)`` -> latent ``(B, temporal_channels)``."""
 
@@ -205,11 +209,19 @@ class SlipNet(nn.Module):
         magnitude = F.softplus(self.heads["magnitude"](z).squeeze(1)) * self.cfg.speed_scale
         return SlipOutput(logit, magnitude, self.heads["direction"](z))
 
-    def freeze_encoder(self) -> None:
-        """Stop every encoder update: no gradients and batch-norm statistics fixed."""
+    def freeze_encoder(self, trainable: Sequence[str] = ()) -> None:
+        """Stop encoder updates: no gradients and batch-norm statistics fixed, except the
+        weights of the encoder sub-modules named in ``trainable`` (e.g. ``("conv1d",
+        "pool")`` for the temporal layers; ``ENCODER_PARTS`` for all), which keep their
+        gradients. Batch-norm statistics stay fixed throughout: a small finetuning set would
+        otherwise re-estimate them from few grasps."""
+        unknown = set(trainable) - set(ENCODER_PARTS)
+        if unknown:
+            raise ValueError(f"unknown encoder parts {sorted(unknown)}; have {ENCODER_PARTS}")
         self._encoder_frozen = True
-        for p in self.encoder.parameters():
-            p.requires_grad_(False)
+        for name, mod in self.encoder.named_children():
+            for p in mod.parameters():
+                p.requires_grad_(name in trainable)
         self.encoder.eval()
 
     def train(self, mode: bool = True) -> "SlipNet":

@@ -1,10 +1,16 @@
-"""Training: the paper's two-stage recipe and the SVM baseline (``aslip train``).
+"""Training: the recipe chosen on the user's data, the paper's two-stage recipe and the SVM
+baseline (``aslip train``).
 
 Stages:
+  auto      (default) train the candidate recipes within a time budget and keep the one
+            best on the validation trials (learn/recipes.py, docs/model.md)
   pretrain  all weights on (robot-induced) data          -> a checkpoint to finetune from
   finetune  from ``--init``: encoder frozen, heads only  (externally-induced data)
   scratch   all weights, no initialisation               (e.g. "single mic, no pretrain")
   svm       the handcrafted-feature SVM baseline
+
+``--device`` (default cpu; auto: a CUDA GPU where torch sees one) moves the network and its
+batches; checkpoints always hold CPU tensors.
 
 Per-grasp calibration (``--calibration``, default ``background`` on the command line): the
 constants are fitted on the training trials and every window is read with its own trial's
@@ -41,11 +47,12 @@ from .evaluate import compute_metrics
 from .features import FeatureConfig, normalization_stats
 from .losses import LossWeights
 from .network import ModelConfig, SlipNet
+from .output_calibration import checkpoint_fields
 from .svm import SvmConfig, SvmFeaturizer, fit_svm
 from .train_data import Batches, feature_cache, split_windows
-from .train_loop import evaluate_loss, run_epochs
+from .train_loop import DEVICES, evaluate_loss, resolve_device, run_epochs
 
-STAGES = ("pretrain", "finetune", "scratch", "svm", "stream")
+STAGES = ("auto", "pretrain", "finetune", "scratch", "svm", "stream")
 CALIBRATIONS = ("off",) + METHODS
 
 
@@ -75,10 +82,18 @@ class TrainConfig:
     induced: str | None = None
     objects: tuple[str, ...] | None = None
     conditions: tuple[str, ...] | None = None
+    device: str = "cpu"            # auto | cpu | cuda (train_loop.resolve_device)
+    encoder_lr_scale: float = 1.0  # learning rate of trainable encoder weights, times lr
+    # Encoder parts a finetune trains (network.ENCODER_PARTS); () is the paper's frozen one.
+    finetune_trainable: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.stage not in STAGES:
             raise ValueError(f"stage must be one of {STAGES}, got {self.stage!r}")
+        if self.device not in DEVICES:
+            raise ValueError(f"device must be one of {DEVICES}, got {self.device!r}")
+        if not self.encoder_lr_scale > 0:
+            raise ValueError("encoder_lr_scale must be positive")
         if self.epochs < 1 or self.batch_size < 2 or self.patience < 1:
             raise ValueError("epochs >= 1, batch_size >= 2 and patience >= 1 are required")
         if self.calibration not in CALIBRATIONS:
@@ -93,6 +108,7 @@ class TrainConfig:
         d = dataclasses.asdict(self)
         for k in ("objects", "conditions"):
             d[k] = list(d[k]) if d[k] else None
+        d["finetune_trainable"] = list(self.finetune_trainable)
         return d
 
 
@@ -128,10 +144,16 @@ def _provenance(ds: WindowSet, cfg: TrainConfig, init: str | None) -> dict[str, 
 
 # --- CNN ----------------------------------------------------------------------------------
 
-def _open_init(ds: WindowSet, cfg: TrainConfig, init: str | os.PathLike | None
+def _init_name(init: str | os.PathLike | Checkpoint | None) -> str | None:
+    if isinstance(init, Checkpoint):
+        return "in memory, pretrained on " + str(init.meta.get("provenance", {}).get("dataset"))
+    return str(init) if init else None
+
+
+def _open_init(ds: WindowSet, cfg: TrainConfig, init: str | os.PathLike | Checkpoint | None
                ) -> Checkpoint | None:
     """The checkpoint to finetune from, checked against the dataset (None without one)."""
-    init_ckpt = load_checkpoint(init) if init else None
+    init_ckpt = init if isinstance(init, Checkpoint) else load_checkpoint(init) if init else None
     if cfg.stage == "finetune" and init_ckpt is None:
         raise ValueError("--stage finetune needs --init <checkpoint>")
     if init_ckpt is None:
@@ -177,11 +199,14 @@ def _cnn_meta(ds: WindowSet, cfg: TrainConfig, model: SlipNet, fcfg: FeatureConf
 
 def train_cnn(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig | None = None,
               model_options: dict[str, Any] | None = None,
-              channels: Sequence[str] | None = None, init: str | os.PathLike | None = None,
+              channels: Sequence[str] | None = None,
+              init: str | os.PathLike | Checkpoint | None = None,
               weights: LossWeights = LossWeights(), cache_dir: str | os.PathLike | None = None,
               log: Callable[[str], None] = print) -> TrainResult:
-    """Train (pretrain / scratch) or finetune (``init`` given, encoder frozen) the CNN."""
+    """Train (pretrain / scratch) or finetune (``init`` given, a path or a loaded checkpoint;
+    encoder frozen but for ``cfg.finetune_trainable``) the CNN on ``cfg.device``."""
     torch.set_num_threads(max(1, cfg.threads))
+    device = resolve_device(cfg.device)
     _seed_everything(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     init_ckpt = _open_init(ds, cfg, init)
@@ -202,13 +227,16 @@ def train_cnn(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
 
     model = _build_model(ds, init_ckpt, feats, tr, channels, fcfg, model_options, rng)
     if cfg.stage == "finetune":
-        model.freeze_encoder()
+        model.freeze_encoder(cfg.finetune_trainable)
+    model.to(device)
     fit = run_epochs(model, data, tr, va, cfg, weights, rng, log)
 
     _, pred = evaluate_loss(model, data, va, weights)
+    model.to("cpu")
     val_metrics = compute_metrics(pred["prob"], pred["v"], data.v[va], data.slip[va],
                                   ds.window_s)
-    prov = _provenance(ds, cfg, str(init) if init else None)
+    prov = _provenance(ds, cfg, _init_name(init))
+    prov["device"] = str(device)
     if init_ckpt is not None:
         prov["init_provenance"] = {k: init_ckpt.meta.get("provenance", {}).get(k)
                                    for k in ("dataset", "stage", "seed", "git_revision")}
@@ -218,6 +246,7 @@ def train_cnn(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
                           "feature_time_s": t_feat, "n_train_windows": int(tr.size),
                           "n_val_windows": int(va.size)})
     meta = _cnn_meta(ds, cfg, model, fcfg, channels, weights, cal, prov)
+    meta.update(checkpoint_fields(pred["prob"], pred["v"], data.v[va], data.slip[va]))
     model.eval()
     tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
     return TrainResult(meta=meta, tensors=tensors, history=fit.history, model=model)
@@ -267,6 +296,7 @@ def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
         calibration=cal, train_config=cfg.to_dict(),
         normalization={"mean": arrays.mean.tolist(), "std": arrays.std.tolist(),
                        "scope": "per handcrafted feature over training windows"})
+    meta.update(checkpoint_fields(prob, v, ds.velocity(va), ds.slip(va)))
     return TrainResult(meta=meta, tensors=arrays.to_tensors(), history=[], model=arrays)
 
 
@@ -279,20 +309,35 @@ def _csv(s: str | None) -> list[str] | None:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     d, m, f = TrainConfig(), ModelConfig(), FeatureConfig()
     p.add_argument("--dataset", required=True, help="dataset directory (aslip export)")
-    p.add_argument("--stage", choices=STAGES, default="scratch",
-                   help="pretrain: the CNN on robot-induced data; finetune: the heads on "
+    p.add_argument("--stage", choices=STAGES, default="auto",
+                   help="auto: train the candidate recipes (--recipes) within "
+                        "--time-budget and keep the best on the validation trials; "
+                        "pretrain: the CNN on robot-induced data; finetune: the heads on "
                         "another set from --init (the paper's frozen encoder); scratch: "
                         "every weight on this dataset; svm: the paper's SVM baseline; "
                         "stream: the causal streaming estimator (docs/streaming.md)")
     p.add_argument("--init", default=None, help="checkpoint to finetune (--stage finetune)")
+    p.add_argument("--pretrain-dataset", default=None,
+                   help="--stage auto: a robot-induced dataset to pretrain the encoder on "
+                        "(optional; the frozen/partial/unfrozen recipes need it)")
+    p.add_argument("--recipes", default=None,
+                   help="--stage auto: comma-separated candidates out of "
+                        "frozen,partial,unfrozen,scratch,svm (default all)")
+    p.add_argument("--seeds", default="0,1",
+                   help="--stage auto: training seeds of the scratch candidate")
+    p.add_argument("--device", choices=DEVICES, default=d.device,
+                   help="where the network trains: cpu (default), cuda, or auto (a CUDA GPU "
+                        "where torch sees one, else the CPU)")
     p.add_argument("--out", required=True, help="checkpoint file to write")
     p.add_argument("--seed", type=int, default=d.seed, help="training seed")
     p.add_argument("--split-seed", type=int, default=d.split_seed,
                    help="seed of the by-trial split (keep fixed across training seeds)")
     p.add_argument("--epochs", type=int, default=d.epochs, help="maximum epochs")
     p.add_argument("--patience", type=int, default=d.patience, help="early-stopping epochs")
-    p.add_argument("--time-budget", type=float, default=d.time_budget_s,
-                   help="seconds of training after which the best epoch is kept")
+    p.add_argument("--time-budget", type=float, default=None,
+                   help="seconds of training after which the best epoch is kept (default "
+                        f"{d.time_budget_s:g}); --stage auto: the whole call's budget, "
+                        "shared among the candidates (default 960)")
     p.add_argument("--batch-size", type=int, default=d.batch_size)
     p.add_argument("--lr", type=float, default=d.lr)
     p.add_argument("--weight-decay", type=float, default=d.weight_decay)
@@ -337,6 +382,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.time_budget is None and args.stage != "auto":
+        args.time_budget = TrainConfig.time_budget_s
     if args.stage == "stream":     # the causal streaming estimator (learn/train_stream.py)
         from .train_stream import run_from_args
         return run_from_args(args)
@@ -348,23 +395,27 @@ def run(args: argparse.Namespace) -> int:
         cfg = TrainConfig(stage=args.stage, epochs=args.epochs, batch_size=args.batch_size,
                           lr=args.lr, weight_decay=args.weight_decay, patience=args.patience,
                           seed=args.seed, split_seed=args.split_seed,
-                          noslip_ratio=args.noslip_ratio, time_budget_s=args.time_budget,
+                          noslip_ratio=args.noslip_ratio,
+                          time_budget_s=args.time_budget or TrainConfig.time_budget_s,
                           gain_db=args.gain_db, channel_gain_db=args.channel_gain_db,
                           threads=args.threads, progress=not args.no_progress,
-                          calibration=args.calibration,
+                          calibration=args.calibration, device=args.device,
                           induced=args.induced, objects=tuple(_csv(args.objects) or ()) or None,
                           conditions=tuple(_csv(args.conditions) or ()) or None)
         fcfg = FeatureConfig(sample_rate=args.feature_rate, n_fft=args.n_fft, hop=args.hop,
                              n_mels=args.n_mels, fmin=args.fmin, fmax=args.fmax)
+        svm_config = SvmConfig(C=args.svm_c, max_train=args.svm_max_train)
+        model_options = dict(width=args.width, depth=args.depth,
+                             temporal_channels=args.temporal_channels,
+                             temporal_layers=args.temporal_layers,
+                             head_hidden=args.head_hidden, dropout=args.dropout, gate=args.gate)
+        if args.stage == "auto":
+            from .recipes import run_selected
+            return run_selected(args, ds, cfg, fcfg, model_options, svm_config)
         if args.stage == "svm":
             res = train_svm(ds, cfg, feature_config=fcfg, channels=_csv(args.channels),
-                            svm_config=SvmConfig(C=args.svm_c, max_train=args.svm_max_train))
+                            svm_config=svm_config)
         else:
-            model_options = dict(width=args.width, depth=args.depth,
-                                 temporal_channels=args.temporal_channels,
-                                 temporal_layers=args.temporal_layers,
-                                 head_hidden=args.head_hidden, dropout=args.dropout,
-                                 gate=args.gate)
             res = train_cnn(ds, cfg, feature_config=fcfg, model_options=model_options,
                             channels=_csv(args.channels), init=args.init,
                             cache_dir=args.cache_dir)

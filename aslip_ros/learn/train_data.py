@@ -97,15 +97,16 @@ class Batches:
         self.slip = ds.slip(all_idx)
         self.prev = ds.previous_index()
 
-    def labels(self, b: np.ndarray) -> dict[str, torch.Tensor]:
+    def labels(self, b: np.ndarray, device: torch.device | str = "cpu"
+               ) -> dict[str, torch.Tensor]:
         prev = self.prev[b]
         valid = prev >= 0
         pv = np.where(valid[:, None], self.v[np.maximum(prev, 0)], 0.0).astype(np.float32)
         valid &= self.slip[np.maximum(prev, 0)]
-        return {"v_true": torch.from_numpy(self.v[b]),
-                "slip": torch.from_numpy(self.slip[b]),
-                "prev_v_true": torch.from_numpy(pv),
-                "prev_valid": torch.from_numpy(valid)}
+        return {"v_true": torch.from_numpy(self.v[b]).to(device),
+                "slip": torch.from_numpy(self.slip[b]).to(device),
+                "prev_v_true": torch.from_numpy(pv).to(device),
+                "prev_valid": torch.from_numpy(valid).to(device)}
 
     def x(self, b: np.ndarray) -> np.ndarray:
         # Sorted reads are much faster on a memory map; restore the batch order after.

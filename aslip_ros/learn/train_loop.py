@@ -1,4 +1,10 @@
-"""The CNN's epoch loop: augmentation, balanced epochs, early stopping, a time budget."""
+"""The CNN's epoch loop: augmentation, balanced epochs, early stopping, a time budget.
+
+``resolve_device`` reads ``--device``: ``cpu`` (the default), ``cuda`` (an error naming the
+cause when torch sees no CUDA GPU) or ``auto`` (CUDA where torch sees a GPU, else the CPU).
+Features, augmentation and metrics stay on the CPU in numpy; only batches and the network
+move, and the caller moves the network back before its weights are saved.
+"""
 
 from __future__ import annotations
 
@@ -19,6 +25,23 @@ if TYPE_CHECKING:
     from .train import TrainConfig
 
 _DB_TO_LOG_POWER = math.log(10.0) / 10.0  # +1 dB amplitude-power gain in natural-log power
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(name: str) -> torch.device:
+    """The torch device for ``--device``; ValueError for ``cuda`` without a usable GPU."""
+    if name not in DEVICES:
+        raise ValueError(f"device must be one of {DEVICES}, got {name!r}")
+    has_cuda = torch.cuda.is_available()
+    if name == "cuda" and not has_cuda:
+        raise ValueError("--device cuda but torch sees no CUDA GPU (torch "
+                         f"{torch.__version__}, torch.cuda.is_available() is False); use "
+                         "--device cpu, or auto to take a GPU only where there is one")
+    return torch.device("cuda" if name == "cuda" or (name == "auto" and has_cuda) else "cpu")
+
+
+def _device_of(model: SlipNet) -> torch.device:
+    return model.feat_mean.device
 
 
 def augment(x: np.ndarray, mean: np.ndarray, rng: np.random.Generator,
@@ -61,22 +84,35 @@ def evaluate_loss(model: SlipNet, data: Batches, idx: np.ndarray, weights: LossW
                   bs: int = 1024) -> tuple[float, dict[str, np.ndarray]]:
     """Mean loss over ``idx`` and the model's p(slip) and ungated velocity there."""
     model.eval()
+    dev = _device_of(model)
     total, n = 0.0, 0
     probs, vels = [], []
     with torch.inference_mode():
         for s in range(0, idx.size, bs):
             b = idx[s:s + bs]
-            out = model(torch.from_numpy(data.x(b)))
+            out = model(torch.from_numpy(data.x(b)).to(dev))
             loss, _ = slip_loss(out, speed_scale=model.cfg.speed_scale, weights=weights,
-                                **data.labels(b))
+                                **data.labels(b, dev))
             total += float(loss) * b.size
             n += b.size
             d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
-            probs.append(torch.sigmoid(out.logit).numpy())
-            vels.append((d * out.magnitude[:, None]).numpy())
+            probs.append(torch.sigmoid(out.logit).cpu().numpy())
+            vels.append((d * out.magnitude[:, None]).cpu().numpy())
     pred = {"prob": np.concatenate(probs) if probs else np.zeros(0),
             "v": np.concatenate(vels) if vels else np.zeros((0, 2))}
     return total / max(n, 1), pred
+
+
+def param_groups(model: SlipNet, lr: float, encoder_lr_scale: float) -> list[dict[str, Any]]:
+    """Trainable weights as Adam groups: the encoder's at ``lr * encoder_lr_scale`` (a
+    finetuned encoder moves less than the new heads), the rest at ``lr``."""
+    enc = [p for p in model.encoder.parameters() if p.requires_grad]
+    ids = {id(p) for p in enc}
+    rest = [p for p in model.parameters() if p.requires_grad and id(p) not in ids]
+    groups = [{"params": rest, "lr": lr}]
+    if enc:
+        groups.append({"params": enc, "lr": lr * encoder_lr_scale})
+    return groups
 
 
 @dataclass
@@ -101,12 +137,13 @@ def _train_epoch(model: SlipNet, data: Batches, order: np.ndarray, opt: torch.op
         from tqdm import tqdm
         batches = tqdm(batches, desc=label, unit="batch", leave=False)
     run_loss = 0.0
+    dev = _device_of(model)
     for i in batches:
         b = order[i * cfg.batch_size:(i + 1) * cfg.batch_size]
-        x = torch.from_numpy(augment(data.x(b), feat_mean, rng, cfg))
+        x = torch.from_numpy(augment(data.x(b), feat_mean, rng, cfg)).to(dev)
         out = model(x)
         loss, _ = slip_loss(out, speed_scale=model.cfg.speed_scale, weights=weights,
-                            **data.labels(b))
+                            **data.labels(b, dev))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -119,9 +156,9 @@ def run_epochs(model: SlipNet, data: Batches, tr: np.ndarray, va: np.ndarray,
                log: Callable[[str], None]) -> Fit:
     """Adam on the trainable weights until ``cfg.epochs``, ``cfg.patience`` epochs without a
     better validation loss, or ``cfg.time_budget_s``; the best epoch's weights are loaded."""
-    params = [p for p in model.parameters() if p.requires_grad]
-    opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
-    feat_mean = model.feat_mean.numpy().copy()
+    opt = torch.optim.Adam(param_groups(model, cfg.lr, cfg.encoder_lr_scale), lr=cfg.lr,
+                           weight_decay=cfg.weight_decay)
+    feat_mean = model.feat_mean.detach().cpu().numpy().copy()
     best = (math.inf, -1, copy.deepcopy(model.state_dict()))
     history: list[dict[str, float]] = []
     t_start = time.perf_counter()
