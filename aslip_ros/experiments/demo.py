@@ -9,13 +9,17 @@ Both tasks run through the real nodes and topics: ``scene_sim`` audio -> ``slip_
 - slip-track: an agent drags the object in the grasp; the arm follows the predicted slip.
   Metric: RMSE of the gripper-object relative position in the grasp plane.
 
-Five objects x ``--trials`` trials per task, A-SLIP (CNN) against the SVM baseline. Episodes
+Five objects x ``--trials`` trials per task and method: A-SLIP (CNN) with the live per-grasp
+calibration (``aslip``) and without it (``aslip_uncalibrated``), the SVM baseline (calibrated)
+and the causal streaming estimator (``stream``); the scene couples every microphone
+differently in every grasp (scene version 3). Episodes
 run in real time, so a small pool of worker processes each runs many of them in sequence
 (:mod:`aslip_ros.experiments.demo_episode`: fresh context and domain per episode, the node
 classes composed in the worker). Results: ``<out>/summary.json``, ``<out>/table.md`` (beside
 the paper's numbers), ``<out>/*.png`` and per-episode traces in ``<out>/episodes/``.
 
-Models: the shipped ``models/aslip_cnn.pt`` and ``models/svm.pt`` when they match the scene
+Models: the shipped window checkpoints (``models/aslip_cnn.pt``,
+``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``) when they match the scene
 (``models/manifest.json``), otherwise they are retrained first (``--train-models`` forces it;
 :mod:`aslip_ros.experiments.demo_models`).
 """
@@ -42,7 +46,7 @@ from aslip_ros.experiments.demo_episode import (TASKS, Episode, StopSettings, Tr
 from aslip_ros.experiments.demo_models import OBJECTS
 from aslip_ros.util import write_json, write_text
 
-METHODS = ("aslip", "svm", "stream")
+METHODS = ("aslip", "aslip_uncalibrated", "svm", "stream")
 #: The causal streaming estimator's checkpoint in --models (docs/streaming.md; trained by
 #: ``python -m aslip_ros.experiments.lag``, not by --train-models).
 STREAM_NAME = "aslip_stream.pt"
@@ -60,6 +64,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="(re)train the demo checkpoints into --models and exit")
     p.add_argument("--train-data", default="data/demo", help="scratch data for --train-models")
     p.add_argument("--cnn", default=None, help="A-SLIP checkpoint (default: --models)")
+    p.add_argument("--cnn-uncalibrated", default=None,
+                   help="A-SLIP checkpoint without calibration (default: --models)")
     p.add_argument("--svm", default=None, help="SVM checkpoint (default: --models)")
     p.add_argument("--stream", default=None,
                    help=f"streaming checkpoint (default: --models/{STREAM_NAME})")
@@ -153,13 +159,16 @@ def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
     return eps
 
 
-def resolve_models(args) -> dict:
+def resolve_models(args, methods=METHODS) -> dict:
     """Checkpoint per method: explicit, shipped and matching, or freshly trained."""
     from aslip_ros.experiments import demo_models
     d = Path(args.models)
-    if args.cnn and args.svm:
-        return {"aslip": Path(args.cnn), "svm": Path(args.svm),
-                "stream": Path(args.stream or d / STREAM_NAME), "source": "command line"}
+    explicit = {"aslip": args.cnn, "aslip_uncalibrated": args.cnn_uncalibrated,
+                "svm": args.svm}
+    stream = Path(args.stream or d / STREAM_NAME)
+    if all(explicit[m] for m in methods if m in explicit):
+        return {**{m: Path(p) for m, p in explicit.items() if p}, "stream": stream,
+                "source": "command line"}
     man = demo_models.shipped_models(d)
     if man is None:
         print(f"[demo] no checkpoints in {d} for this scene version "
@@ -169,10 +178,8 @@ def resolve_models(args) -> dict:
         source = "trained now"
     else:
         source = f"shipped ({d / demo_models.MANIFEST})"
-    return {"aslip": Path(args.cnn or d / man["files"]["aslip"]),
-            "svm": Path(args.svm or d / man["files"]["svm"]),
-            "stream": Path(args.stream or d / STREAM_NAME), "source": source,
-            "test_metrics": man.get("test_metrics")}
+    return {**{m: Path(p or d / man["files"][m]) for m, p in explicit.items()},
+            "stream": stream, "source": source, "test_metrics": man.get("test_metrics")}
 
 
 def run_episodes(episodes: list[Episode], workers: int, trace_dir: Path,
@@ -273,10 +280,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"aslip demo: unknown task/method/object {bad} or --trials < 1",
               file=sys.stderr)
         return 2
-    models = resolve_models(args)
-    missing = [m for m in methods if not Path(models[m]).is_file()]
+    models = resolve_models(args, methods)
+    missing = [m for m in methods if m not in models or not Path(models[m]).is_file()]
     if missing:
-        print(f"aslip demo: no checkpoint for {missing}: {[str(models[m]) for m in missing]}",
+        print(f"aslip demo: no checkpoint for {missing}: "
+              f"{[str(models.get(m)) for m in missing]}",
               file=sys.stderr)
         return 1
     stop = replace(StopSettings(), approach_speed_m_s=args.approach_speed,

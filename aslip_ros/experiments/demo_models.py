@@ -1,10 +1,15 @@
-"""The demo's two checkpoints (A-SLIP CNN and the SVM baseline), trained on the scene.
+"""The demo's window checkpoints (A-SLIP CNN with and without per-grasp calibration, and the
+SVM baseline), trained on the scene.
 
 ``aslip demo --train-models`` runs this: simulate externally induced slip on the five
 objects with the scene's microphones (4mic, 200 ms windows), mostly with the arm moving,
-export it, train the CNN from scratch and the SVM on the same trials, evaluate both on the
-held-out test trials and write ``models/aslip_cnn.pt``, ``models/svm.pt`` and
-``models/manifest.json`` (scene version, command, metrics).
+export it, train the CNN from scratch twice (``--calibration background``, the default, and
+``off``) and the SVM (calibrated) on the same trials, evaluate them on the held-out test
+trials and write ``models/aslip_cnn.pt``, ``models/aslip_cnn_uncalibrated.pt``,
+``models/svm.pt`` and ``models/manifest.json`` (scene version, command, metrics).
+
+The scene couples every microphone differently in every grasp (scene version 3), so the
+uncalibrated CNN is the control that shows what the live calibration buys in closed loop.
 
 Why this set and not the paper's pretrain-then-finetune pair: in the closed-loop tasks the
 arm moves while nothing slips (retract, approach, following), and the robot-induced
@@ -25,6 +30,7 @@ from aslip_ros.util import write_json
 
 OBJECTS = ("pla_rod", "glass_cleaner", "chips_can", "mustard_container", "cracker_box")
 CNN_NAME = "aslip_cnn.pt"
+UNCALIBRATED_NAME = "aslip_cnn_uncalibrated.pt"
 SVM_NAME = "svm.pt"
 MANIFEST = "manifest.json"
 COMMAND = "aslip demo --train-models"
@@ -32,6 +38,10 @@ COMMAND = "aslip demo --train-models"
 RECIPE = {"robot_moving": 4, "robot_stationary": 2, "duration_s": 10.0, "hop_s": 0.05,
           "window_s": 0.2, "seed": 0, "time_budget_s": 240.0, "epochs": 40,
           "svm_max_train": 1500}
+#: Demo method -> (checkpoint file, ``aslip train`` stage, per-grasp calibration).
+MODELS = {"aslip": (CNN_NAME, "scratch", "background"),
+          "aslip_uncalibrated": (UNCALIBRATED_NAME, "scratch", "off"),
+          "svm": (SVM_NAME, "svm", "background")}
 
 
 def scene_version() -> str:
@@ -48,15 +58,18 @@ def scene_version() -> str:
 
 
 def shipped_models(models_dir: str | Path) -> dict | None:
-    """The manifest when both checkpoints exist and match the current scene, else None."""
+    """The manifest when every model of :data:`MODELS` is listed, exists and was trained for
+    the current scene, else None (a stale or partial set is retrained, never mixed)."""
     d = Path(models_dir)
     try:
         man = json.loads((d / MANIFEST).read_text())
     except (OSError, ValueError):
         return None
-    if man.get("scene_version") != scene_version():
+    if not isinstance(man, dict) or man.get("scene_version") != scene_version():
         return None
-    if not (d / CNN_NAME).is_file() or not (d / SVM_NAME).is_file():
+    files = man.get("files")
+    if not isinstance(files, dict) or any(
+            not isinstance(files.get(m), str) or not (d / files[m]).is_file() for m in MODELS):
         return None
     return man
 
@@ -73,62 +86,81 @@ def aslip(argv: list[str]) -> int:
     return int(module.run(parser.parse_args(argv[1:])) or 0)
 
 
-def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data/demo",
-                 progress: bool = True, threads: int = 2) -> dict:
-    """Simulate, export, train and evaluate; returns the manifest written to models_dir."""
+def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True) -> Path:
+    """Simulate and export the training set of the current scene; returns the dataset dir.
+
+    Bags are reused when present (simulate resumes), so each scene version gets its own
+    folder: audio from an older scene must never reach a model for the new one."""
     from aslip_ros.data.export import ExportConfig, export
     from aslip_ros.data.simulate import simulate
 
-    t0 = time.perf_counter()
     r = RECIPE
-    # Bags are reused when present (simulate resumes), so each scene version gets its own
-    # folder: audio from an older scene must never reach a model for the new one.
     data = Path(data_dir) / f"scene-{scene_version()}"
-    bags = data / "bags"
-    ds = data / "dataset"
-    out = Path(models_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    log = (lambda m: print(f"[demo models {time.perf_counter() - t0:6.0f} s] {m}",
-                           file=sys.stderr, flush=True))
+    bags, ds = data / "bags", data / "dataset"
     for cond in ("robot_moving", "robot_stationary"):
-        log(f"simulating {r[cond]} x {len(OBJECTS)} externally induced trials, {cond}")
+        _log(f"simulating {r[cond]} x {len(OBJECTS)} externally induced trials, {cond}")
         simulate(bags, "external", objects=list(OBJECTS), conditions=[cond], trials=r[cond],
                  duration_s=r["duration_s"], seed=r["seed"], layout="4mic",
                  progress=progress)
-    log("exporting")
+    _log("exporting")
     export([bags], ds, ExportConfig(window_s=r["window_s"], hop_s=r["hop_s"], overwrite=True,
                                     progress=progress))
+    return ds
+
+
+def _log(msg: str) -> None:
+    print(f"[demo models {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def train_command(method: str, dataset: str | Path, out: str | Path,
+                  threads: int = 2) -> list[str]:
+    """``aslip train`` arguments of one demo model (:data:`MODELS`)."""
+    r = RECIPE
+    _, stage, calibration = MODELS[method]
+    args = ["train", "--dataset", str(dataset), "--stage", stage, "--out", str(out),
+            "--seed", str(r["seed"]), "--calibration", calibration]
+    if stage == "svm":
+        return args + ["--svm-max-train", str(r["svm_max_train"])]
+    return args + ["--epochs", str(r["epochs"]), "--time-budget", str(r["time_budget_s"]),
+                   "--threads", str(threads)]
+
+
+def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data/demo",
+                 progress: bool = True, threads: int = 2) -> dict:
+    """Simulate, export, train and evaluate; returns the manifest written to models_dir."""
+    t0 = time.perf_counter()
+    ds = prepare_data(data_dir, progress)
+    out = Path(models_dir)
+    out.mkdir(parents=True, exist_ok=True)
     quiet = [] if progress else ["--no-progress"]
-    cnn, svm = out / CNN_NAME, out / SVM_NAME
-    log("training the CNN (scratch)")
-    if aslip(["train", "--dataset", str(ds), "--stage", "scratch", "--out", str(cnn),
-              "--seed", str(r["seed"]), "--epochs", str(r["epochs"]),
-              "--time-budget", str(r["time_budget_s"]), "--threads", str(threads)]
-             + quiet) != 0:
-        raise RuntimeError("CNN training failed")
-    log("training the SVM")
-    if aslip(["train", "--dataset", str(ds), "--stage", "svm", "--out", str(svm),
-              "--seed", str(r["seed"]), "--svm-max-train", str(r["svm_max_train"])]
-             + quiet) != 0:
-        raise RuntimeError("SVM training failed")
-    metrics = {}
-    for name, path in (("aslip_cnn", cnn), ("svm", svm)):
-        js = data / f"eval_{name}.json"
-        log(f"evaluating {name} on the test trials")
-        if aslip(["evaluate", "--checkpoint", str(path), "--dataset", str(ds), "--split",
-                  "test", "--json", str(js), "--threads", str(threads)]) != 0:
-            raise RuntimeError(f"evaluating {name} failed")
+    metrics, train_s = {}, {}
+    for method, (name, stage, calibration) in MODELS.items():
+        _log(f"training {method}: {stage}, calibration {calibration}")
+        t1 = time.perf_counter()
+        if aslip(train_command(method, ds, out / name, threads) + quiet) != 0:
+            raise RuntimeError(f"training {method} failed")
+        train_s[method] = round(time.perf_counter() - t1, 1)
+        js = ds.parent / f"eval_{method}.json"
+        _log(f"evaluating {method} on the test trials")
+        if aslip(["evaluate", "--checkpoint", str(out / name), "--dataset", str(ds),
+                  "--split", "test", "--json", str(js), "--threads", str(threads)]) != 0:
+            raise RuntimeError(f"evaluating {method} failed")
         overall = json.loads(js.read_text())["overall"]
-        metrics[name] = {k: overall.get(k) for k in
-                         ("n_windows", "detection_accuracy", "precision", "recall",
-                          "direction_mae_deg", "direction_std_deg", "magnitude_rmse_mm",
-                          "magnitude_std_mm")}
-    man = {"format": "aslip-demo-models", "version": 1, "scene_version": scene_version(),
-           "command": COMMAND, "recipe": dict(r), "objects": list(OBJECTS), "layout": "4mic",
-           "files": {"aslip": CNN_NAME, "svm": SVM_NAME},
-           "sizes_bytes": {CNN_NAME: cnn.stat().st_size, SVM_NAME: svm.stat().st_size},
-           "test_metrics": metrics, "train_s": round(time.perf_counter() - t0, 1),
+        metrics[method] = {k: overall.get(k) for k in
+                           ("n_windows", "detection_accuracy", "precision", "recall",
+                            "direction_mae_deg", "direction_std_deg", "magnitude_rmse_mm",
+                            "magnitude_std_mm")}
+    files = {m: v[0] for m, v in MODELS.items()}
+    man = {"format": "aslip-demo-models", "version": 2, "scene_version": scene_version(),
+           "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
+           "layout": "4mic", "files": files,
+           "calibration": {m: v[2] for m, v in MODELS.items()},
+           "train_commands": {m: "aslip " + " ".join(train_command(m, "D", f"models/{f}"))
+                              for m, f in files.items()},
+           "sizes_bytes": {f: (out / f).stat().st_size for f in files.values()},
+           "test_metrics": metrics, "train_s_per_model": train_s,
+           "train_s": round(time.perf_counter() - t0, 1),
            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
     write_json(out / MANIFEST, man)
-    log(f"wrote {cnn}, {svm} and {out / MANIFEST}")
+    _log(f"wrote {', '.join(files.values())} and {MANIFEST} in {out}")
     return man

@@ -12,7 +12,8 @@ import numpy as np
 
 from aslip_ros.util import atomic_path
 
-COLORS = {"aslip": "tab:blue", "svm": "tab:orange", "stream": "tab:green"}
+COLORS = {"aslip": "tab:blue", "aslip_uncalibrated": "tab:purple", "svm": "tab:orange",
+          "stream": "tab:green"}
 #: The slip-stop figure's zoom on the stop: the last seconds of each episode [s].
 ZOOM_S = 1.0
 
