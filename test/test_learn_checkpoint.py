@@ -158,6 +158,11 @@ BAD_META = {
     "no channels": {**_good_meta(), "channel_names": []},
     "duplicate channels": {**_good_meta(), "channel_names": ["a", "a", "b", "c"]},
     "threshold 3": {**_good_meta(), "threshold": 3},
+    "output calibration threshold": {**_good_meta(), "output_calibration": {
+        "threshold": 2.0, "direction_sigma": {"model": None}}},
+    "output calibration negative sigma": {**_good_meta(), "output_calibration": {
+        "threshold": 0.5, "direction_sigma": {"model": {"speed_edges_m_s": [],
+                                                        "sigma_rad": [-1.0]}}}},
     "unknown model type": {**_good_meta(), "model_type": "transformer"},
     "width text": {**_good_meta(), "model_config": {**_MC, "width": "4"}},
     "width fraction": {**_good_meta(), "model_config": {**_MC, "width": 2.5}},

@@ -102,3 +102,43 @@ def test_one_threshold_decides_and_is_reported(tmp_path):
         p.set_threshold(1.2)
     assert p.threshold == 0.8                       # a refused value changes nothing
     assert p.set_threshold(None) == 0.5 and p.predict(w).slipping
+
+
+SIGMA_DOC = {"threshold": 0.5, "direction_sigma": {"model": {
+    "speed_edges_m_s": [0.01, 0.03], "sigma_rad": [0.9, 0.3, 0.1]}}}
+
+
+def test_direction_sigma_comes_from_the_checkpoint_at_the_raw_speed(tmp_path):
+    """Old checkpoints (no output_calibration) load and report -1; a sigma model gives the
+    sigma of the estimate's ungated speed, whether or not it is above the threshold."""
+    from node_support import make_checkpoint
+
+    from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
+    plain = make_checkpoint(tmp_path / "p.pt", slip_logit=4.0, velocity=(0.02, -0.01))
+    old = Predictor.from_checkpoint(plain)
+    w = window(old)
+    assert old.sigma_model is None and old.predict(w).direction_sigma == -1.0
+    assert old.predict_batch(np.stack([w, w])).direction_sigma is None
+    for velocity, want in (((0.02, -0.01), 0.3), ((0.05, 0.0), 0.1), ((0.005, 0.0), 0.9)):
+        ck = load_checkpoint(make_checkpoint(tmp_path / "v.pt", slip_logit=4.0,
+                                             velocity=velocity))
+        save_checkpoint(tmp_path / "s.pt", dict(ck.meta, output_calibration=SIGMA_DOC),
+                        ck.tensors)
+        p = Predictor.from_checkpoint(tmp_path / "s.pt")
+        assert p.predict(w).direction_sigma == pytest.approx(want)
+        np.testing.assert_allclose(p.predict_batch(np.stack([w, w])).direction_sigma, want)
+        p.set_threshold(1.0)                             # gated: sigma still of the raw speed
+        assert not p.predict(w).slipping and p.predict(w).direction_sigma == pytest.approx(want)
+
+
+def test_streaming_predictor_reports_the_checkpoint_sigma(tmp_path):
+    from aslip_ros.learn.streaming_predictor import StreamingPredictor
+    from test_learn_streaming_model import audio, blocks, make_checkpoint
+    one_bin = {"threshold": 0.0, "direction_sigma": {"model": {"speed_edges_m_s": [],
+                                                               "sigma_rad": [0.4]}}}
+    bl = blocks(audio(n=9600, seed=1), 480)
+    for meta, want in (({}, -1.0), ({"output_calibration": one_bin}, 0.4)):
+        p = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "s.pt", **meta))
+        ests = [e for b in bl for e in p.push(b)]
+        assert ests
+        np.testing.assert_allclose([e.prediction.direction_sigma for e in ests], want)

@@ -34,9 +34,15 @@ def constants(names=SCENE_NAMES, **kw):
     return CalibrationConstants(**d)
 
 
+#: A direction-sigma model: 0.8 rad below 2 cm/s of predicted speed, 0.4 rad above.
+OUTPUT_CALIBRATION = {"threshold": 0.5, "direction_sigma": {"model": {
+    "speed_edges_m_s": [0.02], "sigma_rad": [0.8, 0.4]}}}
+
+
 def calibrated_checkpoint(path, k=None, sample_rate=RATE):
-    """make_checkpoint's untrained CNN (its answer depends on the audio) plus ``k``, written
-    without the save path's validation (so a mismatched one can be written too)."""
+    """make_checkpoint's untrained CNN (its answer depends on the audio) plus ``k`` and a
+    direction-sigma model, written without the save path's validation (so a mismatched
+    ``k`` can be written too)."""
     import json
 
     import torch
@@ -44,6 +50,7 @@ def calibrated_checkpoint(path, k=None, sample_rate=RATE):
     payload = torch.load(plain, weights_only=True)
     meta = json.loads(payload["meta"])
     meta["calibration"] = json.loads(json.dumps((k or constants()).to_dict()))
+    meta["output_calibration"] = OUTPUT_CALIBRATION
     payload["meta"] = json.dumps(meta)
     torch.save(payload, path)
     return path
@@ -153,10 +160,12 @@ def test_streaming_calibration_in_the_node_equals_offline(live):
         moved = max(moved, abs(want.vx - raw.vx), abs(want.vz - raw.vz))
         state = CalibrationState(k)
         state.update(frames[:, :, :cutter.count(e)])
-        want_sigma = math.pi if not state.converged else -1.0
+        # Uninformative until converged; then the checkpoint's sigma at the raw speed.
+        want_sigma = math.pi if not state.converged else want.direction_sigma
         assert m.direction_sigma == pytest.approx(want_sigma, abs=1e-6)
         sigmas.add(round(m.direction_sigma, 3))
-    assert sigmas == {round(math.pi, 3), -1.0}          # both before and after convergence
+    assert round(math.pi, 3) in sigmas                  # both before and after convergence
+    assert sigmas - {round(math.pi, 3)} and sigmas - {round(math.pi, 3)} <= {0.8, 0.4}
     assert moved > 1e-4                  # the uncalibrated answer would have differed
     final = CalibrationState(k)
     final.update(frames)

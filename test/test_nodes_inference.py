@@ -19,9 +19,16 @@ DIAG = "/aslip/diagnostics"
 
 @pytest.fixture(scope="module")
 def known_ckpt(tmp_path_factory):
-    """A model that always answers p = sigmoid(4) with velocity (0.02, -0.01) m/s."""
-    return make_checkpoint(tmp_path_factory.mktemp("ckpt") / "known.pt", slip_logit=4.0,
-                           velocity=(0.02, -0.01))
+    """A model that always answers p = sigmoid(4) with velocity (0.02, -0.01) m/s, with a
+    direction-sigma model that gives 0.3 rad at that speed (0.9 slower, 0.1 faster)."""
+    from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
+    where = tmp_path_factory.mktemp("ckpt")
+    ck = load_checkpoint(make_checkpoint(where / "plain.pt", slip_logit=4.0,
+                                         velocity=(0.02, -0.01)))
+    sigma = {"threshold": 0.5, "direction_sigma": {"model": {
+        "speed_edges_m_s": [0.01, 0.03], "sigma_rad": [0.9, 0.3, 0.1]}}}
+    return save_checkpoint(where / "known.pt", dict(ck.meta, output_calibration=sigma),
+                           ck.tensors)
 
 
 def _listen(bus):
@@ -55,6 +62,9 @@ def test_scene_audio_to_slip_vector(rclpy_context, ros_env, known_ckpt):
     assert last.probability == pytest.approx(1 / (1 + math.exp(-4.0)), abs=1e-4)
     assert (last.velocity.x, last.velocity.z) == pytest.approx((0.02, -0.01), abs=1e-5)
     assert last.header.frame_id == "aslip_grasp_plane"
+    # The checkpoint's calibrated direction uncertainty at this speed (no per-grasp
+    # calibration in this checkpoint, so nothing waits for one to converge).
+    assert all(m.direction_sigma == pytest.approx(0.3) for m in got if m.slipping)
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got]
     steps = np.diff(stamps) * 1e-9
     assert np.all(steps > 0)

@@ -10,7 +10,10 @@ The JSON document (``meta``, built by ``checkpoint_meta``) holds ``model_type`` 
 ``backends.MODELS``: "aslip_cnn", "svm", "aslip_stream" or a registered one), ``model_config``,
 ``feature_config``, ``normalization`` (per-mel-bin mean/std, also inside the CNN's state
 dict as buffers), ``channel_names``, ``layout``, ``sample_rate`` (Hz, the stream's rate),
-``window_s``, ``window_samples``, ``epsilon_m_s``, ``threshold`` and ``provenance``
+``window_s``, ``window_samples``, ``epsilon_m_s``, ``threshold``, optionally
+``output_calibration`` (the threshold's fit and the direction-sigma model, from the
+validation windows: learn/output_calibration.py; older checkpoints have none and report no
+sigma) and ``provenance``
 (dataset path, git revision, seed, stage, init checkpoint, metrics, versions). Keeping the
 metadata a JSON string means nothing in the file needs an unpickler beyond tensors.
 """
@@ -171,6 +174,9 @@ def validate_meta(meta: Any) -> list[str]:
         problems += meta_problems(meta["calibration"], names,
                                   None if fcfg is None else fcfg.n_mels,
                                   None if fcfg is None else fcfg.hop / fcfg.sample_rate)
+    if meta.get("output_calibration") is not None:
+        from .output_calibration import meta_problems as output_problems
+        problems += output_problems(meta["output_calibration"])
     return problems
 
 

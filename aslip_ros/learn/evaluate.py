@@ -14,6 +14,14 @@ Definitions (inputs in SI; the report converts to the paper's degrees and millim
   sqrt(mean(e^2)) and the population std of |e|. ``magnitude_rmse_gated_mm`` repeats it
   over all windows with the gated speed (zero below threshold), i.e. what a controller sees.
 
+Calibrated outputs (``output_calibration`` in the result; learn/output_calibration.py):
+``ece``, the expected calibration error of p(slip) over ten equal-width bins, with the
+bins themselves (``reliability``), and, for a checkpoint with a direction-sigma model,
+``sigma.coverage``: the fraction of scored slip windows (as for the direction error) whose
+error is at most the sigma the checkpoint reports for its predicted speed (about 0.68 when
+calibrated).
+``--reliability PATH.png`` draws both.
+
 Streaming checkpoints (``aslip_stream``) are scored on the same windows and labels: the
 estimator runs over each trial's audio from its start (a zero state, as the live node after
 a reset) and each window gets the newest estimate available at its end (the last frame
@@ -41,6 +49,7 @@ from aslip_ros.util import write_json
 from .backends import model_backend
 from .checkpoint import CheckpointMismatch, load_checkpoint
 from .data_io import open_dataset, select_windows
+from .output_calibration import calibration_check, plot_reliability
 
 
 def compute_metrics(prob: np.ndarray, raw_velocity: np.ndarray, true_velocity: np.ndarray,
@@ -200,6 +209,9 @@ def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str 
         "overall": compute_metrics(*args),
         "per_object": grouped_metrics(ds.trial_field("object", idx), *args),
         "per_condition": grouped_metrics(ds.trial_field("condition", idx), *args),
+        "output_calibration": calibration_check(
+            p["prob"], p["raw_velocity"], p["true_velocity"], p["slip"],
+            getattr(pred, "sigma_model", None)),
     }
 
 
@@ -215,6 +227,14 @@ def format_report(res: dict[str, Any]) -> str:
     lines = [f"{res['model_type']} {res['checkpoint']} on {res['dataset']} [{res['split']}]",
              row("overall", res["overall"])]
     lines += [row(f"  {k}", v) for k, v in res["per_object"].items()]
+    cal = res.get("output_calibration")
+    if cal is not None:
+        sig = cal["sigma"]
+        cover = "no sigma model in the checkpoint" if sig is None else (
+            f"{sig['coverage']:.1%} of {sig['n']} slip windows within direction sigma "
+            f"(target {sig['target']:.1%})" if sig["n"] else "no slip windows")
+        lines.append(f"calibration: threshold {res['overall']['threshold']:.2f}, "
+                     f"ECE {cal['ece']:.3f}; {cover}")
     return "\n".join(lines)
 
 
@@ -228,6 +248,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--conditions", default=None, help="comma-separated conditions to keep")
     p.add_argument("--threshold", type=float, default=None, help="p(slip) threshold (0.5)")
     p.add_argument("--json", default=None, help="write the metrics here as JSON")
+    p.add_argument("--reliability", default=None, metavar="PATH.png",
+                   help="draw the reliability diagram and the direction-sigma coverage")
     p.add_argument("--threads", type=int, default=2, help="torch threads")
 
 
@@ -245,6 +267,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"aslip evaluate: error: {exc}", file=sys.stderr)
         return 1
     print(format_report(res))
+    if args.reliability:
+        plot_reliability(args.reliability, res["output_calibration"],
+                         f"{res['model_type']} {Path(args.checkpoint).name} on "
+                         f"{Path(args.dataset).name} [{args.split}]")
+        print(f"wrote {args.reliability}")
     if args.json:
         write_json(args.json, res)
     else:

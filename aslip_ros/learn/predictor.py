@@ -10,6 +10,11 @@ evaluation. The predictor is the one holder of the decision threshold: a live us
 it with ``set_threshold`` and every estimate carries the threshold it was decided at, so a
 published decision and its reported threshold cannot disagree.
 
+Every estimate also carries ``direction_sigma`` [rad]: the one-sigma direction error the
+checkpoint's ``output_calibration`` gives for the estimate's ungated predicted speed
+(learn/output_calibration.py; about 68 % of validation and held-out slip windows fall
+within it), or -1 (unknown) for a checkpoint without one.
+
 A checkpoint with a per-grasp ``calibration`` (docs/model.md, "Per-grasp calibration") gets
 window offsets from the caller: offline ``calibration_frames.dataset_offsets``; live, feed
 every accepted audio block to ``push_audio`` and pass ``calibration_offsets()`` with the
@@ -38,6 +43,7 @@ from .calibration_frames import FrameCutter, StreamCalibration
 from .checkpoint import (Checkpoint, CheckpointFacts, CheckpointMismatch, check_compatible,
                          load_checkpoint)
 from .features import FeatureConfig, LogMel
+from .output_calibration import sigma_model
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,7 @@ class Prediction:
     direction: tuple[float, float]   # unit (x, z) when slipping, else (0, 0)
     window_length: float
     threshold: float = 0.5           # the decision threshold ``slipping`` was decided at
+    direction_sigma: float = -1.0    # one-sigma direction error [rad]; -1: unknown
 
 
 @dataclass(frozen=True)
@@ -62,6 +69,7 @@ class BatchPrediction:
     raw_velocity: np.ndarray   # (B, 2) ungated estimate
     window_length: float
     threshold: float = 0.5     # the decision threshold ``slipping`` was decided at
+    direction_sigma: np.ndarray | None = None   # (B,) [rad] from the raw speed; None: unknown
 
     def __len__(self) -> int:
         return int(self.probability.shape[0])
@@ -70,8 +78,9 @@ class BatchPrediction:
         v = self.velocity[i]
         speed = float(np.hypot(v[0], v[1]))
         d = (float(v[0] / speed), float(v[1] / speed)) if speed > 0 else (0.0, 0.0)
+        sigma = -1.0 if self.direction_sigma is None else float(self.direction_sigma[i])
         return Prediction(float(self.probability[i]), bool(self.slipping[i]), float(v[0]),
-                          float(v[1]), speed, d, self.window_length, self.threshold)
+                          float(v[1]), speed, d, self.window_length, self.threshold, sigma)
 
 
 class Predictor(CheckpointFacts):
@@ -90,6 +99,7 @@ class Predictor(CheckpointFacts):
             raise ValueError(f"a {ckpt.model_type!r} checkpoint runs per audio block: "
                              "learn.streaming_predictor.StreamingPredictor")
         self.backend = backend.from_checkpoint(ckpt)
+        self.sigma_model = sigma_model(meta)
         self.calibration: CalibrationConstants | None = None
         self._stream_cal: StreamCalibration | None = None
         if meta.get("calibration") is not None:
@@ -242,5 +252,7 @@ class Predictor(CheckpointFacts):
         threshold = self._threshold      # read once: the decision and its report agree
         slipping = prob >= threshold
         vel = np.where(slipping[:, None], raw, 0.0).astype(np.float32)
+        sigma = None if self.sigma_model is None else \
+            self.sigma_model(np.hypot(raw[:, 0], raw[:, 1]))
         return BatchPrediction(prob.astype(np.float32), slipping, vel, raw.astype(np.float32),
-                               self.window_s, threshold)
+                               self.window_s, threshold, sigma)

@@ -19,7 +19,9 @@ features and the recurrent state (the block that revealed a gap starts the new h
 repeated or out-of-order blocks are dropped. Each
 estimate describes the instant of its frame's last sample: ``stamp_ns`` is that sample's
 time on the block clock, and ``Prediction.window_length`` is the frame length (the audio
-the estimate reads directly; the state summarises what came before).
+the estimate reads directly; the state summarises what came before). Its
+``direction_sigma`` comes from the checkpoint's ``output_calibration`` at the hop's ungated
+speed (-1 without one), as for ``learn.predictor``.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import numpy as np
 
 from .checkpoint import Checkpoint, CheckpointFacts, check_compatible, load_checkpoint
 from .features import FeatureConfig
+from .output_calibration import sigma_model
 from .predictor import Prediction
 from .streaming import StreamingLogMel
 from .streaming_model import GruStepper, StreamConfig, StreamNet
@@ -76,6 +79,7 @@ class StreamingPredictor(CheckpointFacts):
         self.hop_s = float(ckpt.meta["hop_s"])
         self._threshold = 0.5
         self.set_threshold(threshold)
+        self.sigma_model = sigma_model(ckpt.meta)     # None: direction_sigma -1 (unknown)
         self._origin: int | None = None        # stream index of the first sample since reset
         self._origin_ns = 0
         self.resets = 0
@@ -197,7 +201,9 @@ class StreamingPredictor(CheckpointFacts):
         vx, vz = (float(v[0]), float(v[1])) if slipping else (0.0, 0.0)
         speed = float(np.hypot(vx, vz))
         d = (vx / speed, vz / speed) if speed > 0 else (0.0, 0.0)
-        return Prediction(float(p), slipping, vx, vz, speed, d, self.window_s, t)
+        sigma = -1.0 if self.sigma_model is None else \
+            float(self.sigma_model(float(np.hypot(v[0], v[1]))))
+        return Prediction(float(p), slipping, vx, vz, speed, d, self.window_s, t, sigma)
 
     def trial_outputs(self, audio: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """A whole ``(n, C)`` recording from a zero state (offline, batched; equal to pushing

@@ -123,7 +123,8 @@ class StreamStep:
             try:
                 msgs.append(convert.slip_to_msg(e.vx, e.vz, e.probability, e.slipping,
                                                 e.threshold, est.stamp_ns, e.window_length,
-                                                source, frame_id))
+                                                source, frame_id,
+                                                direction_sigma=e.direction_sigma))
             except ValueError:
                 self.reset("non-finite estimate")
                 raise

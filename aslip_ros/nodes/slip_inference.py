@@ -30,7 +30,9 @@ offline computation over the same stream. A gap, a time jump or a new stream sta
 grasp (the state resets with the window), and so does the ``~/recalibrate`` service
 (std_srvs/Trigger). Until the state has converged, ``direction_sigma`` is
 ``UNCONVERGED_DIRECTION_SIGMA`` (pi: the direction may be anywhere); after it, and for
-checkpoints without calibration, -1 (the model gives none). ``/diagnostics`` shows
+checkpoints without calibration, the predictor's calibrated one-sigma direction error for
+the estimate's speed (``learn.output_calibration``; -1 when the checkpoint has no sigma
+model, as older ones; a message that is not slipping carries -1). ``/diagnostics`` shows
 ``calibration_converged``, ``calibration_accepted_frames``, ``calibration_frames``,
 ``calibration_resets`` and ``gain_db_<channel>``.
 
@@ -330,7 +332,8 @@ class SlipInference(Node):
                   converged: bool):
         """One hop: the window (and its calibration) through the model, as a SlipVector."""
         pred = self.predictor.predict(window, offsets)
-        sigma = UNCONVERGED_DIRECTION_SIGMA if offsets is not None and not converged else -1.0
+        sigma = UNCONVERGED_DIRECTION_SIGMA if offsets is not None and not converged \
+            else pred.direction_sigma
         return convert.slip_to_msg(pred.vx, pred.vz, pred.probability, pred.slipping,
                                    pred.threshold, stamp_ns, pred.window_length, self.source,
                                    self.p["frame_id"], direction_sigma=sigma)
