@@ -163,3 +163,38 @@ def test_warm_up_and_feed_leave_a_predictor_as_fresh_as_a_new_one(tmp_path):
     assert p.fresh and p.resets == 1 and p.last_reset_reason == "gap"
     again = [e for b in bl[5:] for e in p.feed(b)]
     assert again[0].sample_index == bl[5].first_sample_index + 1536     # a new history
+
+
+# ------------------------------------------------------------------ training device
+
+@pytest.fixture(scope="module")
+def stream_train_dataset(tmp_path_factory):
+    from aslip_ros.data.export import export
+    from aslip_ros.data.synthetic import write_synthetic_bag
+    from test_learn_streaming_model import NAMES
+    root = tmp_path_factory.mktemp("stream_train")
+    for i in range(6):
+        v = [(0.02, 0.0, 0.0), (0.0, 0.0, -0.03), (0.0, 0.0, 0.0)][i % 3]
+        write_synthetic_bag(root / "bags" / f"t{i}", duration_s=1.2, slip_velocity=v,
+                            seed=10 + i, channel_names=NAMES)
+    export([root / "bags"], root / "ds", window_s=0.2, hop_s=0.1, progress=False)
+    return root / "ds"
+
+
+def test_stream_training_device(stream_train_dataset, monkeypatch):
+    """auto trains on the CPU where torch sees no GPU; cuda there is a clear error; the
+    checkpoint's tensors are CPU tensors and its provenance names the device."""
+    import torch
+
+    from aslip_ros.learn.data_io import open_dataset
+    from aslip_ros.learn.train_stream import StreamTrainConfig, train_stream
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    ds = open_dataset(stream_train_dataset)
+    cfg = dict(epochs=1, steps_per_epoch=2, batch_size=4, seq_frames=40, progress=False)
+    meta, tensors, _ = train_stream(ds, StreamTrainConfig(device="auto", **cfg),
+                                    log=lambda m: None)
+    assert meta["provenance"]["training"]["device"] == "cpu"
+    assert meta["train_config"]["device"] == "auto"
+    assert all(t.device.type == "cpu" for t in tensors.values())
+    with pytest.raises(ValueError, match="no CUDA GPU"):
+        train_stream(ds, StreamTrainConfig(device="cuda", **cfg), log=lambda m: None)

@@ -32,6 +32,7 @@ from .features import FeatureConfig
 from .streaming import StreamingLogMel, stream_logmel
 from aslip_ros.data.stream_labels import DEFAULT_SMOOTHER, Smoother, frame_labels, load_track
 from .streaming_model import StreamConfig, StreamNet, offline_outputs
+from .train_loop import resolve_device
 
 MODEL_TYPE = StreamBackend.model_type
 _DB = math.log(10.0) / 10.0      # +1 dB of power in natural-log mel units
@@ -55,6 +56,7 @@ class StreamTrainConfig:
     fa_per_min: float = 2.0        # validation false alarms per minute the threshold allows
     threads: int = 1
     progress: bool = True
+    device: str = "cpu"            # auto | cpu | cuda (train_loop.resolve_device)
 
 
 @dataclass
@@ -184,6 +186,16 @@ def _loss(model: StreamNet, x, v, slip, valid, decided,
 
 
 def _validate(model: StreamNet, seqs: Sequences, cfg: StreamTrainConfig):
+    # Whole validation trials are long single sequences: the CPU runs them, as live.
+    device = model.feat_mean.device
+    model.to("cpu")
+    try:
+        return _validate_cpu(model, seqs, cfg)
+    finally:
+        model.to(device)
+
+
+def _validate_cpu(model: StreamNet, seqs: Sequences, cfg: StreamTrainConfig):
     model.eval()
     losses, outs = [], []
     with torch.inference_mode():
@@ -208,6 +220,7 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
     """Train and select; returns ``(meta, tensors, history)`` for ``save_checkpoint``."""
     torch.set_num_threads(max(1, cfg.threads))
     torch.manual_seed(cfg.seed)
+    device = resolve_device(cfg.device)
     rng = np.random.default_rng(cfg.seed)
     channels = list(channels or ds.channel_names)
     fcfg = feature_config or FeatureConfig()
@@ -229,6 +242,7 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
                         **(model_config or {}))
     model = StreamNet(mcfg)
     model.set_normalization(mean, std)
+    model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     best = (math.inf, -1, copy.deepcopy(model.state_dict()), {})
     history: list[dict] = []
@@ -238,7 +252,7 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
         model.train()
         run = 0.0
         for _ in range(cfg.steps_per_epoch):
-            loss = _loss(model, *_batch(tr, cfg, rng, mean), cfg)
+            loss = _loss(model, *(t.to(device) for t in _batch(tr, cfg, rng, mean)), cfg)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -260,6 +274,7 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
             stop = "time_budget"
             break
     model.load_state_dict(best[2])
+    model.to("cpu")
     model.eval()
     p_val = [offline_outputs(model, x)[0] for x in va.frames]
     threshold, sweep = select_threshold(p_val, va.slip, fcfg.hop / fcfg.sample_rate,
@@ -273,7 +288,8 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
         metrics={"val": best[3], "best_val_loss": best[0]},
         training={"best_epoch": best[1], "epochs_run": len(history), "stop_reason": stop,
                   "train_time_s": time.perf_counter() - t_start, "feature_time_s": t_feat,
-                  "train_trials": tr.trials, "val_trials": va.trials})
+                  "train_trials": tr.trials, "val_trials": va.trials,
+                  "device": str(device)})
     tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
     return meta, tensors, history
 
@@ -310,7 +326,8 @@ def run_from_args(args: argparse.Namespace) -> int:
             weight_decay=args.weight_decay, patience=args.patience, seed=args.seed,
             split_seed=args.split_seed, gain_db=args.gain_db,
             channel_gain_db=args.channel_gain_db, threads=args.threads,
-            time_budget_s=args.time_budget, progress=not args.no_progress)
+            time_budget_s=args.time_budget, progress=not args.no_progress,
+            device=args.device)
         fcfg = FeatureConfig(sample_rate=args.feature_rate, n_fft=args.n_fft, hop=args.hop,
                              n_mels=args.n_mels, fmin=args.fmin, fmax=args.fmax)
         chans = [c for c in (args.channels or "").split(",") if c] or None
