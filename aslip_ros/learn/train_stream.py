@@ -29,6 +29,7 @@ from .backends import StreamBackend
 from .checkpoint import checkpoint_meta, git_revision, save_checkpoint
 from .data_io import WindowSet, open_dataset, trial_splits
 from .features import FeatureConfig
+from .output_calibration import sequence_fields
 from .streaming import StreamingLogMel, stream_logmel
 from aslip_ros.data.stream_labels import DEFAULT_SMOOTHER, Smoother, frame_labels, load_track
 from .streaming_model import StreamConfig, StreamNet, offline_outputs
@@ -274,9 +275,9 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
             stop = "time_budget"
             break
     model.load_state_dict(best[2])
-    model.to("cpu")
-    model.eval()
-    p_val = [offline_outputs(model, x)[0] for x in va.frames]
+    model.to("cpu").eval()
+    out_val = [offline_outputs(model, x) for x in va.frames]
+    p_val = [o[0] for o in out_val]
     threshold, sweep = select_threshold(p_val, va.slip, fcfg.hop / fcfg.sample_rate,
                                         cfg.fa_per_min)
     log(f"threshold {threshold:.2f} (validation false alarms per minute <= "
@@ -284,6 +285,8 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
     meta = stream_meta(ds, cfg, mcfg, fcfg, channels, smoother, model)
     meta["threshold"] = threshold
     meta["threshold_selection"] = {"fa_per_min_target": cfg.fa_per_min, "sweep": sweep}
+    meta.update(sequence_fields(out_val, va.v, va.slip, va.valid, threshold,
+                                "validation false alarms per minute (threshold_selection)"))
     meta["provenance"].update(
         metrics={"val": best[3], "best_val_loss": best[0]},
         training={"best_epoch": best[1], "epochs_run": len(history), "stop_reason": stop,
