@@ -164,3 +164,25 @@ def test_simulate_records_the_mocap_variant(tmp_path):
         meta = r.read_metadata()
     assert meta["variant"] == "mocap"
     assert json.dumps(meta).count("100.0") >= 1       # the lab's 100 Hz motion capture
+
+
+def test_a_dataset_at_another_rate_is_resampled_to_the_models_rate(tmp_path):
+    from aslip_ros.learn.data_io import open_dataset
+    from aslip_ros.learn.synthetic import make_synthetic_dataset
+    src = make_synthetic_dataset(tmp_path / "lab", n_trials=3, duration_s=2.0,
+                                 sample_rate=44100.0)
+    transfer.resample_dataset(src, tmp_path / "at48", 48000.0)
+    a, b = open_dataset(src), open_dataset(tmp_path / "at48")
+    assert b.sample_rate == 48000.0 and b.window_samples == 9600
+    assert len(b.trials) == len(a.trials) and b.windows.shape == a.windows.shape
+    np.testing.assert_array_equal(b.windows["start"], a.windows["start"] * 160 // 147)
+    np.testing.assert_array_equal(b.slip(np.arange(4)), a.slip(np.arange(4)))
+    # The same sound: equal power per window, and a window's spectrum keeps its frequencies.
+    k = len(a.windows) // 2
+    x, y = a.window_audio(np.array([k]))[0], b.window_audio(np.array([k]))[0]
+    assert y.shape == (9600, x.shape[1])
+    np.testing.assert_allclose((y ** 2).mean(), (x ** 2).mean(), rtol=0.05)
+    def centroid(sig, rate):
+        p = np.abs(np.fft.rfft(sig[:, 0])) ** 2
+        return (p * np.fft.rfftfreq(sig.shape[0], 1.0 / rate)).sum() / p.sum()
+    assert centroid(y, 48000.0) == pytest.approx(centroid(x, 44100.0), rel=0.05)

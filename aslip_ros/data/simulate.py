@@ -28,8 +28,9 @@ KINDS = {"robot": "robot_induced", "external": "external_induced"}
 DEFAULT_START_NS = 1_700_000_000_000_000_000   # a fixed ROS time so bags are reproducible
 DEFAULT_BLOCK_FRAMES = 480
 #: Scene variants (docs/scene.md, ``scene.variants.VARIANTS``): wider per-grasp coupling,
-#: one-sided slip, off-centre contact, confounders without slip, a lab's motion capture.
-VARIANTS = ("coupling", "one_sided", "contact", "confounders", "mocap")
+#: one-sided slip, off-centre contact, confounders without slip, a lab's motion capture, a
+#: 44.1 kHz sound card.
+VARIANTS = ("coupling", "one_sided", "contact", "confounders", "mocap", "rate")
 
 
 def trial_seed(base_seed: int, kind: str, object: str, condition: str, index: int) -> int:
@@ -207,7 +208,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variant", choices=VARIANTS, default=None,
                         help="held-out scene variant (docs/scene.md): +-6 dB coupling; 80 %% "
                              "of the slip one way; off-centre contact; confounders without "
-                             "slip; a lab's motion capture (default: the plain scene)")
+                             "slip; a lab's motion capture; 44.1 kHz audio (default: the plain "
+                             "scene)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -11,7 +11,9 @@ Scenes (``aslip simulate --variant``, ``scene/variants.py``, docs/scene.md): ``d
 (per-grasp coupling of +-3 dB); ``coupling`` (+-6 dB, hand-noise path +-2 dB); ``one_sided``
 (80 % of the slip of a grasp within +-30 deg of one direction); ``contact`` (the object
 seated off the pad centre, 5 mm); ``confounders`` (half the touches without slip, the hand
-and the arm louder); ``mocap`` (a lab's motion capture: 100 Hz, 0.3 mm, 2 % dropped, 15 ms).
+and the arm louder); ``mocap`` (a lab's motion capture: 100 Hz, 0.3 mm, 2 % dropped, 15 ms);
+``rate`` (a 44.1 kHz sound card, resampled to the models' 48 kHz as a driver would: every
+checkpoint refuses a stream at another rate).
 
 Methods: ``aslip`` (what ``aslip train`` does by default) and ``paper_svm`` (``--stage
 svm``), both with the per-grasp calibration of ``aslip train`` (``background``); with
@@ -37,9 +39,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from aslip_ros.util import write_json, write_text
+from aslip_ros.util import atomic_path, write_json, write_text
 
-SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap")
+SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap", "rate")
 METHODS = ("aslip", "aslip_uncalibrated", "paper_svm", "paper_svm_uncalibrated",
            "plain_cnn", "plain_svm")
 #: The methods of ``make transfer``: the package's default, the paper's SVM, the plain ones.
@@ -48,7 +50,9 @@ OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pl
 CONDITIONS = ("robot_stationary", "robot_moving", "robot_off")
 #: Seed offset per scene, so no held-out scene replays the training scene's motions.
 SCENE_SEED = {"default": 0, "coupling": 10_000, "one_sided": 20_000, "mocap": 30_000,
-              "contact": 40_000, "confounders": 50_000}
+              "contact": 40_000, "confounders": 50_000, "rate": 60_000}
+#: The scene's audio rate, which every model is trained at [Hz].
+TRAIN_RATE_HZ = 48000.0
 #: Seed offset of the fresh draw of the training scene that it is tested on.
 HELD_OUT_SEED = 500_000
 KEYS = (("detection_accuracy", "detection %", 100.0), ("direction_mae_deg", "direction deg", 1.0),
@@ -101,8 +105,48 @@ def scene_dataset(cfg: TransferConfig, scene: str, log: Callable[[str], None],
              seed=cfg.seed + SCENE_SEED[scene] + (HELD_OUT_SEED if held_out else 0),
              variant=None if scene == "default" else scene, progress=cfg.progress)
     log(f"{name}: exporting")
-    export([bags], ds)
+    recorded = ds.with_name(name + "-recorded")
+    if not (recorded / "manifest.json").is_file():
+        export([bags], recorded)
+    from aslip_ros.learn.data_io import open_dataset
+    if open_dataset(recorded).sample_rate == TRAIN_RATE_HZ:
+        recorded.rename(ds)
+    else:
+        resample_dataset(recorded, ds, TRAIN_RATE_HZ)
     return ds
+
+
+def resample_dataset(src: Path, dst: Path, rate: float) -> None:
+    """A copy of dataset ``src`` at ``rate``: the audio resampled with a polyphase filter
+    (``scipy.signal.resample_poly``), window starts and track positions in the new samples."""
+    import json
+    import shutil
+    from fractions import Fraction
+
+    from scipy.signal import resample_poly
+
+    man = json.loads((src / "manifest.json").read_text())
+    ratio = Fraction(rate / man["sample_rate"]).limit_denominator(10_000)
+    with atomic_path(dst) as tmp:
+        shutil.copytree(src, tmp)
+        for t in man["trials"]:
+            a = np.load(src / t["file"])
+            y = resample_poly(a, ratio.numerator, ratio.denominator, axis=0)
+            np.save(tmp / t["file"], y.astype(np.float32))
+            t["n_samples"] = int(y.shape[0])
+            if t.get("first_sample_index") is not None:
+                t["first_sample_index"] = int(round(t["first_sample_index"] * ratio))
+        for track in (tmp / "tracks").glob("*.npy"):
+            tr = np.load(track)
+            tr[:, 0] = tr[:, 0] * float(ratio)
+            np.save(track, tr)
+        w = np.load(src / "windows.npy")
+        w["start"] = np.round(w["start"] * float(ratio)).astype(np.int64)
+        np.save(tmp / "windows.npy", w)
+        man.update(sample_rate=float(rate), resampled_from=man["sample_rate"],
+                   n_window_samples=int(round(man["window_s"] * rate)),
+                   hop_samples=int(round(man["hop_s"] * rate)))
+        (tmp / "manifest.json").write_text(json.dumps(man, indent=1))
 
 
 # --- methods ------------------------------------------------------------------------------
@@ -120,20 +164,30 @@ def aslip_recipe() -> str:
 
 def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
                  log: Callable[[str], None]):
-    """A trained model of ``method`` on ``train_ds``'s training split (cached on disk for the
-    checkpoint methods)."""
+    """A trained model of ``method`` on ``train_ds``'s training split (cached on disk)."""
     from aslip_ros.learn.data_io import open_dataset
     ds = open_dataset(train_ds)
     if method.startswith("plain_"):
+        import pickle
+
         from aslip_ros.learn import baselines
         from aslip_ros.learn.data_io import select_windows
         from aslip_ros.learn.train import feature_cache
+        saved = cache / f"{method}-{cfg.epochs}ep.pkl"
+        if saved.is_file():
+            # Written by this protocol only, beside the checkpoints it trains.
+            return pickle.loads(saved.read_bytes())
         feats = feature_cache(ds, baselines.baseline_features(ds.sample_rate), ds.channel_names)
         tr = select_windows(ds, "train", seed=cfg.seed)
         x, v, s = np.asarray(feats[tr], dtype=np.float32), ds.velocity(tr), ds.slip(tr)
         if method == "plain_cnn":
-            return baselines.fit_plain_cnn(x, v, s, epochs=cfg.epochs, seed=cfg.seed)
-        return baselines.fit_plain_svm(x, v, s, seed=cfg.seed)
+            model = baselines.fit_plain_cnn(x, v, s, epochs=cfg.epochs, seed=cfg.seed)
+        else:
+            model = baselines.fit_plain_svm(x, v, s, seed=cfg.seed)
+        cache.mkdir(parents=True, exist_ok=True)
+        with atomic_path(saved) as tmp:
+            tmp.write_bytes(pickle.dumps(model))
+        return model
     from aslip_ros.learn.train import TrainConfig, train_cnn, train_svm
     ckpt = cache / f"{method}.pt"
     if not ckpt.is_file():

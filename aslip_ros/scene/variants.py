@@ -13,6 +13,7 @@ but physically sourced range than the default scene's; no model is trained or tu
 - ``confounders``: more sound without slip: half the agent's touches do not slip, the hand's
   noise and clicks twice as loud and as frequent, the arm 6 dB louder.
 - ``mocap``: a lab's motion capture (100 Hz, 0.3 mm, 2 % dropped frames, 15 ms latency).
+- ``rate``: audio recorded at 44.1 kHz instead of 48 kHz.
 """
 
 from __future__ import annotations
@@ -76,6 +77,15 @@ def confounders_variant(scn: "Scenario", no_slip_fraction: float = NO_SLIP_TOUCH
                                        robot_level=ac.robot_level * gain))
 
 
+#: The rate variant's audio rate [Hz] (the scene records at 48 kHz).
+LAB_RATE_HZ = 44100.0
+
+
+def rate_variant(scn: "Scenario", rate_hz: float = LAB_RATE_HZ) -> "Scenario":
+    """``scn`` recorded by a sound card at ``rate_hz``."""
+    return scn.with_(sample_rate=float(rate_hz))
+
+
 def mocap_variant(scn: "Scenario") -> "Scenario":
     """``scn`` seen by a lab's motion capture: slower, noisier, with more dropped frames and
     latency than the scene's default (``LAB_MOCAP``)."""
@@ -90,4 +100,5 @@ VARIANTS: dict[str, Callable[["Scenario"], "Scenario"]] = {
     "contact": contact_variant,
     "confounders": confounders_variant,
     "mocap": mocap_variant,
+    "rate": rate_variant,
 }
