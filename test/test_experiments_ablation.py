@@ -16,7 +16,8 @@ def run_ablation(tmp_path_factory):
     cfg = ablation.AblationConfig(
         out=root / "out",
         data=DataPlan(root=root / "data", synthetic=True, progress=False, synthetic_s=2.0),
-        recipe=Recipe(epochs=1, patience=1, threads=1, progress=False, svm_max_train=300))
+        recipe=Recipe(epochs=1, patience=1, threads=1, progress=False, svm_max_train=300),
+        plain_epochs=2, n_boot=50)
     res = ablation.Ablation(cfg).run()
     return cfg, res
 
@@ -107,3 +108,73 @@ def test_cli_arguments():
     assert cfg.data.scale == "tiny"
     with pytest.raises(ValueError):
         ablation.config_from_args(p.parse_args(["--rows", "nope"]))
+
+
+def test_plain_baselines_are_rows_with_trial_intervals(run_ablation):
+    cfg, _ = run_ablation
+    rows = {r["key"]: r for r in json.loads((cfg.out / "table.json").read_text())["rows"]}
+    keys = list(rows)
+    assert keys.index("svm") + 1 == keys.index("plain_cnn") == keys.index("plain_svm") - 1
+    for key in ("svm", "plain_cnn", "plain_svm", "ft_4mic"):
+        r = rows[key]
+        assert r["measured"]["scene_version"] == "synthetic"
+        assert r["n_test_trials"] >= 2
+        for col in ("det_pct", "dir_mae_deg", "mag_rmse_mm"):
+            lo, hi = r["ci95"][col]
+            assert lo <= r["ours"][col] + 1e-6 and r["ours"][col] <= hi + 1e-6, (key, col)
+    for key in ("plain_cnn", "plain_svm"):
+        assert set(rows[key]["paper"].values()) == {None}    # the paper has no such row
+        assert rows[key]["training"]["stage"] == key
+    md = (cfg.out / "table.md").read_text()
+    line = next(x for x in md.splitlines() if x.startswith("| Plain CNN"))
+    assert line.split(" | ")[1] == "–" and "[" in line and "synthetic" in line
+
+
+def test_baselines_only_merges_into_the_earlier_table(run_ablation, tmp_path):
+    """Measuring the baseline rows alone keeps every other row as it was measured."""
+    import shutil
+    from dataclasses import replace
+    cfg, _ = run_ablation
+    out = tmp_path / "out"
+    shutil.copytree(cfg.out, out)
+    table = json.loads((out / "table.json").read_text())
+    for r in table["rows"]:
+        r["measured"] = {"scene_version": 2, "date": "1999-01-01"}
+    (out / "table.json").write_text(json.dumps(table))
+    sub = replace(cfg, out=out, rows=ablation.BASELINE_ROWS, per_object=False,
+                  robot_noise=False, merge=True)
+    ablation.Ablation(sub).run()
+    rows = {r["key"]: r for r in json.loads((out / "table.json").read_text())["rows"]}
+    assert list(rows) == list(ablation.ROW_KEYS)
+    assert rows["ft_4mic"]["measured"]["date"] == "1999-01-01"
+    for key in ablation.BASELINE_ROWS:
+        assert rows[key]["measured"]["scene_version"] == "synthetic"
+    checks = {c["claim"]: c for c in json.loads((out / "table.json").read_text())["checks"]}
+    c = checks["4-mic finetuned better magnitude than the plain_cnn"]
+    assert c["holds"] is None and "different scene versions" in c["note"]
+    # Without merging, the table holds the measured rows only.
+    ablation.Ablation(replace(sub, merge=False)).run()
+    rows = json.loads((out / "table.json").read_text())["rows"]
+    assert [r["key"] for r in rows] == list(ablation.BASELINE_ROWS)
+
+
+def test_orderings_compare_only_rows_of_one_scene_version():
+    def row(key, mag, version):
+        return {"key": key, "ours": {"mag_rmse_mm": mag}, "measured": {"scene_version": version}}
+    same = {c["claim"]: c["holds"] for c in ablation.orderings(
+        [row("ft_4mic", 1.0, 3), row("plain_cnn", 0.6, 3)])}
+    assert same["4-mic finetuned better magnitude than the plain_cnn"] is False
+    mixed = {c["claim"]: c["holds"] for c in ablation.orderings(
+        [row("ft_4mic", 1.0, 2), row("plain_cnn", 1.5, 3)])}
+    assert mixed["4-mic finetuned better magnitude than the plain_cnn"] is None
+
+
+def test_baselines_only_cli():
+    import argparse
+    p = argparse.ArgumentParser()
+    ablation.add_arguments(p)
+    cfg = ablation.config_from_args(p.parse_args(["--baselines-only", "--plain-epochs", "3"]))
+    assert cfg.rows == ablation.BASELINE_ROWS == ("svm", "plain_cnn", "plain_svm")
+    assert cfg.merge and not cfg.per_object and not cfg.robot_noise and cfg.plain_epochs == 3
+    with pytest.raises(ValueError):
+        ablation.config_from_args(p.parse_args(["--baselines-only", "--rows", "svm"]))

@@ -4,7 +4,9 @@
 of Table I (SVM; single microphone without and with pretraining; pretrain-only and
 finetuned for the four layouts; 100, 200 and 300 ms windows), Table II (per-object against
 all-object finetuning, 4 microphones) and evaluates each finetuned model on the
-robot-induced validation set (Sec. "Slip with Robot Noise").
+robot-induced validation set (Sec. "Slip with Robot Noise"). Beside the paper's SVM stand
+the plain baselines of ``learn.baselines`` (a plain log-mel CNN and an RBF SVM on
+time-averaged log-mel; rows without paper numbers), trained on the same training trials.
 
 Protocol (the paper's, at the scene's scale):
 
@@ -13,6 +15,12 @@ Protocol (the paper's, at the scene's scale):
 - every Table I number is measured on the externally induced set's held-out *test* split
   (by trial, ``split_trials`` seed 0), the robot-noise numbers on the robot-induced set's
   *validation* split, as the paper does.
+
+Every Table I number carries a 95 % interval from a bootstrap over the test trials
+(``learn.stats``), and every row records when and on which scene version it was measured:
+``--baselines-only`` measures the SVM and the plain baselines alone (minutes instead of
+hours) and merges them into an existing ``table.json``, keeping the other rows as measured
+before.
 
 Outputs in ``--out``: ``table.json``/``table.md`` (ours beside the paper's),
 ``per_object.json``/``.md``, ``robot_noise.json``/``.md``; checkpoints and per-row metrics
@@ -23,18 +31,20 @@ retrained unless ``--force``.
 from __future__ import annotations
 
 import argparse
+import datetime as _dt
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aslip_ros.util import write_json, write_text
+from aslip_ros.util import read_json, write_json, write_text
 
-from .ablation_report import (orderings, per_object_markdown, robot_noise_markdown,
-                              table_markdown)
+from .ablation_report import (CI_COLUMNS, bootstrap_intervals, majority, merge_rows,
+                              orderings, pct, per_object_markdown, robot_noise_markdown,
+                              short, table_markdown)
 from .common import (EXTERNAL_TRIALS, LAYOUTS_2MIC, DataPlan, Log, Recipe, evaluate_cached,
-                     fmt_num, paper_units, set_threads, train_named)
+                     paper_units, set_threads, train_named)
 
 
 @dataclass(frozen=True)
@@ -43,15 +53,17 @@ class Row:
 
     key: str
     label: str
-    kind: str            # svm | scratch | pretrain_only | finetune
+    kind: str            # svm | scratch | pretrain_only | finetune | plain_cnn | plain_svm
     layout: str
     window_ms: int
-    paper: tuple[float, float, float, float, float]  # det %, dir, dir std, mag, mag std
+    paper: tuple[float, float, float, float, float] | None  # det %, dir ± std, mag ± std
 
 
 #: Table I of the paper (Det. %, Dir. MAE deg ± std, Mag. RMSE mm ± std).
 TABLE1: tuple[Row, ...] = (
     Row("svm", "SVM", "svm", "4mic", 200, (73.0, 19.2, 28.6, 1.9, 2.4)),
+    Row("plain_cnn", "Plain CNN (log-mel, untuned)", "plain_cnn", "4mic", 200, None),
+    Row("plain_svm", "Plain SVM (time-averaged log-mel, RBF)", "plain_svm", "4mic", 200, None),
     Row("1mic_scratch", "Single mic (no pretrain)", "scratch", "1mic", 200,
         (43.3, 28.5, 26.5, 2.0, 1.0)),
     Row("1mic_finetune", "Single mic (pretrain + finetune)", "finetune", "1mic", 200,
@@ -77,6 +89,8 @@ TABLE1: tuple[Row, ...] = (
     Row("w300", "A-SLIP (300 ms window)", "finetune", "4mic", 300, (88.5, 20.9, 6.5, 1.4, 1.1)),
 )
 ROW_KEYS = tuple(r.key for r in TABLE1)
+#: The rows ``--baselines-only`` measures: the paper's SVM and the plain baselines.
+BASELINE_ROWS = ("svm", "plain_cnn", "plain_svm")
 
 #: Table II (4 microphones): object -> {"per_object"|"all_object": (det, dir, std, mag, std)}.
 TABLE2: dict[str, dict[str, tuple[float, float, float, float, float]]] = {
@@ -102,9 +116,9 @@ ROBOT_NOISE: dict[str, tuple[float, float, float, float]] = {
 }
 
 
-def paper_dict(p: tuple[float, ...]) -> dict[str, float]:
+def paper_dict(p: tuple[float, ...] | None) -> dict[str, float | None]:
     keys = ("det_pct", "dir_mae_deg", "dir_std_deg", "mag_rmse_mm", "mag_std_mm")
-    return dict(zip(keys, p))
+    return dict(zip(keys, p if p is not None else (None,) * len(keys)))
 
 
 @dataclass
@@ -118,6 +132,10 @@ class AblationConfig:
     per_object: bool = True
     robot_noise: bool = True
     force: bool = False
+    #: Keep the rows of an existing ``table.json`` that this run does not measure.
+    merge: bool = False
+    plain_epochs: int = 25      # the plain CNN's fixed recipe
+    n_boot: int = 1000
 
     @property
     def cache(self) -> Path:
@@ -155,9 +173,54 @@ class Ablation:
         return evaluate_cached(ckpt, dataset, name, split=split, objects=objects,
                                split_seed=self.cfg.recipe.split_seed, force=self.cfg.force)
 
+    def intervals(self, ckpt: Path, dataset: Path) -> dict[str, Any]:
+        """Trial-bootstrap intervals of a checkpoint's test metrics (cached beside it)."""
+        from aslip_ros.learn.evaluate import predict_split
+        out = ckpt.with_name(f"{ckpt.stem}.boot-test.json")
+        if out.is_file() and not self.cfg.force and out.stat().st_mtime >= ckpt.stat().st_mtime:
+            return read_json(out)
+        p = predict_split(ckpt, dataset, "test", split_seed=self.cfg.recipe.split_seed)
+        res = bootstrap_intervals(p["trial"], p["prob"], p["raw_velocity"],
+                                  p["true_velocity"], p["slip"], float(p["window_s"]),
+                                  self.cfg.n_boot, self.cfg.recipe.seed)
+        write_json(out, res)
+        return res
+
+    def plain(self, r: Row, dataset: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+        """A plain baseline trained on the dataset's training trials: its test metrics (with
+        intervals) and a training summary, cached per dataset fingerprint."""
+        import numpy as np
+        from aslip_ros.learn.baselines import run_on_dataset
+        from aslip_ros.learn.data_io import open_dataset, select_windows
+        ds = open_dataset(dataset)
+        out = self.cfg.cache / f"{r.kind}_{r.layout}_w{r.window_ms}.eval-test.json"
+        key = {"dataset_fingerprint": ds.fingerprint(), "epochs": self.cfg.plain_epochs,
+               "seed": self.cfg.recipe.seed, "split_seed": self.cfg.recipe.split_seed,
+               "n_boot": self.cfg.n_boot}
+        if out.is_file() and not self.cfg.force:
+            cached = read_json(out)
+            if cached.get("key") == key:
+                return cached["metrics"], {**cached["training"], "cached": True}
+        self.log(f"train {r.kind} on {dataset}")
+        t0 = time.perf_counter()
+        m = run_on_dataset(ds, kinds=(r.kind.removeprefix("plain_"),),
+                           split_seed=self.cfg.recipe.split_seed,
+                           epochs=self.cfg.plain_epochs, seed=self.cfg.recipe.seed,
+                           n_boot=self.cfg.n_boot)[r.kind]
+        te = select_windows(ds, "test", seed=self.cfg.recipe.split_seed)
+        m["n_trials"] = int(np.unique(ds.windows["trial"][te]).size)
+        info = {"cached": False, "stage": r.kind, "seed": self.cfg.recipe.seed,
+                "epochs_run": self.cfg.plain_epochs if r.kind == "plain_cnn" else None,
+                "wall_s_incl_features": round(time.perf_counter() - t0, 1)}
+        write_json(out, {"key": key, "metrics": m, "training": info})
+        return m, info
+
     # --- Table I --------------------------------------------------------------------------
     def row(self, r: Row) -> dict[str, Any]:
         ft_ds = self.ds(r.layout, "finetune", r.window_ms)
+        if r.kind.startswith("plain_"):
+            ov, info = self.plain(r, ft_ds)
+            return _row_dict(r, None, ov, ov, {}, info)
         if r.kind == "svm":
             ckpt, info = self._train(f"svm_{r.layout}_w{r.window_ms}", ft_ds, "svm")
         elif r.kind == "scratch":
@@ -169,14 +232,8 @@ class Ablation:
         else:
             raise ValueError(f"unknown row kind {r.kind!r}")
         res = self.evaluate(ckpt, ft_ds)
-        ov = res["overall"]
-        return {"key": r.key, "label": r.label, "kind": r.kind, "layout": r.layout,
-                "window_ms": r.window_ms, "checkpoint": str(ckpt),
-                "paper": paper_dict(r.paper), "ours": paper_units(ov),
-                "majority_det_pct": _majority(ov),
-                "recall_pct": _pct(ov.get("recall")), "precision_pct": _pct(ov.get("precision")),
-                "per_object": {k: paper_units(v) for k, v in res["per_object"].items()},
-                "training": info}
+        return _row_dict(r, ckpt, res["overall"], self.intervals(ckpt, ft_ds),
+                         res["per_object"], info)
 
     # --- Table II -------------------------------------------------------------------------
     def per_object(self) -> dict[str, Any]:
@@ -229,11 +286,12 @@ class Ablation:
         t0 = time.perf_counter()
         cfg = self.cfg
         rows = [r for r in TABLE1 if r.key in cfg.rows]
-        table = []
+        measured: dict[str, dict[str, Any]] = {}
         for i, r in enumerate(rows):
             self.log(f"[{i + 1}/{len(rows)}] {r.label}")
-            table.append(self.row(r))
-            self.log(f"  -> {_short(table[-1]['ours'])}")
+            measured[r.key] = {**self.row(r), "measured": self.measured()}
+            self.log(f"  -> {short(measured[r.key]['ours'])}")
+        table = merge_rows(ROW_KEYS, cfg.out / "table.json" if cfg.merge else None, measured)
         result = {"rows": table, "checks": orderings(table),
                   "protocol": protocol(cfg),
                   "elapsed_s": None}
@@ -254,23 +312,26 @@ class Ablation:
         self.log(f"wrote {cfg.out}/table.md ({result['elapsed_s'] / 60:.1f} min)")
         return {"table": result, "per_object": per_obj, "robot_noise": robot}
 
-
-def _pct(v: float | None) -> float | None:
-    return None if v is None else round(100.0 * v, 1)
-
-
-def _majority(m: dict[str, Any]) -> float | None:
-    """Detection accuracy of always answering the majority class (the chance level)."""
-    n = m.get("n_windows") or 0
-    if not n:
-        return None
-    frac = m.get("n_slip", 0) / n
-    return round(100.0 * max(frac, 1.0 - frac), 1)
+    def measured(self) -> dict[str, Any]:
+        """When, on which scene version and at which revision a row was measured."""
+        from aslip_ros.learn.checkpoint import git_revision
+        from aslip_ros.scene.physics import SCENE_VERSION
+        return {"scene_version": "synthetic" if self.cfg.data.synthetic else SCENE_VERSION,
+                "date": _dt.datetime.now(_dt.timezone.utc).date().isoformat(),
+                "git_revision": git_revision()}
 
 
-def _short(o: dict[str, Any]) -> str:
-    return (f"det {fmt_num(o.get('det_pct'))} %, dir {fmt_num(o.get('dir_mae_deg'))} deg, "
-            f"mag {fmt_num(o.get('mag_rmse_mm'), 2)} mm")
+def _row_dict(r: Row, ckpt: Path | None, ov: dict[str, Any], boot: dict[str, Any],
+              per_object: dict[str, Any], info: dict[str, Any]) -> dict[str, Any]:
+    ci = {col: [round(float(x) * f, 3) for x in boot[k]] for k, (col, f) in CI_COLUMNS.items()
+          if boot.get(k) is not None}
+    return {"key": r.key, "label": r.label, "kind": r.kind, "layout": r.layout,
+            "window_ms": r.window_ms, "checkpoint": None if ckpt is None else str(ckpt),
+            "paper": paper_dict(r.paper), "ours": paper_units(ov), "ci95": ci,
+            "n_test_trials": boot.get("n_trials"), "majority_det_pct": majority(ov),
+            "recall_pct": pct(ov.get("recall")), "precision_pct": pct(ov.get("precision")),
+            "per_object": {k: paper_units(v) for k, v in per_object.items()},
+            "training": info}
 
 
 def protocol(cfg: AblationConfig) -> dict[str, Any]:
@@ -298,6 +359,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true",
                    help="tiny scale and 2 epochs: a smoke run of the whole pipeline")
     p.add_argument("--rows", default=None, help=f"comma-separated subset of {ROW_KEYS}")
+    p.add_argument("--merge", action="store_true",
+                   help="keep the rows of an existing table.json that this run does not "
+                        "measure (each row records its scene version and date)")
+    p.add_argument("--baselines-only", action="store_true",
+                   help=f"measure only {BASELINE_ROWS} (minutes), skip Table II and the "
+                        "robot-noise table, and merge into the existing table.json")
+    p.add_argument("--plain-epochs", type=int, default=25, help="the plain CNN's epochs")
+    p.add_argument("--n-boot", type=int, default=1000,
+                   help="bootstrap resamples (over test trials) for the 95 %% intervals")
     p.add_argument("--no-per-object", action="store_true", help="skip Table II")
     p.add_argument("--no-robot-noise", action="store_true", help="skip the robot-noise table")
     p.add_argument("--epochs", type=int, default=300, help="max epochs per training")
@@ -331,12 +401,18 @@ def config_from_args(args: argparse.Namespace) -> AblationConfig:
                     noslip_ratio=args.noslip_ratio,
                     threads=args.threads, seed=args.seed, progress=progress)
     rows = tuple(x for x in args.rows.split(",") if x) if args.rows else ROW_KEYS
+    if args.baselines_only:
+        if args.rows:
+            raise ValueError("--baselines-only and --rows exclude each other")
+        rows = BASELINE_ROWS
     bad = set(rows) - set(ROW_KEYS)
     if bad:
         raise ValueError(f"unknown rows {sorted(bad)}; choose from {ROW_KEYS}")
     return AblationConfig(out=args.out, data=data, recipe=recipe, rows=rows,
-                          per_object=not args.no_per_object,
-                          robot_noise=not args.no_robot_noise, force=args.force)
+                          per_object=not (args.no_per_object or args.baselines_only),
+                          robot_noise=not (args.no_robot_noise or args.baselines_only),
+                          force=args.force, merge=args.merge or args.baselines_only,
+                          plain_epochs=args.plain_epochs, n_boot=args.n_boot)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -348,8 +424,9 @@ def run(args: argparse.Namespace) -> int:
     set_threads(cfg.recipe.threads)
     abl = Ablation(cfg)
     if args.datasets_only:
-        for r in TABLE1:
-            for stage in ("pretrain", "finetune"):
+        for r in (r for r in TABLE1 if r.key in cfg.rows):
+            own = r.kind in ("svm", "scratch", "plain_cnn", "plain_svm")
+            for stage in ("finetune",) if own else ("pretrain", "finetune"):
                 abl.log(f"dataset {abl.ds(r.layout, stage, r.window_ms)}")
         return 0
     res = abl.run()
