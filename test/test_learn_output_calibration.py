@@ -206,3 +206,50 @@ def test_evaluate_checks_sigma_on_the_test_split_and_draws_the_diagram(tmp_path,
     out = capsys.readouterr().out
     assert f"{test[0]:.1%} of {test[1]} slip windows within direction sigma" in out
     assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+# --- training writes it ---------------------------------------------------------------------
+
+def test_training_fits_threshold_and_sigma_on_the_validation_windows(tmp_path):
+    from aslip_ros.learn.data_io import open_dataset, select_windows
+    from aslip_ros.learn.svm import SvmConfig
+    from aslip_ros.learn.synthetic import make_synthetic_dataset
+    from aslip_ros.learn.train import TrainConfig, train_svm
+    ds = open_dataset(make_synthetic_dataset(tmp_path / "ds", n_trials=12, seed=4))
+    res = train_svm(ds, TrainConfig(stage="svm", progress=False), svm_config=SvmConfig(),
+                    log=lambda s: None)
+    doc = res.meta["output_calibration"]
+    val = select_windows(ds, "val")
+    assert doc["threshold_fit"]["n_windows"] == val.size
+    assert doc["threshold_fit"]["n_slip"] == int(ds.slip(val).sum())
+    assert res.meta["threshold"] == doc["threshold"]
+    res.save(tmp_path / "svm.pt")
+    assert load_checkpoint(tmp_path / "svm.pt").meta["output_calibration"] == doc
+    # The same choice again from the saved model's predictions on the validation split.
+    from aslip_ros.learn.evaluate import predict_split
+    p = predict_split(tmp_path / "svm.pt", tmp_path / "ds", "val")
+    assert oc.choose_threshold(p["prob"], p["slip"])["threshold"] == doc["threshold"]
+    sig = oc.fit_sigma_model(p["raw_velocity"], p["true_velocity"], p["slip"])["model"]
+    assert sig is not None
+    np.testing.assert_allclose(sig["sigma_rad"],
+                               doc["direction_sigma"]["model"]["sigma_rad"], rtol=1e-5)
+
+
+def test_stream_training_keeps_its_threshold_and_adds_a_sigma_fit(tmp_path):
+    from aslip_ros import cli
+    from aslip_ros.data.export import export
+    from aslip_ros.data.synthetic import write_synthetic_bag
+    from test_learn_streaming_model import NAMES
+    for i, v in enumerate([(0.02, 0.0, 0.0), (0.0, 0.0, -0.03), (0.0, 0.0, 0.0)] * 3):
+        write_synthetic_bag(tmp_path / "bags" / f"t{i}", duration_s=1.5, slip_velocity=v,
+                            seed=i, channel_names=NAMES)
+    export([tmp_path / "bags"], tmp_path / "ds", window_s=0.2, hop_s=0.1, progress=False)
+    out = tmp_path / "stream.pt"
+    assert cli.main(["train", "--dataset", str(tmp_path / "ds"), "--stage", "stream",
+                     "--out", str(out), "--epochs", "2", "--threads", "1",
+                     "--no-progress"]) == 0
+    meta = load_checkpoint(out).meta
+    doc = meta["output_calibration"]
+    assert doc["threshold"] == meta["threshold"]
+    assert "false alarms" in doc["threshold_fit"]["criterion"]
+    assert doc["threshold_fit"]["n_windows"] > 0 and "direction_sigma" in doc

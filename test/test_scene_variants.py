@@ -143,7 +143,8 @@ def test_bad_no_slip_touch_fraction_is_refused(value):
 
 
 def test_every_variant_is_named_and_keeps_the_grasp():
-    assert set(sc.VARIANTS) == {"coupling", "one_sided", "contact", "confounders", "mocap"}
+    assert set(sc.VARIANTS) == {"coupling", "one_sided", "contact", "confounders", "mocap",
+                                "rate"}
     base = sc.external_induced(seed=5)
     for name, make in sc.VARIANTS.items():
         v = make(base)
@@ -153,3 +154,11 @@ def test_every_variant_is_named_and_keeps_the_grasp():
         # One variant, one axis: the coupling stays the scene's unless the variant is it.
         if name != "coupling":
             assert v.acoustics.gain_mismatch_db == base.acoustics.gain_mismatch_db, name
+
+
+def test_rate_variant_records_at_a_sound_cards_rate():
+    scn = sc.VARIANTS["rate"](sc.external_induced(seed=1, duration_s=0.5))
+    assert scn.sample_rate == va.LAB_RATE_HZ == 44100.0
+    w = World(scn)
+    audio = np.concatenate([c.audio for c in w.stream(block_frames=441)])
+    assert audio.shape == (22050, 4) and w.metadata()["sample_rate"] == 44100.0

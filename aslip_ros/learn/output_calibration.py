@@ -247,12 +247,17 @@ def calibration_check(prob, v_pred, v_true, slip, model: SigmaModel | None) -> d
             "sigma": None if model is None else sigma_coverage(model, v_pred, v_true, slip)}
 
 
-def fit_output_calibration(prob, v_pred, v_true, slip) -> dict[str, Any]:
+def fit_output_calibration(prob, v_pred, v_true, slip, threshold: float | None = None,
+                           criterion: str = "") -> dict[str, Any]:
     """Threshold and direction-sigma model from VALIDATION windows (module docstring):
     ``prob`` (n,), ungated predicted velocity ``v_pred`` (n, 2) and true velocity
-    ``v_true`` (n, 2) in m/s, slip labels (n,). Returns the checkpoint's JSON document."""
+    ``v_true`` (n, 2) in m/s, slip labels (n,). A trainer with a criterion of its own
+    passes its ``threshold`` and names the ``criterion``. Returns the checkpoint's JSON
+    document."""
     prob, v_pred, v_true, slip = _arrays(prob, v_pred, v_true, slip)
-    thr = choose_threshold(prob, slip)
+    thr = choose_threshold(prob, slip) if threshold is None else {
+        "threshold": float(threshold), "criterion": criterion or "chosen by the trainer",
+        "n_windows": int(prob.size), "n_slip": int(slip.sum())}
     sig = fit_sigma_model(v_pred, v_true, slip)
     model = None if sig["model"] is None else SigmaModel.from_dict(sig["model"])
     check = calibration_check(prob, v_pred, v_true, slip, model)
@@ -312,3 +317,18 @@ def checkpoint_fields(prob, v_pred, v_true, slip) -> dict[str, Any]:
     ``output_calibration`` and the ``threshold`` it chose."""
     doc = fit_output_calibration(prob, v_pred, v_true, slip)
     return {"output_calibration": doc, "threshold": doc["threshold"]}
+
+
+def sequence_fields(outputs, v_true, slip, valid, threshold: float,
+                    criterion: str) -> dict[str, Any]:
+    """``checkpoint_fields`` for a per-frame model validated on whole trials: per trial
+    ``(p, v)`` outputs, true velocities, slip and valid-label masks; the model keeps the
+    ``threshold`` its trainer chose (by ``criterion``), the sigma model is fitted here."""
+    def cat(xs, i=None):
+        return np.concatenate([np.asarray(x if i is None else x[i])[np.asarray(m, bool)]
+                               for x, m in zip(xs, valid)])
+    if not len(outputs):
+        return {"output_calibration": fit_output_calibration(
+            [], np.zeros((0, 2)), np.zeros((0, 2)), [], threshold, criterion)}
+    return {"output_calibration": fit_output_calibration(
+        cat(outputs, 0), cat(outputs, 1), cat(v_true), cat(slip), threshold, criterion)}
