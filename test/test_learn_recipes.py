@@ -122,7 +122,9 @@ def test_validation_never_shares_a_trial_with_training(data, tmp_path):
     out = tmp_path / "auto.pt"
     assert cli(["--dataset", str(ext), "--pretrain-dataset", str(robot), "--out", str(out),
                 "--recipes", "frozen,scratch,svm", "--seeds", "0", "--epochs", "3",
-                "--time-budget", "120"] + SMALL) == 0
+                "--time-budget", "120", "--keep-candidates"] + SMALL) == 0
+    kept = sorted(p.name for p in (tmp_path / "auto.pt.candidates").iterdir())
+    assert kept == ["frozen.pt", "scratch_s0.pt", "svm.pt"]
     sel = json.loads((tmp_path / "auto.pt.selection.json").read_text())
     assert (tmp_path / "auto.pt.selection.md").read_text().count("| ") > 3
     train_t, val_t = set(sel["train_trials"]), set(sel["val_trials"])

@@ -313,6 +313,7 @@ def train_selected(ds: WindowSet, cfg: "TrainConfig", *, pretrain_ds: WindowSet 
             ds, ds.dataset.select("test", seed=cfg.split_seed))}
     best = run.results[winner]
     best.meta["provenance"].update(selection=selection, recipe=winner)
+    best.candidates = dict(run.results)
     return best
 
 
@@ -370,6 +371,9 @@ def run_selected(args: argparse.Namespace, ds: WindowSet, cfg: "TrainConfig",
     sel = res.meta["provenance"]["selection"]
     res.save(args.out)
     js, md = write_comparison(args.out, sel)
+    if getattr(args, "keep_candidates", False):
+        for name, r in (res.candidates or {}).items():
+            r.save(Path(f"{args.out}.candidates") / f"{name}.pt")
     print(comparison_markdown(sel))
     print(f"wrote {args.out} ({sel['winner']}), {js} and {md}")
     return 0

@@ -118,6 +118,8 @@ class TrainResult:
     tensors: dict[str, torch.Tensor]
     history: list[dict[str, float]]
     model: Any = None
+    # --stage auto: every candidate that finished, by name (the winner among them).
+    candidates: dict[str, "TrainResult"] | None = None
 
     def save(self, path: str | os.PathLike) -> Path:
         return save_checkpoint(path, self.meta, self.tensors)
@@ -325,6 +327,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "frozen,partial,unfrozen,scratch,svm (default all)")
     p.add_argument("--seeds", default="0,1",
                    help="--stage auto: training seeds of the scratch candidate")
+    p.add_argument("--keep-candidates", action="store_true",
+                   help="--stage auto: also write every candidate's checkpoint to "
+                        "<out>.candidates/<name>.pt")
     p.add_argument("--device", choices=DEVICES, default=d.device,
                    help="where the network trains: cpu (default), cuda, or auto (a CUDA GPU "
                         "where torch sees one, else the CPU)")
