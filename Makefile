@@ -14,6 +14,7 @@ PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/p
 ASLIP := $(ROS) $(VENV)/bin/aslip
 
 .PHONY: help setup build test test-fast demo datasets ablation bench stability transfer lint clean
+.PHONY: ablation-baselines magnitude
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
@@ -21,6 +22,8 @@ help:
 	@echo "make setup      venv (.venv), core install (aslip) and colcon build (install/)"
 	@echo "make datasets   default simulated datasets (data/)"
 	@echo "make ablation   the paper's Table I and II on the scene (results/ablation/)"
+	@echo "make ablation-baselines  only the SVM and plain-baseline rows of Table I (minutes)"
+	@echo "make magnitude  the package CNN against the plain CNN, one cause at a time (after transfer)"
 	@echo "make bench      latency against accuracy (results/bench/)"
 	@echo "make stability  accuracy under stressors (results/stability/)"
 	@echo "make transfer   train on the default scene, test on held-out variants (results/transfer/)"
@@ -46,6 +49,12 @@ datasets: setup
 
 ablation: setup
 	$(ASLIP) ablation --out results/ablation
+
+ablation-baselines: setup
+	$(ASLIP) ablation --baselines-only --out results/ablation
+
+magnitude: setup
+	$(VENV)/bin/python -m aslip_ros.experiments.magnitude --out results/magnitude
 
 bench: setup
 	$(ASLIP) bench --out results/bench
