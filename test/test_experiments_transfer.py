@@ -182,7 +182,34 @@ def test_a_dataset_at_another_rate_is_resampled_to_the_models_rate(tmp_path):
     x, y = a.window_audio(np.array([k]))[0], b.window_audio(np.array([k]))[0]
     assert y.shape == (9600, x.shape[1])
     np.testing.assert_allclose((y ** 2).mean(), (x ** 2).mean(), rtol=0.05)
+
     def centroid(sig, rate):
         p = np.abs(np.fft.rfft(sig[:, 0])) ** 2
         return (p * np.fft.rfftfreq(sig.shape[0], 1.0 / rate)).sum() / p.sum()
     assert centroid(y, 48000.0) == pytest.approx(centroid(x, 44100.0), rel=0.05)
+
+
+def test_the_aslip_method_is_what_aslip_train_does_by_default(tmp_path, monkeypatch):
+    from aslip_ros.learn import train
+    seen = {}
+
+    def fake_run(args):
+        seen[args.out] = args
+        open(args.out, "wb").close()
+        return 0
+
+    monkeypatch.setattr(train, "run", fake_run)
+    cfg = transfer.TransferConfig(out=tmp_path, data=tmp_path, progress=False)
+    for method in ("aslip", "paper_svm", "aslip_uncalibrated"):
+        transfer.train_method(cfg, method, tmp_path / "ds", tmp_path / "m", log=lambda s: None)
+    aslip, svm, raw = (seen[str(tmp_path / "m" / f"{m}.pt")]
+                       for m in ("aslip", "paper_svm", "aslip_uncalibrated"))
+    p = transfer.argparse.ArgumentParser()
+    train.add_arguments(p)
+    default = p.parse_args(["--dataset", "x", "--out", "y"])
+    assert (aslip.stage, aslip.calibration) == (default.stage, default.calibration) == \
+        ("auto", "background")
+    assert aslip.time_budget is None and aslip.seeds == default.seeds
+    assert svm.stage == "svm" and svm.calibration == "background"
+    assert raw.stage == "auto" and raw.calibration == "off"
+    assert "--stage auto" in transfer.aslip_recipe()

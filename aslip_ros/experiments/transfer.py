@@ -15,10 +15,12 @@ and the arm louder); ``mocap`` (a lab's motion capture: 100 Hz, 0.3 mm, 2 % drop
 ``rate`` (a 44.1 kHz sound card, resampled to the models' 48 kHz as a driver would: every
 checkpoint refuses a stream at another rate).
 
-Methods: ``aslip`` (what ``aslip train`` does by default) and ``paper_svm`` (``--stage
-svm``), both with the per-grasp calibration of ``aslip train`` (``background``); with
-``--methods`` also each without it (``*_uncalibrated``); the plain baselines of
-``learn.baselines`` (a plain log-mel CNN and an RBF SVM on time-averaged log-mel).
+Methods, each trained by ``aslip train`` itself (``train_arguments``): ``aslip`` (the
+command's defaults: ``--stage auto`` chooses a recipe on validation trials, per-grasp
+calibration ``background``) and ``paper_svm`` (``--stage svm``); with ``--methods`` also
+``aslip_scratch`` (``--stage scratch``) and each without calibration (``*_uncalibrated``);
+the plain baselines of ``learn.baselines`` (a plain log-mel CNN and an RBF SVM on
+time-averaged log-mel).
 
 Every metric carries a 95 % interval from a bootstrap over test trials; the table marks the
 best method of each column and every method whose interval overlaps the best one's (those
@@ -42,8 +44,8 @@ import numpy as np
 from aslip_ros.util import atomic_path, write_json, write_text
 
 SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap", "rate")
-METHODS = ("aslip", "aslip_uncalibrated", "paper_svm", "paper_svm_uncalibrated",
-           "plain_cnn", "plain_svm")
+METHODS = ("aslip", "aslip_uncalibrated", "aslip_scratch", "paper_svm",
+           "paper_svm_uncalibrated", "plain_cnn", "plain_svm")
 #: The methods of ``make transfer``: the package's default, the paper's SVM, the plain ones.
 DEFAULT_METHODS = ("aslip", "paper_svm", "plain_cnn", "plain_svm")
 OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pla_rod")
@@ -70,7 +72,7 @@ class TransferConfig:
     duration_s: float = 10.0
     objects: tuple[str, ...] = OBJECTS
     seed: int = 0
-    time_budget_s: float = 300.0    # the aslip CNN's training budget
+    time_budget_s: float | None = None   # aslip train's --time-budget (None: its default)
     epochs: int = 25                # the plain CNN's
     threads: int = 1
     n_boot: int = 500
@@ -151,32 +153,39 @@ def resample_dataset(src: Path, dst: Path, rate: float) -> None:
 
 # --- methods ------------------------------------------------------------------------------
 
-def _stage(method: str) -> tuple[str, str]:
-    """(``aslip train`` stage, calibration) of a checkpoint method."""
-    stage = "svm" if method.startswith("paper_svm") else "scratch"
-    return stage, "off" if method.endswith("_uncalibrated") else "background"
+def train_arguments(method: str) -> list[str]:
+    """The ``aslip train`` options of a checkpoint method on top of the command's defaults
+    (``aslip``: none, what a user gets; ``--stage auto`` chooses the recipe, with the
+    per-grasp calibration ``background``)."""
+    stage = {"aslip": [], "aslip_scratch": ["--stage", "scratch"],
+             "paper_svm": ["--stage", "svm"]}[method.removesuffix("_uncalibrated")]
+    return stage + (["--calibration", "off"] if method.endswith("_uncalibrated") else [])
 
 
 def aslip_recipe() -> str:
-    """What ``aslip train`` does by default, which the ``aslip`` method does too."""
-    return "aslip train --stage scratch --calibration background"
+    """What the ``aslip`` method runs: ``aslip train`` with its defaults."""
+    from aslip_ros.learn import train
+    p = argparse.ArgumentParser()
+    train.add_arguments(p)
+    d = p.parse_args(["--dataset", "DATASET", "--out", "X"])
+    return (f"`aslip train --dataset DATASET --out X` (defaults: --stage {d.stage}, --calibration "
+            f"{d.calibration}, --seeds {d.seeds}, no --pretrain-dataset)")
 
 
 def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
                  log: Callable[[str], None]):
     """A trained model of ``method`` on ``train_ds``'s training split (cached on disk)."""
-    from aslip_ros.learn.data_io import open_dataset
-    ds = open_dataset(train_ds)
     if method.startswith("plain_"):
         import pickle
 
         from aslip_ros.learn import baselines
-        from aslip_ros.learn.data_io import select_windows
+        from aslip_ros.learn.data_io import open_dataset, select_windows
         from aslip_ros.learn.train import feature_cache
         saved = cache / f"{method}-{cfg.epochs}ep.pkl"
         if saved.is_file():
             # Written by this protocol only, beside the checkpoints it trains.
             return pickle.loads(saved.read_bytes())
+        ds = open_dataset(train_ds)
         feats = feature_cache(ds, baselines.baseline_features(ds.sample_rate), ds.channel_names)
         tr = select_windows(ds, "train", seed=cfg.seed)
         x, v, s = np.asarray(feats[tr], dtype=np.float32), ds.velocity(tr), ds.slip(tr)
@@ -188,16 +197,22 @@ def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
         with atomic_path(saved) as tmp:
             tmp.write_bytes(pickle.dumps(model))
         return model
-    from aslip_ros.learn.train import TrainConfig, train_cnn, train_svm
     ckpt = cache / f"{method}.pt"
     if not ckpt.is_file():
-        stage, calibration = _stage(method)
-        tc = TrainConfig(stage=stage, time_budget_s=cfg.time_budget_s, threads=cfg.threads,
-                         seed=cfg.seed, split_seed=cfg.seed, progress=cfg.progress,
-                         calibration=calibration)
-        res = (train_svm if stage == "svm" else train_cnn)(ds, tc, log=log)
+        from aslip_ros.learn import train
         cache.mkdir(parents=True, exist_ok=True)
-        res.save(ckpt)
+        argv = ["--dataset", str(train_ds), "--out", str(ckpt), *train_arguments(method),
+                "--threads", str(cfg.threads), "--seed", str(cfg.seed),
+                "--split-seed", str(cfg.seed)]
+        if cfg.time_budget_s is not None:
+            argv += ["--time-budget", f"{cfg.time_budget_s:g}"]
+        if not cfg.progress:
+            argv.append("--no-progress")
+        p = argparse.ArgumentParser()
+        train.add_arguments(p)
+        log("aslip train " + " ".join(argv))
+        if train.run(p.parse_args(argv)) != 0 or not ckpt.is_file():
+            raise RuntimeError(f"aslip train failed for {method} on {train_ds}")
     return ckpt
 
 
@@ -358,8 +373,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="tables also show the cached predictions of the methods not run")
     p.add_argument("--trials", type=int, default=2, help="trials per object and condition")
     p.add_argument("--duration", type=float, default=10.0, help="seconds per trial")
-    p.add_argument("--time-budget", type=float, default=300.0,
-                   help="training budget of the aslip CNN [s]")
+    p.add_argument("--time-budget", type=float, default=None,
+                   help="aslip train's --time-budget [s] (default: aslip train's own)")
     p.add_argument("--epochs", type=int, default=25, help="plain CNN epochs")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--quick", action="store_true",
