@@ -198,7 +198,9 @@ def test_evaluate_checks_sigma_on_the_test_split_and_draws_the_diagram(tmp_path,
     res = evaluate_checkpoint(tmp_path / "s.pt", data, "test")
     sig = res["output_calibration"]["sigma"]
     assert (sig["coverage"], sig["n"]) == (pytest.approx(test[0]), test[1])
-    assert res["output_calibration"]["ece"] >= 0
+    lo, hi = sig["coverage_ci"]                         # whole trials resampled
+    assert lo <= sig["coverage"] <= hi and lo < hi
+    assert res["output_calibration"]["ece_ci"][0] <= res["output_calibration"]["ece"]
     assert evaluate_checkpoint(plain, data, "test")["output_calibration"]["sigma"] is None
     png = tmp_path / "rel" / "reliability.png"
     assert cli.main(["evaluate", "--checkpoint", str(tmp_path / "s.pt"), "--dataset",

@@ -19,7 +19,8 @@ Calibrated outputs (``output_calibration`` in the result; learn/output_calibrati
 bins themselves (``reliability``), and, for a checkpoint with a direction-sigma model,
 ``sigma.coverage``: the fraction of scored slip windows (as for the direction error) whose
 error is at most the sigma the checkpoint reports for its predicted speed (about 0.68 when
-calibrated).
+calibrated). ``ece_ci`` and ``sigma.coverage_ci``: 95 % intervals from 1000 resamples of
+whole trials (``stats``: windows of one trial are not independent).
 ``--reliability PATH.png`` draws both.
 
 Streaming checkpoints (``aslip_stream``) are scored on the same windows and labels: the
@@ -209,10 +210,27 @@ def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str 
         "overall": compute_metrics(*args),
         "per_object": grouped_metrics(ds.trial_field("object", idx), *args),
         "per_condition": grouped_metrics(ds.trial_field("condition", idx), *args),
-        "output_calibration": calibration_check(
-            p["prob"], p["raw_velocity"], p["true_velocity"], p["slip"],
-            getattr(pred, "sigma_model", None)),
+        "output_calibration": _output_calibration(p, getattr(pred, "sigma_model", None)),
     }
+
+
+def _output_calibration(p: dict[str, Any], model, n_boot: int = 1000) -> dict[str, Any]:
+    """``calibration_check`` on the split, with trial-bootstrap intervals (docstring)."""
+    arrays = [np.asarray(p[k]) for k in ("prob", "raw_velocity", "true_velocity", "slip")]
+    out = calibration_check(*arrays, model)
+    if np.unique(p["trial"]).size < 2:
+        return out
+    from .stats import _resamples
+    ece, cover = [], []
+    for idx in _resamples(p["trial"], n_boot, 0):
+        c = calibration_check(*(a[idx] for a in arrays), model)
+        ece.append(c["ece"])
+        if c["sigma"] is not None and c["sigma"]["coverage"] is not None:
+            cover.append(c["sigma"]["coverage"])
+    out["ece_ci"] = [float(v) for v in np.percentile(ece, [2.5, 97.5])]
+    if cover and out["sigma"] is not None:
+        out["sigma"]["coverage_ci"] = [float(v) for v in np.percentile(cover, [2.5, 97.5])]
+    return out
 
 
 def format_report(res: dict[str, Any]) -> str:
@@ -230,11 +248,13 @@ def format_report(res: dict[str, Any]) -> str:
     cal = res.get("output_calibration")
     if cal is not None:
         sig = cal["sigma"]
+        ci = (lambda c: "" if c is None else f" [{c[0]:.3f}, {c[1]:.3f}]")
         cover = "no sigma model in the checkpoint" if sig is None else (
             f"{sig['coverage']:.1%} of {sig['n']} slip windows within direction sigma "
-            f"(target {sig['target']:.1%})" if sig["n"] else "no slip windows")
+            f"(target {sig['target']:.1%}){ci(sig.get('coverage_ci'))}" if sig["n"]
+            else "no slip windows")
         lines.append(f"calibration: threshold {res['overall']['threshold']:.2f}, "
-                     f"ECE {cal['ece']:.3f}; {cover}")
+                     f"ECE {cal['ece']:.3f}{ci(cal.get('ece_ci'))}; {cover}")
     return "\n".join(lines)
 
 

@@ -319,16 +319,16 @@ def checkpoint_fields(prob, v_pred, v_true, slip) -> dict[str, Any]:
     return {"output_calibration": doc, "threshold": doc["threshold"]}
 
 
-def sequence_fields(outputs, v_true, slip, valid, threshold: float,
-                    criterion: str) -> dict[str, Any]:
-    """``checkpoint_fields`` for a per-frame model validated on whole trials: per trial
-    ``(p, v)`` outputs, true velocities, slip and valid-label masks; the model keeps the
-    ``threshold`` its trainer chose (by ``criterion``), the sigma model is fitted here."""
+def sequence_fields(outputs, seqs, threshold: float,
+                    criterion: str = "validation false alarms per minute "
+                                     "(threshold_selection)") -> dict[str, Any]:
+    """``checkpoint_fields`` for a per-frame model validated on whole trials (the streaming
+    trainer): per trial ``(p, v)`` outputs and ``seqs`` with per-trial ``v``, ``slip`` and
+    ``valid`` (label) arrays. The model keeps the ``threshold`` its trainer chose by
+    ``criterion``; the sigma model is fitted here on the valid frames."""
     def cat(xs, i=None):
         return np.concatenate([np.asarray(x if i is None else x[i])[np.asarray(m, bool)]
-                               for x, m in zip(xs, valid)])
-    if not len(outputs):
-        return {"output_calibration": fit_output_calibration(
-            [], np.zeros((0, 2)), np.zeros((0, 2)), [], threshold, criterion)}
+                               for x, m in zip(xs, seqs.valid)] or [np.zeros((0, 2))])
     return {"output_calibration": fit_output_calibration(
-        cat(outputs, 0), cat(outputs, 1), cat(v_true), cat(slip), threshold, criterion)}
+        cat(outputs, 0).reshape(-1), cat(outputs, 1), cat(seqs.v), cat(seqs.slip).reshape(-1),
+        threshold, criterion)}

@@ -276,17 +276,14 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
             break
     model.load_state_dict(best[2])
     model.to("cpu").eval()
-    out_val = [offline_outputs(model, x) for x in va.frames]
-    p_val = [o[0] for o in out_val]
-    threshold, sweep = select_threshold(p_val, va.slip, fcfg.hop / fcfg.sample_rate,
-                                        cfg.fa_per_min)
+    out_val = [offline_outputs(model, x) for x in va.frames]     # (p, v) per trial
+    threshold, sweep = select_threshold([o[0] for o in out_val], va.slip,
+                                        fcfg.hop / fcfg.sample_rate, cfg.fa_per_min)
     log(f"threshold {threshold:.2f} (validation false alarms per minute <= "
         f"{cfg.fa_per_min:g} where reachable)")
     meta = stream_meta(ds, cfg, mcfg, fcfg, channels, smoother, model)
-    meta["threshold"] = threshold
+    meta.update(threshold=threshold, **sequence_fields(out_val, va, threshold))
     meta["threshold_selection"] = {"fa_per_min_target": cfg.fa_per_min, "sweep": sweep}
-    meta.update(sequence_fields(out_val, va.v, va.slip, va.valid, threshold,
-                                "validation false alarms per minute (threshold_selection)"))
     meta["provenance"].update(
         metrics={"val": best[3], "best_val_loss": best[0]},
         training={"best_epoch": best[1], "epochs_run": len(history), "stop_reason": stop,
