@@ -55,7 +55,7 @@ def test_select_picks_the_better_candidate_and_says_why():
     # A trade: 10 % better direction does not pay for 50 % worse magnitude.
     trade = dict(good, direction_mae_deg=18.0, magnitude_rmse_mm=1.5)
     assert recipes.select({"good": good, "trade": trade})[0] == "good"
-    # Equal scores: the first candidate (the simpler recipe order) wins.
+    # Equal scores: the candidate trained first wins.
     assert recipes.select({"x": good, "y": dict(good)})[0] == "x"
 
 
@@ -134,7 +134,7 @@ def test_validation_never_shares_a_trial_with_training(data, tmp_path):
     ds = open_dataset(ext)
     splits = dict(zip((t["id"] for t in ds.trials), trial_splits(ds)))
     assert {splits[t] for t in val_t} == {"val"} and {splits[t] for t in train_t} == {"train"}
-    assert [r["name"] for r in sel["candidates"]] == ["frozen", "scratch_s0", "svm"]
+    assert [r["name"] for r in sel["candidates"]] == ["svm", "frozen", "scratch_s0"]
     assert all(r["status"] == "ok" for r in sel["candidates"])
     ck = load_checkpoint(out)
     prov = ck.meta["provenance"]

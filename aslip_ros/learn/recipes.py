@@ -11,17 +11,19 @@ Candidates (``RECIPES``), each trained on the dataset's training trials:
   svm       the handcrafted-feature SVM baseline
 
 The three pretrained candidates share one pretraining and are skipped, with a message, when
-no robot-induced set is given. The budget (``budget_s``) is the whole call's wall time: each
-CNN job gets the time left times its weight (``JOB_WEIGHTS``) over the weights of the jobs
-still to run, so time one job leaves unused goes to the later ones; a job stops at the end
-of the epoch that crosses its share and keeps its best epoch.
+no robot-induced set is given. The budget (``budget_s``) is the whole call's wall time. The
+SVM runs first (unbudgeted; ``SvmConfig.max_train`` bounds it), then the pretraining, then
+the CNN candidates in order: each CNN job gets the time left times its weight
+(``JOB_WEIGHTS``) over the weights of the jobs still to run, so time one job leaves unused
+goes to the later ones; a job stops at the end of the epoch that crosses its share and
+keeps its best epoch.
 
 Selection is on the validation trials (``data.dataset.split_trials`` by trial, never a
 training trial; test trials are neither trained on nor looked at). The criterion
 (``score``) is the sum, over direction MAE, magnitude RMSE and detection error
 (1 - accuracy, floored at ``DETECTION_ERROR_FLOOR``), of the candidate's value divided by
 the best candidate's value: 3.0 is best at everything, and a candidate 20 % worse on one
-metric pays 0.2. Lowest wins; ties go to the earlier candidate in ``RECIPES`` order. With
+metric pays 0.2. Lowest wins; ties go to the candidate trained first. With
 fewer than ``MIN_VAL_TRIALS`` validation trials, or none with slip, selection refuses and
 says what is missing. The comparison is printed, written beside the checkpoint as
 ``<out>.selection.json`` and ``.md``, and stored in the chosen checkpoint's provenance
@@ -297,7 +299,10 @@ def train_selected(ds: WindowSet, cfg: "TrainConfig", *, pretrain_ds: WindowSet 
     run = _Jobs(ds, cfg, pretrain_ds, budget_s,
                 dict(feature_config=feature_config, model_options=model_options,
                      channels=channels, cache_dir=cache_dir, log=log), svm_config)
-    run.run((["pretrain"] if any(c.needs_pretrain for c in cands) else []) + list(cands))
+    # The SVM first: its fit is not budgeted, so the CNN shares are cut from what it leaves.
+    svm = [c for c in cands if c.recipe == "svm" and c.trainer is None]
+    rest = [c for c in cands if c not in svm]
+    run.run(svm + (["pretrain"] if any(c.needs_pretrain for c in cands) else []) + rest)
     winner, scores, why = select({n: r.meta["provenance"]["metrics"]["val"]
                                   for n, r in run.results.items()})
     for row in run.rows:
