@@ -68,6 +68,10 @@ def test_prediction_to_slip_vector_and_zero_vector_when_not_slipping():
     assert msg.direction == pytest.approx(math.atan2(-0.04, 0.03))
     assert msg.velocity.y == 0.0 and msg.header.frame_id == "aslip_grasp_plane"
     assert msg.window_length == pytest.approx(0.2)
+    assert msg.direction_sigma == -1.0              # the prediction gives none
+    sure = Prediction(0.9, True, 0.03, -0.04, 0.05, (0.6, -0.8), 0.2, 0.8, direction_sigma=0.3)
+    assert convert.prediction_to_slip(sure, 0, "aslip_cnn").direction_sigma == \
+        pytest.approx(0.3)
     quiet = convert.slip_to_msg(0.03, 0.01, 0.2, False, 0.5, 0, 0.2, "svm")
     assert (quiet.velocity.x, quiet.velocity.z, quiet.speed, quiet.direction) == (0, 0, 0, 0)
 

@@ -123,10 +123,12 @@ def prediction_to_slip(pred, stamp_ns: int, source: str,
     """A :class:`aslip_ros.learn.predictor.Prediction` as a SlipVector (validated).
 
     The message's ``threshold`` is the one the prediction's ``slipping`` was decided at
-    (``pred.threshold``), never a second value that could disagree with the decision.
+    (``pred.threshold``), never a second value that could disagree with the decision; its
+    ``direction_sigma`` is the prediction's.
     """
     return slip_to_msg(pred.vx, pred.vz, pred.probability, pred.slipping, pred.threshold,
-                       stamp_ns, pred.window_length, source, frame_id)
+                       stamp_ns, pred.window_length, source, frame_id,
+                       direction_sigma=pred.direction_sigma)
 
 
 @dataclass(frozen=True)
