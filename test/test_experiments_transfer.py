@@ -91,6 +91,10 @@ def test_merge_keeps_the_cached_predictions_of_methods_not_run(tmp_path, monkeyp
     both = transfer.run_protocol(transfer.TransferConfig(methods=("paper_svm",), merge=True,
                                                          **base), log=lambda s: None)
     assert set(both["cells"]["default -> coupling"]) == {"paper_svm", "plain_svm"}
+    # Tables alone, from the cache: nothing is trained again.
+    monkeypatch.setattr(transfer, "train_method", None)
+    again = transfer.write_tables(transfer.TransferConfig(methods=(), merge=True, **base))
+    assert again["cells"] == both["cells"]
 
 
 def test_cached_data_follow_the_scene_version(tmp_path, monkeypatch):
@@ -135,6 +139,10 @@ def test_target_met_only_when_far_better_with_separated_intervals():
     md = "\n".join(tt.targets_markdown({"default -> default": t}))
     assert "cannot be told apart" in md and "| no |" in md
     assert tt.targets({"plain_cnn": bad}) is None
+    # Against the plain baselines alone the paper's SVM is no baseline.
+    t = tt.targets({"aslip": good, "plain_cnn": bad, "paper_svm": same}, n_boot=50,
+                   baselines=tt.PLAIN)
+    assert t["direction_mae_deg"]["baseline"] == "plain_cnn" and t["met"]
 
 
 def test_unknown_names_are_refused():

@@ -274,9 +274,6 @@ def test_sets(cfg: TransferConfig, train: str, log: Callable[[str], None]
 
 def run_protocol(cfg: TransferConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Train on each ``train_on`` scene, test on every ``test_on`` scene; the result table."""
-    from aslip_ros.experiments.transfer_targets import targets
-    cells: dict[str, dict[str, dict[str, Any]]] = {}
-    preds: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     for train in cfg.train_on:
         train_ds = scene_dataset(cfg, train, log)
         tests = test_sets(cfg, train, log)
@@ -289,10 +286,19 @@ def run_protocol(cfg: TransferConfig, log: Callable[[str], None] = print) -> dic
                 p = predict(cfg, method, model, ds, "all")
                 _save_predictions(_predictions_path(cfg, train, test, method), p)
                 log(f"  {method}: {train} -> {test}: {_cell(score(cfg, p))}")
+    return write_tables(cfg)
+
+
+def write_tables(cfg: TransferConfig) -> dict[str, Any]:
+    """The tables from the cached predictions of ``cfg.methods`` (with ``merge``: of every
+    method that has them), written to ``cfg.out``."""
+    from aslip_ros.experiments.transfer_targets import PLAIN, targets
+    cells: dict[str, dict[str, dict[str, Any]]] = {}
+    preds: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+    for train in cfg.train_on:
         for test in cfg.test_on:
             cell = f"{train} -> {test}"
-            others = [m for m in METHODS if m not in cfg.methods] if cfg.merge else []
-            for method in list(cfg.methods) + others:
+            for method in (m for m in METHODS if cfg.merge or m in cfg.methods):
                 path = _predictions_path(cfg, train, test, method)
                 if path.is_file():
                     preds.setdefault(cell, {})[method] = p = _load_predictions(path)
@@ -300,9 +306,10 @@ def run_protocol(cfg: TransferConfig, log: Callable[[str], None] = print) -> dic
     result = {"format": "aslip-transfer", "version": 2,
               "config": {k: (str(v) if isinstance(v, Path) else v)
                          for k, v in asdict(cfg).items()},
-              "aslip_method": aslip_recipe(),
-              "cells": cells, "targets": {c: targets(p, cfg.n_boot, cfg.seed)
-                                          for c, p in preds.items()}}
+              "aslip_method": aslip_recipe(), "cells": cells,
+              "targets": {c: targets(p, cfg.n_boot, cfg.seed) for c, p in preds.items()},
+              "targets_plain": {c: targets(p, cfg.n_boot, cfg.seed, PLAIN)
+                                for c, p in preds.items()}}
     write_json(cfg.out / "transfer.json", result)
     write_text(cfg.out / "transfer.md", table_markdown(result))
     return result
@@ -359,6 +366,8 @@ def table_markdown(result: dict[str, Any]) -> str:
             lines.append(f"| {m} | " + " | ".join(out) + " |")
         lines.append("")
     lines += targets_markdown(result.get("targets", {}))
+    lines += targets_markdown(result.get("targets_plain", {}),
+                              "the better plain baseline (plain CNN, plain SVM)")
     return "\n".join(lines)
 
 
@@ -371,6 +380,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"comma-separated methods out of {','.join(METHODS)}")
     p.add_argument("--merge", action="store_true",
                    help="tables also show the cached predictions of the methods not run")
+    p.add_argument("--tables-only", action="store_true",
+                   help="train and predict nothing: the tables from cached predictions")
     p.add_argument("--trials", type=int, default=2, help="trials per object and condition")
     p.add_argument("--duration", type=float, default=10.0, help="seconds per trial")
     p.add_argument("--time-budget", type=float, default=None,
@@ -407,10 +418,14 @@ def main(argv: list[str] | None = None) -> int:
                                 description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     add_arguments(p)
-    cfg = config_from_args(p.parse_args(argv))
+    args = p.parse_args(argv)
+    cfg = config_from_args(args)
     from aslip_ros.experiments.common import Log, set_threads
     set_threads(cfg.threads)
-    run_protocol(cfg, Log("transfer"))
+    if args.tables_only:
+        write_tables(cfg)
+    else:
+        run_protocol(cfg, Log("transfer"))
     print(cfg.out / "transfer.md")
     return 0
 
