@@ -266,7 +266,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--induced", default=None, help="only trials with this 'induced' value")
     p.add_argument("--objects", default=None, help="comma-separated objects to keep")
     p.add_argument("--conditions", default=None, help="comma-separated conditions to keep")
-    p.add_argument("--threshold", type=float, default=None, help="p(slip) threshold (0.5)")
+    p.add_argument("--threshold", type=float, default=None,
+                   help="p(slip) threshold (default: the checkpoint's, chosen on validation)")
     p.add_argument("--json", default=None, help="write the metrics here as JSON")
     p.add_argument("--reliability", default=None, metavar="PATH.png",
                    help="draw the reliability diagram and the direction-sigma coverage")
