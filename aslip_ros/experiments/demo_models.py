@@ -86,6 +86,28 @@ def aslip(argv: list[str]) -> int:
     return int(module.run(parser.parse_args(argv[1:])) or 0)
 
 
+def stream_problem(models_dir: str | Path, name: str) -> str | None:
+    """Why the streaming checkpoint ``name`` in models_dir must not run in this scene, or None.
+
+    It is trained elsewhere (``python -m aslip_ros.experiments.lag``, not by
+    :func:`train_models`), so the manifest's ``stream`` entry records the scene version its
+    data came from; a model of another scene (or of an unknown one) is refused rather than
+    shown as if it belonged to this one."""
+    d = Path(models_dir)
+    try:
+        entry = json.loads((d / MANIFEST).read_text()).get("stream")
+    except (OSError, ValueError, AttributeError):
+        entry = None
+    if not (d / name).is_file():
+        return f"no streaming checkpoint {d / name}"
+    if not isinstance(entry, dict) or entry.get("file") != name:
+        return f"{d / MANIFEST} does not say which scene {name} was trained on"
+    if str(entry.get("scene_version")) != scene_version():
+        return (f"{d / name} was trained on scene version {entry.get('scene_version')}, "
+                f"this scene is version {scene_version()}")
+    return None
+
+
 def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True) -> Path:
     """Simulate and export the training set of the current scene; returns the dataset dir.
 
@@ -151,6 +173,10 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
                             "direction_mae_deg", "direction_std_deg", "magnitude_rmse_mm",
                             "magnitude_std_mm")}
     files = {m: v[0] for m, v in MODELS.items()}
+    try:        # the streaming model is trained elsewhere: keep what the manifest says of it
+        stream = json.loads((out / MANIFEST).read_text()).get("stream")
+    except (OSError, ValueError, AttributeError):
+        stream = None
     man = {"format": "aslip-demo-models", "version": 2, "scene_version": scene_version(),
            "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
            "layout": "4mic", "files": files,
@@ -161,6 +187,8 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
            "test_metrics": metrics, "train_s_per_model": train_s,
            "train_s": round(time.perf_counter() - t0, 1),
            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    if isinstance(stream, dict):
+        man["stream"] = stream
     write_json(out / MANIFEST, man)
     _log(f"wrote {', '.join(files.values())} and {MANIFEST} in {out}")
     return man

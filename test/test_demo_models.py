@@ -1,0 +1,172 @@
+"""The demo's model set: which checkpoint each method runs, how each is trained (with or
+without the per-grasp calibration), and that a set trained for another scene is refused."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from aslip_ros.experiments import demo, demo_models
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _option(cmd: list[str], name: str) -> str:
+    return cmd[cmd.index(name) + 1]
+
+
+def test_the_uncalibrated_cnn_is_trained_without_calibration_and_the_others_with_it():
+    cmds = {m: demo_models.train_command(m, "D", f"out/{m}.pt") for m in demo_models.MODELS}
+    assert _option(cmds["aslip"], "--calibration") == "background"
+    assert _option(cmds["svm"], "--calibration") == "background"
+    assert _option(cmds["aslip_uncalibrated"], "--calibration") == "off"
+    # The two CNNs differ in nothing else: the calibration is what the pair compares.
+    strip = [a for a in cmds["aslip"] if a not in ("background", "out/aslip.pt")]
+    assert strip == [a for a in cmds["aslip_uncalibrated"]
+                     if a not in ("off", "out/aslip_uncalibrated.pt")]
+    assert _option(cmds["aslip"], "--stage") == "scratch"
+    assert _option(cmds["svm"], "--stage") == "svm"
+    # Every window method of the demo has a model in the set, and the set nothing else.
+    assert set(demo_models.MODELS) == set(demo.METHODS) - {"stream"}
+
+
+def _write_set(d: Path, version: str, skip: str | None = None) -> dict:
+    d.mkdir(parents=True, exist_ok=True)
+    files = {m: v[0] for m, v in demo_models.MODELS.items()}
+    for m, f in files.items():
+        if m != skip:
+            (d / f).write_bytes(b"x")
+    man = {"scene_version": version, "files": files, "test_metrics": {}}
+    (d / demo_models.MANIFEST).write_text(json.dumps(man))
+    return man
+
+
+def test_a_set_for_another_scene_version_is_refused(tmp_path):
+    now = demo_models.scene_version()
+    assert demo_models.shipped_models(tmp_path / "none") is None
+    assert demo_models.shipped_models(tmp_path) is None
+    _write_set(tmp_path / "old", "2")
+    assert now != "2" and demo_models.shipped_models(tmp_path / "old") is None
+    _write_set(tmp_path / "ok", now)
+    assert demo_models.shipped_models(tmp_path / "ok")["scene_version"] == now
+
+
+@pytest.mark.parametrize("missing", sorted(demo_models.MODELS))
+def test_a_partial_set_is_refused(tmp_path, missing):
+    _write_set(tmp_path, demo_models.scene_version(), skip=missing)
+    assert demo_models.shipped_models(tmp_path) is None
+
+
+def test_a_manifest_from_before_the_uncalibrated_model_is_refused(tmp_path):
+    _write_set(tmp_path, demo_models.scene_version())
+    man = json.loads((tmp_path / demo_models.MANIFEST).read_text())
+    del man["files"]["aslip_uncalibrated"]
+    (tmp_path / demo_models.MANIFEST).write_text(json.dumps(man))
+    assert demo_models.shipped_models(tmp_path) is None
+
+
+def _args(models: Path, **kw) -> argparse.Namespace:
+    p = argparse.ArgumentParser()
+    demo.add_arguments(p)
+    a = p.parse_args(["--models", str(models)])
+    for k, v in kw.items():
+        setattr(a, k, v)
+    return a
+
+
+def test_each_method_runs_its_own_checkpoint(tmp_path):
+    _write_set(tmp_path, demo_models.scene_version())
+    got = demo.resolve_models(_args(tmp_path))
+    assert got["aslip"] == tmp_path / demo_models.CNN_NAME
+    assert got["aslip_uncalibrated"] == tmp_path / demo_models.UNCALIBRATED_NAME
+    assert got["svm"] == tmp_path / demo_models.SVM_NAME
+    assert got["stream"] == tmp_path / demo.STREAM_NAME
+    assert got["source"].startswith("shipped")
+
+
+def test_a_stale_set_is_retrained_before_the_demo_runs(tmp_path, monkeypatch):
+    _write_set(tmp_path, "2")
+    calls = []
+
+    def fake_train(models_dir, data_dir, progress=True):
+        calls.append(Path(models_dir))
+        return _write_set(Path(models_dir), demo_models.scene_version())
+    monkeypatch.setattr(demo_models, "train_models", fake_train)
+    got = demo.resolve_models(_args(tmp_path))
+    assert calls == [tmp_path] and got["source"] == "trained now"
+
+
+def test_explicit_checkpoints_need_no_manifest(tmp_path):
+    a = _args(tmp_path / "nothing", cnn="a.pt", svm="s.pt")
+    got = demo.resolve_models(a, ("aslip", "svm"))
+    assert got["aslip"] == Path("a.pt") and got["svm"] == Path("s.pt")
+    assert got["source"] == "command line"
+    assert "aslip_uncalibrated" not in got          # not asked for, so not made up
+
+
+def test_the_shipped_models_belong_to_this_scene_with_their_calibration():
+    """models/: trained for the current scene version, the calibrated models carry the
+    per-grasp calibration (background method) and the uncalibrated CNN none."""
+    from aslip_ros.learn.checkpoint import load_checkpoint
+    man = demo_models.shipped_models(ROOT / "models")
+    assert man is not None, "models/ is stale or partial: aslip demo --train-models"
+    for method, (name, _, calibration) in demo_models.MODELS.items():
+        meta = load_checkpoint(ROOT / "models" / man["files"][method]).meta
+        if calibration == "off":
+            assert "calibration" not in meta, method
+        else:
+            assert meta["calibration"]["method"] == calibration, method
+
+
+def _stream_entry(d: Path, version: str | None) -> None:
+    man = json.loads((d / demo_models.MANIFEST).read_text())
+    if version is not None:
+        man["stream"] = {"file": demo.STREAM_NAME, "scene_version": version}
+    (d / demo_models.MANIFEST).write_text(json.dumps(man))
+
+
+def test_a_streaming_model_of_another_scene_is_refused(tmp_path):
+    _write_set(tmp_path, demo_models.scene_version())
+    assert "no streaming checkpoint" in demo_models.stream_problem(tmp_path, demo.STREAM_NAME)
+    (tmp_path / demo.STREAM_NAME).write_bytes(b"x")
+    assert "does not say" in demo_models.stream_problem(tmp_path, demo.STREAM_NAME)
+    _stream_entry(tmp_path, "2")
+    assert "scene version 2" in demo_models.stream_problem(tmp_path, demo.STREAM_NAME)
+    _stream_entry(tmp_path, demo_models.scene_version())
+    assert demo_models.stream_problem(tmp_path, demo.STREAM_NAME) is None
+
+
+def test_the_demo_refuses_a_stale_streaming_model_before_any_episode(tmp_path, monkeypatch,
+                                                                     capsys):
+    _write_set(tmp_path, demo_models.scene_version())
+    (tmp_path / demo.STREAM_NAME).write_bytes(b"x")
+    _stream_entry(tmp_path, "2")
+    monkeypatch.setattr(demo, "run_episodes", lambda *a, **k: pytest.fail("episodes ran"))
+    args = _args(tmp_path, methods="aslip,stream", out=str(tmp_path / "out"))
+    assert demo.run(args) == 2
+    assert "trained on scene version 2" in capsys.readouterr().err
+    assert demo.DEFAULT_METHODS == ("aslip", "aslip_uncalibrated", "svm")
+
+
+def test_retraining_keeps_what_the_manifest_says_of_the_streaming_model(tmp_path,
+                                                                        monkeypatch):
+    _write_set(tmp_path, "2")
+    _stream_entry(tmp_path, "2")
+    monkeypatch.setattr(demo_models, "prepare_data", lambda *a: tmp_path / "data" / "ds")
+
+    def fake_aslip(argv):
+        if argv[0] == "train":
+            Path(argv[argv.index("--out") + 1]).write_bytes(b"model")
+        else:
+            Path(argv[argv.index("--json") + 1]).write_text(json.dumps({"overall": {}}))
+        return 0
+    (tmp_path / "data").mkdir()
+    monkeypatch.setattr(demo_models, "aslip", fake_aslip)
+    man = demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
+    assert man["stream"] == {"file": demo.STREAM_NAME, "scene_version": "2"}
+    assert man["scene_version"] == demo_models.scene_version()
+    assert man["calibration"] == {"aslip": "background", "aslip_uncalibrated": "off",
+                                  "svm": "background"}
