@@ -125,3 +125,40 @@ def test_methods_table_lists_every_method_of_the_run():
     assert set(lines) == {"method", "aslip", "stream", "svm"}
     assert "1/1" in lines["stream"] and "7.0" in lines["stream"] and "12.0" in lines["stream"]
     assert lines["svm"].rstrip().endswith("| - |")          # svm ran no slip-track episode
+
+
+def test_calibration_table_counts_convergence_and_compares_with_no_correction():
+    cal = [{"converged": True, "gain_error_db": 0.2, "uncalibrated_error_db": 1.0},
+           {"converged": False, "gain_error_db": 0.6, "uncalibrated_error_db": 2.0}]
+    rows = [{"task": "slip_track", "method": "aslip", "object": "chips_can", "calibration": c}
+            for c in cal]
+    rows.append({"task": "slip_track", "method": "aslip_uncalibrated", "object": "chips_can",
+                 "calibration": None})
+    md = dm.calibration_table(rows)
+    assert "| slip-track | aslip | 1/2 | 0.40 | 1.50 |" in md
+    assert "aslip_uncalibrated" not in md            # no calibration, no row
+    assert dm.calibration_table(rows[2:]) == ""
+
+
+class _Predictor:
+    calibrated = True
+
+    def calibration_summary(self):
+        return {"calibration_converged": False, "calibration_accepted_frames": 120,
+                "gain_db": {"a": 1.0, "b": -1.0}}
+
+
+class _World:
+    class synth:                                      # noqa: N801 - stands in for an attribute
+        gain = 10.0 ** (np.array([3.0, 1.0]) / 20.0)  # 2 dB apart: relative +1 / -1 dB
+
+
+def test_calibration_outcome_against_the_scene_gains():
+    from aslip_ros.experiments.demo_episode import calibration_outcome
+    out = calibration_outcome(_Predictor(), _World())
+    assert out["converged"] is False and out["accepted_frames"] == 120
+    assert out["gain_error_db"] == pytest.approx(0.0, abs=1e-9)
+    assert out["uncalibrated_error_db"] == pytest.approx(1.0)
+    off = _Predictor()
+    off.calibrated = False
+    assert calibration_outcome(off, _World()) is None

@@ -232,7 +232,8 @@ def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True
                "units": "mm", "paper_table3": dm.PAPER_TABLE3,
                "table": dm.summarize(ok), "episodes": results,
                "errors": [r for r in results if "error" in r]}
-    table = dm.format_table(summary["table"]) + dm.methods_table(summary["table"])
+    table = dm.format_table(summary["table"]) + dm.methods_table(summary["table"]) \
+        + dm.calibration_table(ok)
     head = (f"# Table III in the scene ({meta['command']})\n\n"
             f"Slip-stop cells: successes/trials, |Delta x| mean ± std [mm] over all trials "
             f"(failures included); slip-track: pose RMSE mean ± std [mm]. Paper columns from "
@@ -321,7 +322,8 @@ def run(args: argparse.Namespace) -> int:
             "episodes_behind": sum(1 for r in results if r.get("skipped_blocks", 0) > 0),
             "reruns": sum(len(r.get("reruns", [])) for r in results)}
     summary = write_outputs(out, results, meta, plots=not args.no_plots)
-    print(dm.format_table(summary["table"]) + dm.methods_table(summary["table"]))
+    print(dm.format_table(summary["table"]) + dm.methods_table(summary["table"])
+          + dm.calibration_table([r for r in results if "error" not in r]))
     print(f"results: {out / 'summary.json'}, {out / 'table.md'}")
     if summary.get("plots"):
         print("plots: " + ", ".join(str(p) for p in summary["plots"]))

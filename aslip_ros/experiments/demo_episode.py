@@ -214,6 +214,7 @@ def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
             timing = dict(ctl.inputs.values(), **ctl.stop_latency())
             ctl.before_shutdown()
             out = _score(ep, sim, rec, length, outcome)
+            out["calibration"] = calibration_outcome(infer.predictor, sim.world)
             out["controller_timing"] = timing
             if ep.task == "slip_track":
                 out["controller_reason"] = ctl.task.reason if ctl.task else "not started"
@@ -292,6 +293,21 @@ def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:
         "pred_v": slip[:, 1:3].astype(np.float32), "pred_p": slip[:, 3].astype(np.float32),
         "push_dir": world.wall_normal().astype(np.float32)}
     return out
+
+
+def calibration_outcome(predictor, world) -> Optional[dict]:
+    """Where the live per-grasp calibration got by the end of the episode, against the
+    scene's true microphone gains (None for a model without calibration)."""
+    if not getattr(predictor, "calibrated", False):
+        return None
+    s = predictor.calibration_summary()
+    est = np.array(list(s["gain_db"].values()), dtype=float)
+    true = 20.0 * np.log10(np.asarray(world.synth.gain, dtype=float))
+    true -= true.mean()         # gains are relative: the calibration has no absolute level
+    return {"converged": bool(s["calibration_converged"]),
+            "accepted_frames": int(s["calibration_accepted_frames"]),
+            "gain_error_db": float(np.sqrt(np.mean((est - true) ** 2))),
+            "uncalibrated_error_db": float(np.sqrt(np.mean(true ** 2)))}
 
 
 def episode_dict(ep: Episode) -> dict:

@@ -262,3 +262,24 @@ def methods_table(summary: dict) -> str:
                      + (_fmt(c["mean_mm"], c["std_mm"]) if c else "-") + " | "
                      + (_fmt(t["mean_mm"], t["std_mm"]) if t else "-") + " |")
     return "\n".join(lines) + "\n"
+
+
+def calibration_table(results: Sequence[dict]) -> str:
+    """Where the live per-grasp calibration got by each episode's end, per task and method
+    with one: episodes converged, and the RMS error of the relative microphone gains [dB]
+    against leaving them uncorrected (mean over episodes). Empty without such methods."""
+    rows = [r for r in results if isinstance(r.get("calibration"), dict)]
+    if not rows:
+        return ""
+    lines = ["", "| task | method | calibration converged | gain error dB | "
+                 "uncorrected gain error dB |", "|---|---|---|---|---|"]
+    for task in ("slip_stop", "slip_track"):
+        for method in sorted({r["method"] for r in rows if r["task"] == task}):
+            cal = [r["calibration"] for r in rows
+                   if r["task"] == task and r["method"] == method]
+            err, _, _ = mean_std(c.get("gain_error_db") for c in cal)
+            raw, _, _ = mean_std(c.get("uncalibrated_error_db") for c in cal)
+            lines.append(f"| {task.replace('_', '-')} | {method} | "
+                         f"{sum(bool(c.get('converged')) for c in cal)}/{len(cal)} | "
+                         f"{err:.2f} | {raw:.2f} |")
+    return "\n".join(lines) + "\n"
