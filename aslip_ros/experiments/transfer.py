@@ -46,8 +46,9 @@ from aslip_ros.util import atomic_path, write_json, write_text
 SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap", "rate")
 METHODS = ("aslip", "aslip_uncalibrated", "aslip_scratch", "paper_svm",
            "paper_svm_uncalibrated", "plain_cnn", "plain_svm")
-#: The methods of ``make transfer``: the package's default, the paper's SVM, the plain ones.
-DEFAULT_METHODS = ("aslip", "paper_svm", "plain_cnn", "plain_svm")
+#: The methods of ``make transfer``: the package's default, its scratch recipe alone, the
+#: paper's SVM, the plain ones.
+DEFAULT_METHODS = ("aslip", "aslip_scratch", "paper_svm", "plain_cnn", "plain_svm")
 OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pla_rod")
 CONDITIONS = ("robot_stationary", "robot_moving", "robot_off")
 #: Seed offset per scene, so no held-out scene replays the training scene's motions.
