@@ -72,6 +72,8 @@ def test_plan_skips_pretrained_recipes_without_a_robot_set():
     assert [c.name for c in cands] == ["scratch_s0", "scratch_s3", "svm"]
     assert {s["name"] for s in skipped} == {"frozen", "partial", "unfrozen"}
     assert all("--pretrain-dataset" in m for m in msgs) and len(msgs) == 3
+    default, _ = recipes.plan(have_pretrain=True)
+    assert [c.name for c in default] == ["frozen", "unfrozen", "scratch_s0", "svm"]
     cands, skipped = recipes.plan(recipes.RECIPES, (0,), have_pretrain=True)
     assert [c.name for c in cands] == ["frozen", "partial", "unfrozen", "scratch_s0", "svm"]
     assert not skipped

@@ -324,8 +324,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(optional; the frozen/partial/unfrozen recipes need it)")
     p.add_argument("--recipes", default=None,
                    help="--stage auto: comma-separated candidates out of "
-                        "frozen,partial,unfrozen,scratch,svm (default all)")
-    p.add_argument("--seeds", default="0,1",
+                        "frozen,partial,unfrozen,scratch,svm (default frozen,unfrozen,"
+                        "scratch,svm)")
+    p.add_argument("--seeds", default="0",
                    help="--stage auto: training seeds of the scratch candidate")
     p.add_argument("--keep-candidates", action="store_true",
                    help="--stage auto: also write every candidate's checkpoint to "
