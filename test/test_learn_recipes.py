@@ -141,6 +141,12 @@ def test_validation_never_shares_a_trial_with_training(data, tmp_path):
     ck = load_checkpoint(out)
     prov = ck.meta["provenance"]
     assert prov["selection"]["winner"] == prov["recipe"] == sel["winner"]
+    trial_of = np.asarray(ds.windows["trial"])
+    for name in ("frozen", "scratch_s0", "svm"):     # what each candidate was scored on
+        t = load_checkpoint(tmp_path / "auto.pt.candidates" / f"{name}.pt").meta["provenance"]
+        n_val = int(np.isin(trial_of, [k for k, x in enumerate(ds.trials)
+                                       if x["id"] in val_t]).sum())
+        assert t["metrics"]["val"]["n_windows"] == t["training"]["n_val_windows"] == n_val
     assert sel["winner"] in sel["reason"] and sel["criterion"] == recipes.CRITERION
     assert all(t.device.type == "cpu" for t in ck.tensors.values())
 
