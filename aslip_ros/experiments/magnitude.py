@@ -34,6 +34,8 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 
+from .transfer import KEYS, format_ci, metrics_cell
+
 #: name -> (what changes, TrainConfig overrides, LossWeights overrides). ``recipe`` is the
 #: package default every other row is compared with.
 VARIANTS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
@@ -59,8 +61,6 @@ BASELINES = ("plain_cnn", "plain_svm")
 SPLIT_SEED = 0
 #: TrainConfig fields that do not change what a training run produces.
 _IGNORED = ("threads", "progress")
-KEYS = (("detection_accuracy", "detection %", 100.0), ("direction_mae_deg", "direction deg", 1.0),
-        ("magnitude_rmse_mm", "magnitude mm", 1.0))
 
 
 def default_data() -> Path:
@@ -273,7 +273,7 @@ def run_cell(cfg: MagnitudeConfig, train: str, test: str, seed: int,
         rows[name]["metrics"] = score(cfg, p)
         if name != "recipe" and "recipe" in preds:
             rows[name]["minus_recipe"] = paired(cfg, p, preds["recipe"])
-        log(f"  {name}: {_cell(rows[name]['metrics'])}")
+        log(f"  {name}: {metrics_cell(rows[name]['metrics'])}")
     return {"train": train, "test": test, "seed": seed, "n_trials": n_trials, "rows": rows}
 
 
@@ -317,18 +317,6 @@ def run(cfg: MagnitudeConfig, log: Callable[[str], None] = print) -> dict[str, A
 
 # --- report -------------------------------------------------------------------------------
 
-def _fmt(res: dict[str, Any], key: str, scale: float) -> str:
-    v = res.get(key)
-    if v is None:
-        return "n/a"
-    lo, hi = res.get(key + "_ci", (np.nan, np.nan))
-    return f"{v * scale:.1f} [{lo * scale:.1f}, {hi * scale:.1f}]"
-
-
-def _cell(res: dict[str, Any]) -> str:
-    return " / ".join(_fmt(res, key, scale) for key, _, scale in KEYS)
-
-
 def _diff(d: tuple[float, float, float] | None, key: str) -> str:
     if d is None:
         return ""
@@ -360,7 +348,7 @@ def markdown(result: dict[str, Any]) -> str:
             m, d, t = r["metrics"], r.get("minus_recipe") or {}, r.get("training") or {}
             ep = "" if t.get("epochs_run") is None else \
                 f"{t['epochs_run']} ({t['best_epoch']}, {t['stop_reason']})"
-            lines.append(f"| {name} | " + " | ".join(_fmt(m, k, s) for k, _, s in KEYS)
+            lines.append(f"| {name} | " + " | ".join(format_ci(m, k, s) for k, _, s in KEYS)
                          + " | " + " | ".join(_diff(d.get(k), k) for k, _, _ in KEYS)
                          + f" | {ep} |")
         lines.append("")

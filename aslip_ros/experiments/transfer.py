@@ -286,7 +286,7 @@ def run_protocol(cfg: TransferConfig, log: Callable[[str], None] = print) -> dic
             for test, ds in tests.items():
                 p = predict(cfg, method, model, ds, "all")
                 _save_predictions(_predictions_path(cfg, train, test, method), p)
-                log(f"  {method}: {train} -> {test}: {_cell(score(cfg, p))}")
+                log(f"  {method}: {train} -> {test}: {metrics_cell(score(cfg, p))}")
     return write_tables(cfg)
 
 
@@ -316,11 +316,13 @@ def write_tables(cfg: TransferConfig) -> dict[str, Any]:
     return result
 
 
-def _cell(res: dict[str, Any]) -> str:
-    return " / ".join(_fmt(res, key, scale) for key, _, scale in KEYS)
+def metrics_cell(res: dict[str, Any]) -> str:
+    """Detection / direction / magnitude with their intervals, in the tables' units."""
+    return " / ".join(format_ci(res, key, scale) for key, _, scale in KEYS)
 
 
-def _fmt(res: dict[str, Any], key: str, scale: float) -> str:
+def format_ci(res: dict[str, Any], key: str, scale: float) -> str:
+    """``value [low, high]`` of ``key`` (and its ``_ci``) times ``scale``; n/a if absent."""
     v = res.get(key)
     if v is None:
         return "n/a"
@@ -361,7 +363,7 @@ def table_markdown(result: dict[str, Any]) -> str:
         for m, r in rows.items():
             out = []
             for key, _, scale in KEYS:
-                s = _fmt(r, key, scale)
+                s = format_ci(r, key, scale)
                 best, ties = marks[key]
                 out.append(f"**{s}**" if m == best else f"*{s}*" if m in ties else s)
             lines.append(f"| {m} | " + " | ".join(out) + " |")
