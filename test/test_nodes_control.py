@@ -79,10 +79,15 @@ def _p(m):
     return np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
 
 
-def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros_env):
-    bus = Bus(rclpy_context)
-    _listen(bus)
-    src = SlipSource(bus, velocity=(0.02, 0.0))
+#: Attempts of a closed-loop test whose own 100 Hz SlipVector thread stalled past the
+#: controller's 0.1 s slip watchdog (a latched stop is the node doing its job, not a failure
+#: of what the test asserts); the demo repeats such episodes the same way.
+ATTEMPTS = 3
+
+
+def _track_scene_arm(bus, ros_env) -> bool:
+    """One run of slip_track on the scene's arm; False when the test's slip source went stale
+    (the controller latched its stop) before the test was done."""
     with NodeProcess("scene_sim", ros_env, {"scenario": "drag", "seed": 3}) as sim, \
             NodeProcess("slip_track", ros_env, {"max_speed_m_s": 0.02,
                                                 "slip_timeout_s": SLIP_TIMEOUT_S,
@@ -91,8 +96,11 @@ def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros
         # (object velocity = TCP velocity + slip): the law accelerates to the speed limit.
         sim.wait_ready()
         ctl.wait_ready()
+        stale = lambda: "stale slip" in ctl.output  # noqa: E731
         moving = lambda: [m for m in bus.messages(CMD) if np.linalg.norm(_v(m)) > 0]  # noqa
-        assert bus.wait(lambda: len(moving()) > 50, 20), ctl.output
+        assert bus.wait(lambda: len(moving()) > 50 or stale(), 20), ctl.output
+        if stale():
+            return False
         v = _v(moving()[-1])
         assert np.linalg.norm(v) == pytest.approx(0.02, rel=1e-3)
         assert abs(v[2]) < 1e-9                 # grasp-plane x is horizontal (level gripper)
@@ -100,6 +108,8 @@ def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros
         m0 = bus.messages(TCP)[-1]
         time.sleep(1.0)
         m1 = bus.messages(TCP)[-1]
+        if stale():
+            return False
         moved = _p(m1) - _p(m0)
         # The scene's arm follows the commands at 2 cm/s along the commanded direction.
         # Timed by the scene's own stamps: on a loaded machine the scene may run slower
@@ -111,6 +121,20 @@ def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros
         assert ctl.proc.wait(10) == 0, ctl.output
         last = bus.messages(CMD)[-1]
         assert np.linalg.norm(_v(last)) == 0.0, "no stop command at shutdown"
+    return True
+
+
+def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros_env):
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    src = SlipSource(bus, velocity=(0.02, 0.0))
+    for _ in range(ATTEMPTS):
+        for topic in (CMD, TCP):
+            bus.clear(topic)
+        if _track_scene_arm(bus, ros_env):
+            break
+    else:
+        pytest.fail(f"the test's slip source went stale in all {ATTEMPTS} attempts")
     src.close()
     bus.close()
 

@@ -76,7 +76,7 @@ def test_a_reader_has_the_stop_when_close_returns(rclpy_context):
     ex = SingleThreadedExecutor(context=rclpy_context)
     ex.add_node(reader)
     node, arm = _arm(rclpy_context, "topic_arm_writer")
-    deadline = time.monotonic() + 10.0
+    deadline = time.monotonic() + 30.0     # discovery: generous for a loaded host
     while arm._pub.get_subscription_count() < 1 and time.monotonic() < deadline:
         ex.spin_once(timeout_sec=0.05)
     assert arm._pub.get_subscription_count() == 1, "the reader was not discovered"
