@@ -14,11 +14,13 @@ PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/p
 ASLIP := $(ROS) $(VENV)/bin/aslip
 
 .PHONY: help setup build test test-fast demo datasets ablation bench stability transfer lint clean
-.PHONY: ablation-baselines magnitude
+.PHONY: ablation-baselines magnitude flake-hunt soak-recording
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
 	@echo "make test       the whole test suite"
+	@echo "make flake-hunt the tests that start processes, RUNS times beside HOGS CPU hogs"
+	@echo "make soak-recording  data-collection recordings, nodes started in random order"
 	@echo "make setup      venv (.venv), core install (aslip) and colcon build (install/)"
 	@echo "make datasets   default simulated datasets (data/)"
 	@echo "make ablation   the paper's Table I and II on the scene (results/ablation/)"
@@ -40,6 +42,20 @@ test: setup
 
 test-fast: setup
 	$(PYTEST) test -q -ra -m "not slow"
+
+# The flake hunt (README, Tests): the `processes` tier, RUNS whole sessions beside HOGS
+# busy loops, a count per test. Run it before a change to nodes, launch files or their tests.
+RUNS ?= 5
+HOGS ?= 2
+flake-hunt: setup
+	$(ROS) ASLIP_REQUIRE_ROS=1 $(VENV)/bin/python scripts/flake_hunt.py --runs $(RUNS) \
+	  --hogs $(HOGS) $(ARGS)
+
+# Recordings whose nodes start in random order beside HOGS busy loops: every bag must hold
+# its metadata (README, Tests).
+SOAK ?= 50
+soak-recording: setup
+	$(ROS) $(VENV)/bin/python scripts/soak_recording.py --launches $(SOAK) --hogs $(HOGS)
 
 demo: setup
 	$(ASLIP) demo

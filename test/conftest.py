@@ -33,7 +33,32 @@ def _ros_available() -> str | None:
     return None
 
 
+#: Words in a test module's source that mean its tests start processes.
+STARTS_PROCESSES = ("NodeProcess", "subprocess", "Popen", "multiprocessing")
+
+
+def starts_processes(item, _seen: dict = {}) -> bool:  # noqa: B006 - a per-session cache
+    """Whether ``item`` starts processes: a launch test, a test with the child-process
+    environment (``ros_env``), or a test in a module whose code starts processes."""
+    if type(item).__name__ in ("LaunchTestItem", "LaunchROSTestItem") or \
+            "ros_env" in getattr(item, "fixturenames", ()):
+        return True
+    path = Path(str(item.path))
+    if path not in _seen:
+        try:
+            text = path.read_text()
+        except OSError:
+            text = ""
+        _seen[path] = any(word in text for word in STARTS_PROCESSES)
+    return _seen[path]
+
+
 def pytest_collection_modifyitems(config, items):
+    # The `processes` tier (pytest -m processes; scripts/flake_hunt.py runs it under load):
+    # marked here, from what the tests do, so no test that starts a process is left out.
+    for item in items:
+        if starts_processes(item):
+            item.add_marker(pytest.mark.processes)
     _launch_case().skip_unlaunched(config, items)
     reason = _ros_available()
     if reason is None:

@@ -39,6 +39,11 @@ def test_export_other_hardware_without_metadata(tmp_path):
     assert t["id"] == "rec_001" and t["object"] == "unknown" and t["label_source"] == "mocap"
     assert t["label_rate_hz"] == pytest.approx(100.0)
     assert len(ds) == s.kept >= 25
+    # It says so, and what it took from the data instead.
+    note = [w for w in s.warnings if "has no metadata" in w]
+    assert len(note) == 1 and "rec_001" in note[0], s.warnings
+    assert "sample rate, channel names" in note[0] and "identity grasp-plane" in note[0]
+    assert "has no metadata" in str(s)
     w = np.asarray(ds.windows)
     np.testing.assert_allclose(w["vx"], 0.03, atol=1e-5)
     np.testing.assert_allclose(w["vz"], 0.0, atol=1e-5)

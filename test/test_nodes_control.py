@@ -22,8 +22,9 @@ CMD = "/aslip/arm/cmd_vel"
 # Tests that are not about the watchdog tolerate a scene process that stalls on a loaded CI
 # machine (a stalled TCP stream otherwise latches a correct, but here unwanted, stop).
 POSE_TIMEOUT_S = 0.5
-# Likewise the test's own SlipVector thread: the longest slip timeout the node accepts.
-SLIP_TIMEOUT_S = 0.1
+# Likewise the test's own SlipVector thread: the longest slip timeout the node accepts (a
+# 0.1 s one latched the stop in a CI run; the watchdog's timing is test_control_watchdog's).
+SLIP_TIMEOUT_S = 1.0
 TCP = "/aslip/robot/tcp_pose"
 
 
@@ -79,15 +80,8 @@ def _p(m):
     return np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
 
 
-#: Attempts of a closed-loop test whose own 100 Hz SlipVector thread stalled past the
-#: controller's 0.1 s slip watchdog (a latched stop is the node doing its job, not a failure
-#: of what the test asserts); the demo repeats such episodes the same way.
-ATTEMPTS = 3
-
-
-def _track_scene_arm(bus, ros_env) -> bool:
-    """One run of slip_track on the scene's arm; False when the test's slip source went stale
-    (the controller latched its stop) before the test was done."""
+def _track_scene_arm(bus, ros_env) -> None:
+    """slip_track on the scene's arm follows a constant slip, and stops on shutdown."""
     with NodeProcess("scene_sim", ros_env, {"scenario": "drag", "seed": 3}) as sim, \
             NodeProcess("slip_track", ros_env, {"max_speed_m_s": 0.02,
                                                 "slip_timeout_s": SLIP_TIMEOUT_S,
@@ -96,45 +90,33 @@ def _track_scene_arm(bus, ros_env) -> bool:
         # (object velocity = TCP velocity + slip): the law accelerates to the speed limit.
         sim.wait_ready()
         ctl.wait_ready()
-        stale = lambda: "stale slip" in ctl.output  # noqa: E731
         moving = lambda: [m for m in bus.messages(CMD) if np.linalg.norm(_v(m)) > 0]  # noqa
-        assert bus.wait(lambda: len(moving()) > 50 or stale(), 20), ctl.output
-        if stale():
-            return False
+        assert bus.wait(lambda: len(moving()) > 50, 60), ctl.output
         v = _v(moving()[-1])
         assert np.linalg.norm(v) == pytest.approx(0.02, rel=1e-3)
         assert abs(v[2]) < 1e-9                 # grasp-plane x is horizontal (level gripper)
         assert bus.wait(lambda: len(bus.messages(TCP)) > 0, 20), "no TCP pose from the scene"
         m0 = bus.messages(TCP)[-1]
-        time.sleep(1.0)
+        # Half a second of the scene's own time (on a loaded machine the scene may run
+        # slower than the wall clock, which says nothing about the controller).
+        assert bus.wait(lambda: _stamp(bus.messages(TCP)[-1]) - _stamp(m0) > 0.5, 60)
         m1 = bus.messages(TCP)[-1]
-        if stale():
-            return False
+        assert "stale slip" not in ctl.output, ctl.output
         moved = _p(m1) - _p(m0)
         # The scene's arm follows the commands at 2 cm/s along the commanded direction.
-        # Timed by the scene's own stamps: on a loaded machine the scene may run slower
-        # than the wall clock, which says nothing about the controller.
         dt = _stamp(m1) - _stamp(m0)
-        assert dt > 0.3
         assert np.dot(moved, v / np.linalg.norm(v)) / dt == pytest.approx(0.02, abs=0.006)
         ctl.proc.send_signal(signal.SIGINT)
         assert ctl.proc.wait(10) == 0, ctl.output
         last = bus.messages(CMD)[-1]
         assert np.linalg.norm(_v(last)) == 0.0, "no stop command at shutdown"
-    return True
 
 
 def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros_env):
     bus = Bus(rclpy_context)
     _listen(bus)
     src = SlipSource(bus, velocity=(0.02, 0.0))
-    for _ in range(ATTEMPTS):
-        for topic in (CMD, TCP):
-            bus.clear(topic)
-        if _track_scene_arm(bus, ros_env):
-            break
-    else:
-        pytest.fail(f"the test's slip source went stale in all {ATTEMPTS} attempts")
+    _track_scene_arm(bus, ros_env)
     src.close()
     bus.close()
 
@@ -247,13 +229,13 @@ def test_controller_parameters_validated_at_start_and_at_run_time(rclpy_context,
                                               "max_approach_distance_m": 0.15})
     assert proc.proc.wait(30) == 2
     assert "must exceed retract_distance_m" in proc.stop()
-    proc = NodeProcess("slip_track", ros_env, {"slip_timeout_s": 0.5})
+    proc = NodeProcess("slip_track", ros_env, {"slip_timeout_s": 5.0})
     assert proc.proc.wait(30) == 2
     assert "slip_timeout_s" in proc.stop()
     bus = Bus(rclpy_context)
     with NodeProcess("slip_track", ros_env) as ctl:
         ctl.wait_ready()
-        for bad in ({"gain": -1.0}, {"slip_timeout_s": 0.5}, {"grasp_plane_in_tcp": [0.0] * 7},
+        for bad in ({"gain": -1.0}, {"slip_timeout_s": 5.0}, {"grasp_plane_in_tcp": [0.0] * 7},
                     {"arm": "xarm"}):
             res = bus.set_params("slip_track", bad)
             assert not res[0].successful, bad

@@ -50,3 +50,70 @@ def test_the_forced_exit_survives_a_broken_stderr(ros_env):
     rc, took = _run_with_broken_pipes("common._exit_after(0.5, 'x')\ntime.sleep(120)\n",
                                       ros_env)
     assert rc == 0, f"the process did not exit by itself ({took:.0f} s)"
+
+
+def test_every_thread_of_a_node_executable_leaves_the_signals_to_the_signal_thread(ros_env):
+    """A node's threads, numpy's OpenBLAS thread among them, block SIGINT and SIGTERM, so a
+    launch's signal always reaches the signal thread that arms the forced exit. (The
+    executables once imported the node module first: the thread that ``import numpy``
+    starts had an empty mask, and mocap_bridge ignored SIGINT and SIGTERM in CI.) The
+    signal thread itself shows them open: the kernel unblocks them while it waits in
+    ``sigwait``."""
+    import signal
+
+    from aslip_ros.nodes import common
+    from node_support import NodeProcess
+    with NodeProcess("mocap_bridge", ros_env) as node:
+        node.wait_ready()
+        pid = node.proc.pid
+        threads = common.threads_receiving({signal.SIGINT, signal.SIGTERM}, str(pid))
+        n_threads = len(list(__import__("pathlib").Path(f"/proc/{pid}/task").iterdir()))
+        assert n_threads > 2
+        signals = [t for t in threads if _thread_name(pid, t) == common.SIGNAL_THREAD]
+        assert threads == signals and len(signals) == 1, \
+            [(t, _thread_name(pid, t)) for t in threads]
+
+
+def _thread_name(pid: int, tid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/task/{tid}/comm") as f:
+            return f.read().strip()
+    except OSError:
+        return ""
+
+
+def test_a_shutdown_stuck_in_c_with_the_gil_still_exits_with_a_stack_dump(ros_env):
+    """The forced exit is armed in C (faulthandler): a cleanup that holds the GIL, where the
+    Python timer can never run, still ends the process, and the dump says where it hung."""
+    import signal
+
+    from conftest import HELPERS
+
+    from aslip_ros.nodes.common import C_EXIT_MARGIN_S, EXIT_GRACE_S
+    from aslip_ros.util import die_with_parent
+    proc = subprocess.Popen([sys.executable, str(HELPERS / "stuck_node.py")], env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=die_with_parent)
+    try:
+        lines = []
+        for line in proc.stdout:
+            lines.append(line)
+            if "ready" in line:
+                break
+        assert any("ready" in ln for ln in lines), "".join(lines)
+        proc.send_signal(signal.SIGINT)
+        t0 = time.monotonic()
+        try:
+            out, _ = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise AssertionError("the stuck node did not exit within 60 s of SIGINT")
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert "sleeping with the GIL held" in out, out
+    assert proc.returncode == 1, out               # faulthandler's exit, not the timer's 0
+    assert "most recent call first" in out and "before_shutdown" in out, out
+    assert took >= EXIT_GRACE_S, took
+    assert took < EXIT_GRACE_S + C_EXIT_MARGIN_S + 30.0, took

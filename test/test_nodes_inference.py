@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
@@ -79,9 +80,10 @@ def test_scene_audio_to_slip_vector(rclpy_context, ros_env, known_ckpt):
 
 # ------------------------------------------------------------------------------ bad input
 
-@pytest.fixture(scope="module")
-def live_inference(known_ckpt):
-    """One slip_inference process for every bad-frame case, on a domain of its own."""
+@contextlib.contextmanager
+def _inference_graph(known_ckpt):
+    """A slip_inference process on a domain of its own, a bus and a feeder, its stream
+    settled (estimates flowing on the newest block)."""
     import rclpy
     from domain_coordinator import domain_id
     from rclpy.context import Context
@@ -101,7 +103,7 @@ def live_inference(known_ckpt):
         try:
             proc.wait_ready()
             feeder = Feeder(bus, pub)
-            assert bus.wait(lambda: pub.get_subscription_count() > 0, 10)
+            assert bus.wait(lambda: pub.get_subscription_count() > 0, 30)
             # A healthy stream first, until estimates flow: best-effort blocks sent before
             # the node's reader has matched this writer are lost, so a fixed number of
             # blocks (8 here before) left a loaded machine without a full window.
@@ -111,6 +113,22 @@ def live_inference(known_ckpt):
             proc.stop()
             bus.close()
             rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture(scope="module")
+def live_inference(known_ckpt):
+    """One slip_inference process for the bad-frame cases: each case settles the stream
+    first, and asserts on the change of the counters it reads."""
+    with _inference_graph(known_ckpt) as graph:
+        yield graph
+
+
+@pytest.fixture
+def own_inference(known_ckpt):
+    """A slip_inference process of this test's own: nothing an earlier test did to a
+    shared node (restarts, time jumps, refused streams) can change its outcome."""
+    with _inference_graph(known_ckpt) as graph:
+        yield graph
 
 
 class Feeder:
@@ -278,12 +296,13 @@ def test_a_restarted_or_jumped_stream_is_estimated_again_within_half_a_second(
     assert proc.proc.poll() is None
 
 
-def test_a_node_starved_of_cpu_loses_no_audio(live_inference):
+def test_a_node_starved_of_cpu_loses_no_audio(own_inference):
     """Frozen for 0.3 s (as a busy host does to it), the node catches up on the audio that
     queued meanwhile instead of losing blocks: no gap, so no window restart and no
-    estimate-free stretch for the controllers' stale-input watchdog."""
+    estimate-free stretch for the controllers' stale-input watchdog. On a node of its own:
+    after the shared node's restart and time-jump cases it failed in a CI run."""
     import signal
-    bus, feeder, proc = live_inference
+    bus, feeder, proc = own_inference
     assert feeder.settle(), proc.output
     before = _diag_values(bus)
     bus.clear(SLIP)

@@ -69,12 +69,12 @@ def test_mocap_bridge_latches_its_calibration_on_tf_static(rclpy_context, ros_en
     from tf2_msgs.msg import TFMessage
 
     from aslip_ros import frames
-    from aslip_ros.nodes.tf_frames import TF_STATIC_QOS
+    from aslip_ros.nodes.tf_frames import TF_STATIC_LISTENER_QOS, TF_STATIC_QOS
     calib = _calib()
     with NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": calib}) as node:
         node.wait_ready()
         bus = Bus(rclpy_context)            # joins after the message was sent: latched
-        bus.listen(TFMessage, "/tf_static", TF_STATIC_QOS)
+        bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
         assert bus.wait(lambda: len(_static_edges(bus)) >= 2, 20), node.output
         edges = _static_edges(bus)
         parent, pose = edges[frames.GRASP_PLANE]
@@ -118,11 +118,11 @@ def test_scene_tf_agrees_with_its_pose_topics(rclpy_context, ros_env):
     from aslip_ros import frames
     from aslip_ros.control.frames import compose
     from aslip_ros.nodes import common as c
-    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_QOS, transform_pose
+    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS, transform_pose
     calib = _calib()
     bus = Bus(rclpy_context)
     bus.listen(TFMessage, "/tf", TF_QOS)
-    bus.listen(TFMessage, "/tf_static", TF_STATIC_QOS)
+    bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
     for topic in (c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC):
         bus.listen(PoseStamped, topic, c.SENSOR_QOS)
     with NodeProcess("scene_sim", ros_env) as scene, \
@@ -169,3 +169,70 @@ def test_mocap_bridge_refuses_a_grasp_plane_that_is_its_own_parent(ros_env):
     proc = NodeProcess("mocap_bridge", ros_env, {"finger_frame": "aslip_grasp_plane"})
     assert proc.proc.wait(30) == 2
     assert "finger_frame and frame_id must differ" in proc.stop()
+
+
+def _static_listener_receives(context, qos) -> set:
+    """Two nodes latch their static transforms (as scene_sim and mocap_bridge do); a
+    listener with ``qos`` joins after both, and every latched sample is in its queue before
+    it takes the first. Returns the children it got."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from tf2_msgs.msg import TFMessage
+
+    from aslip_ros import frames
+    from aslip_ros.nodes.tf_frames import StaticFrames
+    scene = rclpy.create_node("static_scene", context=context)
+    bridge = rclpy.create_node("static_bridge", context=context)
+    listener = rclpy.create_node("static_listener", context=context)
+    try:
+        scene_tf, bridge_tf = StaticFrames(scene), StaticFrames(bridge)
+        scene_tf.set(frames.WORLD, frames.BASE, [0, 0, 0, 0, 0, 0, 1.0])
+        bridge_tf.set(frames.GRASP_PLANE, frames.GRIPPER, [0, 0, 0, 0, 0, 0, 1.0])
+        bridge_tf.set(frames.FINGER, frames.GRASP_PLANE, _calib())
+        got = []
+        listener.create_subscription(TFMessage, "/tf_static", got.append, qos)
+        # Not spun yet: wait until both writers have matched the reader and it has
+        # acknowledged their latched samples, so both sit in its queue together.
+        pubs = [scene_tf._pub, bridge_tf._pub]
+        for pub in pubs:
+            for _ in range(200):
+                if pub.get_subscription_count() and pub.wait_for_all_acked(
+                        rclpy.duration.Duration(seconds=0.1)):
+                    break
+            else:
+                raise AssertionError("the listener never matched a static publisher")
+        ex = SingleThreadedExecutor(context=context)
+        ex.add_node(listener)
+        # Take what the queue holds: stop at the first spin that delivers nothing.
+        for _ in range(50):
+            before = len(got)
+            ex.spin_once(timeout_sec=0.5)
+            if len(got) == before:
+                break
+        ex.shutdown()
+        return {t.child_frame_id for m in got for t in m.transforms}
+    finally:
+        for n in (scene, bridge, listener):
+            n.destroy_node()
+
+
+def test_a_static_listener_keeps_every_publishers_transforms(rclpy_context):
+    """The TF listener QoS the launch tests' probe and the node tests use (tf2_ros's
+    StaticListenerQoS, 100 deep) keeps the latched transforms of every publisher. A reader
+    one deep (the probe's before: the rviz launch test then missed mocap_bridge's grasp
+    plane) keeps one publisher's only: that is what this test tells apart."""
+    import launch_case
+    from rclpy.qos import QoSProfile
+
+    from aslip_ros import frames
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.tf_frames import TF_STATIC_LISTENER_QOS
+    every = {frames.BASE, frames.GRIPPER, frames.GRASP_PLANE}
+    assert _static_listener_receives(rclpy_context, TF_STATIC_LISTENER_QOS) == every
+    if launch_case.MISSING is None:
+        probe_qos = launch_case.rviz_topics([])["/tf_static"][2]
+        assert probe_qos.depth >= TF_STATIC_LISTENER_QOS.depth
+    one_deep = QoSProfile(history=c.LATCHED_QOS.history, depth=1,
+                          reliability=c.LATCHED_QOS.reliability,
+                          durability=c.LATCHED_QOS.durability)
+    assert _static_listener_receives(rclpy_context, one_deep) < every

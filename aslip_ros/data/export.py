@@ -38,8 +38,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from aslip_ros.data.bags import (DEFAULT_TOPICS, BagDamaged, BagError, BagReader, Topics,
-                                 find_bags)
+from aslip_ros.data.bags import (CUSTOM_DATA_KEY, DEFAULT_TOPICS, BagDamaged, BagError,
+                                 BagReader, Topics, find_bags)
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
 from aslip_ros.data.export_bench import measure_export_speed  # noqa: F401 (public name)
 from aslip_ros.data.export_read import (AudioClock, BagStreams, StreamFormat, WindowGrid,
@@ -245,6 +245,19 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
                  "track": track}
 
 
+def no_metadata_note(bag: Path, info: dict, cfg: ExportConfig) -> str:
+    """What a bag without metadata was exported with: what came from the data, and the
+    defaults that stand in for the rest (a recording whose metadata was lost says so)."""
+    return (f"bag {bag} has no metadata (no custom_data[{CUSTOM_DATA_KEY!r}] and no message "
+            f"on {cfg.topics.metadata}). From the data: sample rate, channel names"
+            f"{' and layout' if info.get('layout') else ''} (the AudioFrames), label rate "
+            f"{info['label_rate_hz']:g} Hz ({info['label_source']} poses). Defaults: labels "
+            f"from {info['label_source']}, identity grasp-plane calibration, trial id "
+            f"{_bag_name(bag)!r} (the bag's name), object, pad, condition and induced "
+            f"{UNKNOWN!r}. Record the metadata (data_collection.launch.py does) or check "
+            "these before training")
+
+
 def _bag_name(path: Path) -> str:
     return path.stem if path.is_file() else path.name
 
@@ -323,6 +336,8 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
                     f"({', '.join(f'{k} {v}' for k, v in res.refused_blocks.items())}); "
                     "their windows are dropped as audio gaps")
             info = trial["info"]
+            if not meta:
+                summary.warnings.append(no_metadata_note(p, info, cfg))
             tid = str(meta.get("trial_id") or _bag_name(p))
             ids[tid] += 1
             if ids[tid] > 1:

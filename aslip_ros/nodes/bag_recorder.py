@@ -1,12 +1,29 @@
 """``bag_recorder``: record topics to a rosbag2 (mcap) bag without rosbag2.
 
 ``ros2 bag`` is not installable everywhere (it is no wheel); this node records the same way
-for ``data_collection.launch.py recorder:=aslip``: every topic in ``topics`` is subscribed
-as soon as a publisher appears, with the type and durability the publisher offers, and each
-message's serialized bytes are written as received (no decoding), stamped with the time of
-receipt like ``ros2 bag record``. The bag is written through the project's
-:class:`aslip_ros.data.bag_writer.BagWriter` (typestore, offered-QoS records, atomic directory):
-it appears at ``output`` only when the node shuts down cleanly.
+for ``data_collection.launch.py recorder:=aslip``. Each message's serialized bytes are
+written as received (no decoding), stamped with the time of receipt like ``ros2 bag
+record``. The bag is written through the project's
+:class:`aslip_ros.data.bag_writer.BagWriter` (typestore, offered-QoS records, atomic
+directory): it appears at ``output`` only when the node shuts down cleanly.
+
+When each topic is subscribed, and with which QoS:
+
+- the latched topics of the contract (``LATCHED``: ``/aslip/metadata``, ``/tf_static``) at
+  once, before any publisher exists, reliable and transient-local with a deep queue: a
+  latched message reaches the bag whichever starts first, recorder or publisher, and
+  however many publishers latch one (each keeps its own last message);
+- the contract's streams (``STREAMS``: audio, poses, slip truth, /tf) at once too, with
+  their documented types and reliability: a reader that waits for discovery to name them
+  starts the recording late (1.3 s of a 3 s scene run was lost that way);
+- any other topic (a motion-capture driver's own, say) once a *publisher* of it is seen (a
+  subscriber alone names the topic but says nothing of the QoS to use), with the QoS every
+  publisher can serve: reliable only where all of them are, transient-local only where all
+  of them are.
+
+Subscribing to a latched topic on the strength of a subscriber alone (mocap_bridge reads
+the metadata) made the reader volatile and best effort: a metadata message published
+before the match never reached the bag (``test_nodes_bag_recorder.py``).
 """
 
 from __future__ import annotations
@@ -26,6 +43,40 @@ from aslip_ros.nodes import common as c
 #: What ``data_collection.launch.py`` records: the recording contract plus TF.
 DEFAULT_TOPICS = [c.AUDIO_TOPIC, c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC,
                   c.METADATA_TOPIC, c.SLIP_TRUTH_TOPIC, topics.TF, topics.TF_STATIC]
+
+#: The contract's latched topics and their types: subscribed before any publisher appears.
+LATCHED = {topics.METADATA: bags.STRING_TYPE, topics.TF_STATIC: "tf2_msgs/msg/TFMessage"}
+
+#: The contract's other topics: type and whether their publishers are reliable
+#: (docs/design.md, "Topics"). Subscribed at start too: waiting for discovery to name them
+#: lost the first 1.3 s of a recording started before the scene (discovery's delay).
+#: Streams are read best effort, which every publisher serves, whatever a driver offers.
+STREAMS = {topics.AUDIO: (bags.AUDIO_TYPE, False), topics.FINGER: (bags.POSE_TYPE, False),
+           topics.OBJECT: (bags.POSE_TYPE, False), topics.TCP: (bags.POSE_TYPE, False),
+           topics.SLIP_TRUTH: (bags.SLIP_TYPE, True), topics.TF: ("tf2_msgs/msg/TFMessage", True)}
+
+#: Reader queue: a burst that arrives while the recorder is busy writing is kept.
+QUEUE_DEPTH = 1000
+
+
+def reader_qos(latched: bool, reliable: bool) -> QoSProfile:
+    """The recorder's subscription QoS: transient-local (latched) readers are reliable."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE if (reliable or latched)
+        else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def qos_for_publishers(infos) -> Optional[tuple]:
+    """``(latched, reliable)`` that every publisher in ``infos`` (``TopicEndpointInfo``) can
+    serve, or None while there is none (the topic is only known from a subscriber)."""
+    if not infos:
+        return None
+    latched = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                  for i in infos)
+    reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+    return latched, reliable
 
 
 class RawBagWriter(BagWriter):
@@ -88,34 +139,40 @@ class Recorder(Node):
         c.ready(self, f"recording {len(self.p['topics'])} topics to {self.p['output']}")
 
     def _discover(self) -> None:
-        available = dict(self.get_topic_names_and_types())
+        available = None
         for topic in self.p["topics"]:
-            if topic in self._subs or topic in self.refused or topic not in available:
+            if topic in self._subs or topic in self.refused:
                 continue
-            type_name = available[topic][0]
-            if type_name not in self.writer._store.types:
-                self._refuse(topic, f"type {type_name} has no definition to record")
+            if topic in LATCHED:
+                self._subscribe(topic, LATCHED[topic], latched=True, reliable=True)
                 continue
-            try:
-                cls = message_class(type_name)
-            except (ImportError, AttributeError, ValueError) as exc:
-                self._refuse(topic, f"type {type_name} is not importable ({exc})")
+            if topic in STREAMS:
+                self._subscribe(topic, STREAMS[topic][0], False, STREAMS[topic][1])
                 continue
-            latched = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
-                          for i in self.get_publishers_info_by_topic(topic))
-            kind = "latched" if latched else "sensor"
-            # Best effort receives from reliable and best-effort publishers alike; latched
-            # topics need a reliable, transient-local reader to get the last message.
-            qos = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=1000,
-                reliability=ReliabilityPolicy.RELIABLE if latched
-                else ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                else DurabilityPolicy.VOLATILE)
-            self._subs[topic] = self.create_subscription(
-                cls, topic, self._writer_for(topic, type_name, kind), qos, raw=True)
-            self.counts[topic] = 0
-            self.get_logger().info(f"recording {topic} ({type_name})")
+            if available is None:
+                available = dict(self.get_topic_names_and_types())
+            if topic not in available:
+                continue
+            serve = qos_for_publishers(self.get_publishers_info_by_topic(topic))
+            if serve is None:
+                continue            # only subscribers so far: wait for a publisher
+            self._subscribe(topic, available[topic][0], *serve)
+
+    def _subscribe(self, topic: str, type_name: str, latched: bool, reliable: bool) -> None:
+        if type_name not in self.writer._store.types:
+            self._refuse(topic, f"type {type_name} has no definition to record")
+            return
+        try:
+            cls = message_class(type_name)
+        except (ImportError, AttributeError, ValueError) as exc:
+            self._refuse(topic, f"type {type_name} is not importable ({exc})")
+            return
+        kind = "latched" if latched else "reliable" if reliable else "sensor"
+        self._subs[topic] = self.create_subscription(
+            cls, topic, self._writer_for(topic, type_name, kind),
+            reader_qos(latched, reliable), raw=True)
+        self.counts[topic] = 0
+        self.get_logger().info(f"recording {topic} ({type_name}, {kind})")
 
     def _refuse(self, topic: str, why: str) -> None:
         self.refused[topic] = why
@@ -132,10 +189,18 @@ class Recorder(Node):
         return write
 
     def _diagnose(self) -> None:
-        missing = [t for t in self.p["topics"] if t not in self._subs]
-        level = c.Diagnostics.ERROR if self.refused else \
+        missing = [t for t in self.p["topics"] if t not in self._subs or (
+            t in LATCHED and not self.get_publishers_info_by_topic(t))]
+        # A volatile publisher on a latched topic cannot serve the latched reader.
+        volatile = [t for t in self._subs if t in LATCHED and any(
+            i.qos_profile.durability != DurabilityPolicy.TRANSIENT_LOCAL
+            for i in self.get_publishers_info_by_topic(t))]
+        level = c.Diagnostics.ERROR if self.refused or volatile else \
             c.Diagnostics.WARN if missing else c.Diagnostics.OK
         msg = "recording" + (f"; no publisher yet on {', '.join(missing)}" if missing else "")
+        if volatile:
+            msg += (f"; not recorded from volatile publishers on {', '.join(volatile)} "
+                    "(publish them reliable and transient-local)")
         values = {f"messages {t}": n for t, n in self.counts.items()}
         values.update({f"refused {t}": why for t, why in self.refused.items()})
         self.diag.publish(level, msg, values)

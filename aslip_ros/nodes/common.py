@@ -235,11 +235,15 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     Otherwise returns the exit code (``EXIT_CONFIG`` when the node refused its configuration).
     """
     stop = threading.Event()
+    arming = threading.Lock()
 
     def on_signal(signum: int) -> None:
-        if not stop.is_set():
-            stop.set()
-            _exit_after(EXIT_GRACE_S, _name(factory))
+        # The forced exit is armed before the loop may end: the cleanup that follows can
+        # hold the GIL, and arming it afterwards would then wait for the GIL forever.
+        with arming:
+            if not stop.is_set():
+                _exit_after(EXIT_GRACE_S, _name(factory))
+                stop.set()
 
     _watch_signals(on_signal)
     _tie_to_parent()
@@ -261,6 +265,10 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # However the loop ended (a signal, the node done, an exception), the cleanup below
+        # gets EXIT_GRACE_S in an executable: a hung destructor must not keep it alive.
+        if exit_process and not stop.is_set():
+            on_signal(0)
         if node is not None:
             hook = getattr(node, "before_shutdown", None)
             if hook is not None and rclpy.ok():
@@ -283,17 +291,60 @@ def _watch_signals(handler: Callable[[int], None]) -> None:
     """SIGINT and SIGTERM go to a thread of their own, which calls ``handler(signum)``.
 
     A Python signal handler runs only when the main thread returns to the interpreter; a
-    node whose main thread was stuck inside a C call (seen once: mocap_bridge ignored the
-    launch's SIGINT and SIGTERM until SIGKILL) would never start its forced exit. The
-    signals are blocked before any other thread exists, so every thread (rclpy's, DDS's,
-    torch's) inherits the mask and only this one receives them."""
+    node whose main thread was stuck inside a C call (seen: mocap_bridge ignored the
+    launch's SIGINT and SIGTERM until SIGKILL) would never start its forced exit. The node
+    executables block both signals before any import (``nodes/launcher.py``), so every
+    thread inherits the mask and only this one receives them. Blocking them here again
+    covers ``python -m aslip_ros.nodes.<node>``; a thread that still has them unblocked
+    (started by an import before this call) is named on stderr."""
     sigs = {signal.SIGINT, signal.SIGTERM}
     signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    open_threads = threads_receiving(sigs)     # (before the signal thread exists)
+    if open_threads:
+        _say(f"[aslip] threads {open_threads} can receive SIGINT/SIGTERM: start the node "
+             "through its installed executable (aslip_ros.nodes.launcher) so that a "
+             "shutdown signal cannot miss the signal thread")
 
     def wait() -> None:
+        _name_os_thread(SIGNAL_THREAD)
         while True:
             handler(signal.sigwait(sigs))
-    threading.Thread(target=wait, name="signals", daemon=True).start()
+    threading.Thread(target=wait, name=SIGNAL_THREAD, daemon=True).start()
+
+
+#: The signal thread's name, also its OS name (``top -H``, ``/proc/<pid>/task/*/comm``).
+SIGNAL_THREAD = "aslip_signals"
+
+
+def _name_os_thread(name: str) -> None:
+    """Give the calling thread an OS-level name (Linux ``prctl(PR_SET_NAME)``; a no-op
+    elsewhere). While it waits in ``sigwait`` the kernel shows its mask without the waited
+    signals, so this name is how a check tells it from a thread that left them open."""
+    import ctypes
+    try:
+        ctypes.CDLL(None).prctl(15, name.encode()[:15], 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+def threads_receiving(sigs, pid: str = "self") -> list:
+    """Thread ids of process ``pid`` that do not block every signal in ``sigs`` (Linux
+    ``/proc``; empty where it cannot be read)."""
+    import glob
+    want = 0
+    for s in sigs:
+        want |= 1 << (int(s) - 1)
+    out = []
+    for status in glob.glob(f"/proc/{pid}/task/*/status"):
+        try:
+            with open(status) as f:
+                blocked = next((int(line.split()[1], 16) for line in f
+                                if line.startswith("SigBlk:")), None)
+        except (OSError, ValueError):
+            continue
+        if blocked is not None and blocked & want != want:
+            out.append(int(status.split("/")[-2]))
+    return sorted(out)
 
 
 def _say(line: str) -> None:
@@ -357,7 +408,13 @@ def _raise_priority(name: str) -> None:
 
 
 def _exit_after(seconds: float, name: str) -> None:
-    """Force the process out ``seconds`` from now unless it has exited by then."""
+    """Force the process out ``seconds`` from now unless it has exited by then.
+
+    Two timers: a Python one that exits 0 with a line on stderr, and a C one
+    (``faulthandler.dump_traceback_later``) ``C_EXIT_MARGIN_S`` later that needs no GIL:
+    an interpreter stuck in a C call that holds the GIL still exits, with every thread's
+    stack on stderr (exit code 1), instead of waiting for the launch's SIGKILL."""
+    import faulthandler
     import os
 
     def force() -> None:
@@ -367,6 +424,15 @@ def _exit_after(seconds: float, name: str) -> None:
     timer = threading.Timer(seconds, force)
     timer.daemon = True
     timer.start()
+    try:
+        faulthandler.dump_traceback_later(seconds + C_EXIT_MARGIN_S, exit=True,
+                                          file=sys.__stderr__)
+    except (OSError, ValueError, AttributeError, RuntimeError):
+        pass        # no usable stderr: the Python timer alone
+
+
+#: Seconds after the Python forced exit at which the C-level one ends a stuck interpreter.
+C_EXIT_MARGIN_S = 0.5
 
 
 def ready(node, detail: str = "") -> None:

@@ -31,10 +31,16 @@ TF_STATIC_TOPIC = topics.TF_STATIC
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                     reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.VOLATILE)
-#: tf2_ros's StaticBroadcasterQoS / StaticListenerQoS: latched, one message per publisher.
+#: tf2_ros's StaticBroadcasterQoS: latched, one message per publisher.
 TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                            reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: tf2_ros's StaticListenerQoS: latched, 100 deep. Every static publisher (scene_sim,
+#: mocap_bridge, a driver) latches its own message; a reader one deep keeps only the last
+#: to arrive of those delivered together at the match, and loses the others for good.
+TF_STATIC_LISTENER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                                    reliability=ReliabilityPolicy.RELIABLE,
+                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def transform_msg(parent: str, child: str, pose, stamp_ns: int) -> TransformStamped:

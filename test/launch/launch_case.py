@@ -29,6 +29,10 @@ except ImportError as exc:
 else:
     MISSING = None
 
+#: ``input_timeout_s`` of the closed-loop launch tests [s]: what they test is the loop, and
+#: a busy machine's stall must not latch the controllers' stale-input stop before it shows.
+LOADED_INPUT_TIMEOUT_S = "1.0"
+
 #: The domain reservations live as long as the test process.
 _RESERVED = []
 
@@ -278,13 +282,14 @@ def rviz_topics(displays) -> dict:
     from visualization_msgs.msg import MarkerArray
 
     from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS
     out = {}
     for topic in displays:
         msg_type = MarkerArray if "marker" in topic else PoseStamped
         qos = c.MARKER_QOS if msg_type is MarkerArray else c.SENSOR_QOS
         out[topic] = (topic, msg_type, qos)
-    out["/tf"] = ("/tf", TFMessage, c.SENSOR_QOS)
-    out["/tf_static"] = ("/tf_static", TFMessage, c.LATCHED_QOS)
+    out["/tf"] = ("/tf", TFMessage, TF_QOS)
+    out["/tf_static"] = ("/tf_static", TFMessage, TF_STATIC_LISTENER_QOS)
     return out
 
 

@@ -26,7 +26,9 @@ PROBE = {}
 @pytest.mark.launch_test
 @pytest.mark.skipif(lc.MISSING is not None, reason=str(lc.MISSING))
 def generate_test_description():
-    return lc.description("slip_stop.launch.py", {"rviz": "true"})
+    # The trial's stop, not the stale-input watchdog's (see test_slip_track_launch.py).
+    return lc.description("slip_stop.launch.py",
+                          {"rviz": "true", "input_timeout_s": lc.LOADED_INPUT_TIMEOUT_S})
 
 
 class TestSlipStop(unittest.TestCase):

@@ -1,0 +1,177 @@
+"""bag_recorder in one process: the metadata reaches the bag whatever starts first.
+
+The data-collection launch lost ``/aslip/metadata`` from a bag in a fresh-clone CI run:
+mocap_bridge subscribes to the metadata, so the topic was known before scene_sim's latched
+publisher was; the recorder then subscribed volatile and best effort, and the one metadata
+message, sent before the match, never reached the bag. The recorder, the publisher and that
+subscriber here are nodes of one process, driven step by step by one executor.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+META = {"object": "chips_can", "scenario": "external_induced", "sample_rate": 48000.0}
+
+
+class Graph:
+    """Nodes on one context and one executor; :meth:`until` spins until a predicate holds."""
+
+    def __init__(self, context) -> None:
+        from rclpy.executors import SingleThreadedExecutor
+        self.context = context
+        self.ex = SingleThreadedExecutor(context=context)
+        self.nodes = []
+
+    def add(self, node):
+        self.nodes.append(node)
+        self.ex.add_node(node)
+        return node
+
+    def node(self, name: str):
+        import rclpy
+        return self.add(rclpy.create_node(name, context=self.context))
+
+    def until(self, predicate, what: str, timeout: float = 30.0):
+        """Spin until ``predicate()`` is truthy; the deadline only stops a hang."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            value = predicate()
+            if value:
+                return value
+            self.ex.spin_once(timeout_sec=0.05)
+        raise AssertionError(f"no {what} within {timeout:g} s")
+
+    def close(self) -> None:
+        self.ex.shutdown()
+        for n in self.nodes:
+            n.destroy_node()
+
+
+def _recorder(graph: Graph, out, topics=None):
+    from rclpy.parameter import Parameter
+
+    from aslip_ros.nodes.bag_recorder import Recorder
+    extra = [] if topics is None else [Parameter("topics", value=list(topics))]
+    return graph.add(Recorder(context=graph.context, parameter_overrides=[
+        Parameter("output", value=str(out)), Parameter("discovery_period_s", value=0.05),
+        *extra]))
+
+
+def _metadata_reader(graph: Graph):
+    """A node that reads the metadata, as mocap_bridge and the controllers do."""
+    from std_msgs.msg import String
+
+    from aslip_ros.nodes import common as c
+    node = graph.node("metadata_reader")
+    node.create_subscription(String, c.METADATA_TOPIC, lambda m: None, c.LATCHED_QOS)
+    return node
+
+
+def _latch_metadata(graph: Graph):
+    """A node that latches the metadata once, as scene_sim and audio_capture do."""
+    from std_msgs.msg import String
+
+    from aslip_ros.nodes import common as c
+    node = graph.node("metadata_source")
+    pub = node.create_publisher(String, c.METADATA_TOPIC, c.LATCHED_QOS)
+    pub.publish(String(data=json.dumps(META)))
+    return node
+
+
+def _bag_metadata(path):
+    from aslip_ros.data.bags import BagReader
+    with BagReader(path) as r:
+        return r.read_metadata()
+
+
+def test_the_metadata_reader_is_latched_before_any_publisher_exists(rclpy_context, tmp_path):
+    """Only a subscriber names the topic so far: the recorder's reader is already the
+    reliable, transient-local one that a latched publisher serves its past message to."""
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+
+    from aslip_ros.nodes import common as c
+    graph = Graph(rclpy_context)
+    try:
+        _metadata_reader(graph)
+        rec = _recorder(graph, tmp_path / "bag")
+        graph.until(lambda: c.METADATA_TOPIC in rec.counts, "metadata subscription")
+        mine = [i for i in rec.get_subscriptions_info_by_topic(c.METADATA_TOPIC)
+                if i.node_name == "bag_recorder"]
+        assert len(mine) == 1
+        assert mine[0].qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        assert mine[0].qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        rec.before_shutdown()
+    finally:
+        graph.close()
+
+
+@pytest.mark.parametrize("first", ["recorder", "publisher"])
+def test_the_metadata_reaches_the_bag_whatever_starts_first(rclpy_context, tmp_path, first):
+    from aslip_ros.nodes import common as c
+    graph = Graph(rclpy_context)
+    bag = tmp_path / "bag"
+    try:
+        _metadata_reader(graph)
+        if first == "recorder":
+            rec = _recorder(graph, bag)
+            graph.until(lambda: c.METADATA_TOPIC in rec.counts, "metadata subscription")
+            _latch_metadata(graph)
+        else:
+            _latch_metadata(graph)
+            rec = _recorder(graph, bag)
+        graph.until(lambda: rec.counts.get(c.METADATA_TOPIC), "metadata in the recorder")
+        rec.before_shutdown()
+    finally:
+        graph.close()
+    assert _bag_metadata(bag) == META
+
+
+def test_the_contract_streams_are_read_before_their_publishers_exist(rclpy_context,
+                                                                    tmp_path):
+    """Audio, poses, slip truth and TF are subscribed at start with their documented types:
+    a recording started before the scene loses none of its beginning to discovery."""
+    from aslip_ros.nodes.bag_recorder import DEFAULT_TOPICS
+    graph = Graph(rclpy_context)
+    try:
+        rec = _recorder(graph, tmp_path / "bag")
+        graph.ex.spin_once(timeout_sec=0.0)
+        assert set(rec.counts) == set(DEFAULT_TOPICS)
+        assert not rec.get_publishers_info_by_topic(DEFAULT_TOPICS[0])
+        rec.before_shutdown()
+    finally:
+        graph.close()
+
+
+def test_a_topic_named_only_by_a_subscriber_waits_for_its_publisher(rclpy_context, tmp_path):
+    """A topic outside the contract (a motion-capture driver's own) gets its reader from the
+    publishers' QoS, so none is made while only a subscriber names the topic; then the
+    publisher's reliability is followed."""
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.qos import ReliabilityPolicy
+
+    from aslip_ros.nodes import common as c
+    driver = "/mocap/finger/pose"
+    graph = Graph(rclpy_context)
+    try:
+        reader = graph.node("pose_reader")
+        reader.create_subscription(PoseStamped, driver, lambda m: None, c.SENSOR_QOS)
+        rec = _recorder(graph, tmp_path / "bag", [c.METADATA_TOPIC, driver])
+        graph.until(lambda: driver in dict(rec.get_topic_names_and_types()),
+                    "the subscriber's topic in the graph")
+        for _ in range(10):
+            graph.ex.spin_once(timeout_sec=0.06)     # discovery runs every 50 ms
+        assert driver not in rec.counts
+        graph.node("pose_source").create_publisher(PoseStamped, driver, c.RELIABLE_QOS)
+        graph.until(lambda: driver in rec.counts, "driver topic subscription")
+        mine = [i for i in rec.get_subscriptions_info_by_topic(driver)
+                if i.node_name == "bag_recorder"]
+        assert mine[0].qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        rec.before_shutdown()
+    finally:
+        graph.close()
