@@ -47,14 +47,14 @@ def _checkpoint() -> str:
     return str(CNN)
 
 
+#: The controller's stale-input watchdog in the node-process episodes [s]: what they test
+#: is the stop on slip; a busy machine's stall must not latch a stale-input stop first (the
+#: watchdog's own tests: test_control_watchdog.py, test_stale_input.py).
+EPISODE_INPUT_TIMEOUT_S = 1.0
+
+
 def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_path):
-    from aslip_ros.experiments.demo import MAX_RERUNS
-    for attempt in range(1 + MAX_RERUNS):
-        result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path / f"try{attempt}")
-        if not result["reason"].startswith("stale"):
-            break
-    else:
-        _skip_if_far_beyond_real_time(result["reason"])
+    result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path)
     _check_slip_stop(result, traj)
 
 
@@ -81,7 +81,9 @@ def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_l
                   "retract_speed_m_s": s.retract_speed_m_s, "settle_s": s.settle_s,
                   "max_approach_distance_m": s.retract_distance_m + length
                   + s.overshoot_limit_m, "debounce_count": s.debounce_count,
-                  "settle_result_s": s.settle_result_s}
+                  "settle_result_s": s.settle_result_s,
+                  "slip_timeout_s": EPISODE_INPUT_TIMEOUT_S,
+                  "pose_timeout_s": EPISODE_INPUT_TIMEOUT_S}
 
     def final():
         return [json.loads(m.data) for m in bus.messages(RESULT_TOPIC)
@@ -126,16 +128,9 @@ def _check_slip_stop(result, traj):
 def test_slip_stop_episode_with_the_streaming_model(rclpy_context, ros_env, tmp_path):
     """The streaming checkpoint in slip_inference closes the slip-stop loop: the controller
     acts on its per-hop estimates and stops the arm on slip, within the CNN's bound."""
-    from aslip_ros.experiments.demo import MAX_RERUNS
     assert STREAM.is_file(), STREAM
-    for attempt in range(1 + MAX_RERUNS):
-        slips: list = []
-        result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path / f"try{attempt}",
-                                          str(STREAM), slips)
-        if not result["reason"].startswith("stale"):
-            break
-    else:
-        _skip_if_far_beyond_real_time(result["reason"])
+    slips: list = []
+    result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path, str(STREAM), slips)
     assert result["reason"] == "slip", result
     assert len(slips) > 50 and {m.source for m in slips} == {"aslip_stream"}
     assert all(abs(m.window_length - 0.032) < 1e-6 for m in slips)     # float32 field

@@ -133,7 +133,7 @@ def test_the_metadata_reaches_the_bag_whatever_starts_first(rclpy_context, tmp_p
 
 
 def test_the_contract_streams_are_read_before_their_publishers_exist(rclpy_context,
-                                                                    tmp_path):
+                                                                     tmp_path):
     """Audio, poses, slip truth and TF are subscribed at start with their documented types:
     a recording started before the scene loses none of its beginning to discovery."""
     from aslip_ros.nodes.bag_recorder import DEFAULT_TOPICS
