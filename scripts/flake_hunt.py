@@ -26,15 +26,18 @@ from pathlib import Path
 OUTCOMES = ("passed", "failed", "error", "skipped")
 
 
-def outcomes(junit: Path) -> dict:
-    """``{test id: outcome}`` of one junit XML report."""
-    out = {}
+def outcomes(junit: Path) -> tuple[dict, dict]:
+    """``({test id: outcome}, {test id: failure message})`` of one junit XML report."""
+    out, why = {}, {}
     for case in ET.parse(junit).getroot().iter("testcase"):
         tid = f"{case.get('classname')}::{case.get('name')}"
-        kinds = {child.tag for child in case}
+        kinds = {child.tag: child for child in case}
         out[tid] = ("failed" if "failure" in kinds else "error" if "error" in kinds
                     else "skipped" if "skipped" in kinds else "passed")
-    return out
+        bad = kinds.get("failure", kinds.get("error"))
+        if bad is not None:
+            why[tid] = (bad.get("message") or "").splitlines()[:3]
+    return out, why
 
 
 def hunt(runs: int, hogs: int, pytest_args: list, marker: str = "processes") -> int:
@@ -55,19 +58,24 @@ def hunt(runs: int, hogs: int, pytest_args: list, marker: str = "processes") -> 
                 if not junit.exists():
                     print(f"run {k + 1}: pytest exited {rc} without a report", flush=True)
                     return 2
-                res = outcomes(junit)
+                res, why = outcomes(junit)
                 for tid, outcome in res.items():
                     tally[tid][outcome] += 1
                 bad = [t for t, o in res.items() if o in ("failed", "error")]
                 print(f"run {k + 1}/{runs}: {len(res)} tests, {len(bad)} failed or erred, "
                       f"{walls[-1]:.0f} s{' : ' + ', '.join(bad) if bad else ''}", flush=True)
+                for tid in bad:
+                    print(f"  {tid}: " + " / ".join(why.get(tid, [])), flush=True)
     finally:
         for p in hog_procs:
             p.kill()
             p.wait()
-    flaky = {t: c for t, c in tally.items() if c["passed"] != runs}
+    flaky = {t: c for t, c in tally.items() if c["failed"] or c["error"]}
+    skipped = sorted(t for t, c in tally.items() if c["skipped"] and t not in flaky)
     print(f"\n{len(tally)} tests x {runs} runs beside {hogs} CPU hogs; "
-          f"{len(flaky)} not passed every time")
+          f"{len(flaky)} failed or erred at least once")
+    if skipped:
+        print(f"skipped or xfailed at least once: {', '.join(skipped)}")
     if flaky:
         print("| test | " + " | ".join(OUTCOMES) + " |\n|---|" + "---|" * len(OUTCOMES))
         for tid, c in sorted(flaky.items()):

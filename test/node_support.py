@@ -26,6 +26,14 @@ def header_ns(msg) -> int:
 SCENE_NAMES = ["left_front_top", "left_rear_bottom", "right_front_bottom", "right_rear_top"]
 
 
+def deep(qos, depth: int = 1000):
+    """``qos`` with a queue ``depth`` deep: a test's reader of a stream must not be what loses
+    messages when the test process is slow to take them (a 10-deep queue did, under load)."""
+    from rclpy.qos import QoSProfile
+    return QoSProfile(history=qos.history, depth=max(depth, qos.depth),
+                      reliability=qos.reliability, durability=qos.durability)
+
+
 class Bus:
     """An in-process node on the test's context: subscriptions that record, publishers."""
 
@@ -49,13 +57,14 @@ class Bus:
                 return
 
     def listen(self, msg_type, topic: str, qos) -> None:
-        """Record every message on ``topic``."""
+        """Record every message on ``topic``, with ``qos`` made :func:`deep` (the test's
+        own queue must never be what drops a message)."""
         self.got.setdefault(topic, [])
 
         def cb(m, t=topic):
             with self._lock:
                 self.got[t].append((time.monotonic(), m))
-        self.node.create_subscription(msg_type, topic, cb, qos)
+        self.node.create_subscription(msg_type, topic, cb, deep(qos))
 
     def messages(self, topic: str) -> list:
         """Messages received on ``topic`` so far."""

@@ -72,21 +72,24 @@ def test_topic_source_bridges_another_drivers_audio(rclpy_context, ros_env):
         node.wait_ready()
         sent = []
         k = 0
-        deadline = time.monotonic() + 30
-        while len(bus.messages(AUDIO)) < 20 and time.monotonic() < deadline:
+        bad_sent = False
+        deadline = time.monotonic() + 60           # only stops a hang
+        while (len(bus.messages(AUDIO)) < 20 or not bad_sent) and time.monotonic() < deadline:
             block = np.full((160, 2), k / 1000.0, dtype=np.float32)
             # A driver's frame in other channel names is dropped, never republished (sent
             # once the bridge demonstrably receives: best-effort frames before may be lost).
-            if 5 <= len(bus.messages(AUDIO)) < 10:
+            # Once: a window of message counts (5 to 10) could be skipped by a busy machine.
+            if not bad_sent and len(bus.messages(AUDIO)) >= 5:
                 pub.publish(convert.audio_to_msg(10_000 + 160 * k, time.time_ns(), 16000.0,
                                                  ["x", "y"], block, "", "mic"))
+                bad_sent = True
             pub.publish(convert.audio_to_msg(10_000 + 160 * k, time.time_ns(), 16000.0,
                                              names, block, "", "mic"))
             sent.append(k)
             k += 1
             time.sleep(0.01)
-        assert len(bus.messages(AUDIO)) >= 20, node.output
-        assert node.wait_for("dropped", 10), node.output
+        assert len(bus.messages(AUDIO)) >= 20 and bad_sent, node.output
+        assert node.wait_for("dropped", 30), node.output
     bus.close()
     frames = [convert.audio_from_msg(m) for m in bus.messages(AUDIO)]
     assert all(f.channel_names == names and f.layout == "pair" and

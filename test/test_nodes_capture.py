@@ -170,8 +170,8 @@ def test_bag_replay_publishes_the_bags_audio_in_order(rclpy_context, ros_env, tm
     with NodeProcess("audio_capture", ros_env, params) as node:
         node.wait_ready()
         start_when_discovered(bus, node)
-        assert node.wait_for("end of replay", 15), node.output
-        assert bus.wait(lambda: bus.messages(c_meta()), 5)
+        assert node.wait_for("end of replay", 60), node.output
+        assert bus.wait(lambda: bus.messages(c_meta()), 30)
     bus.close()
     assert "Traceback" not in node.output
     meta = json.loads(bus.messages(c_meta())[-1].data)

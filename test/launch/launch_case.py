@@ -90,8 +90,12 @@ class Probe:
         self.node = rclpy.create_node("aslip_launch_probe", context=self._ctx)
         self.received = {name: [] for name in topics}
         self._lock = threading.Lock()
+        from rclpy.qos import QoSProfile
         for name, (topic, msg_type, qos) in topics.items():
-            self.node.create_subscription(msg_type, topic, self._keeper(name), qos)
+            # 1000 deep: the probe's own queue must never be what drops a message.
+            deep = QoSProfile(history=qos.history, depth=max(1000, qos.depth),
+                              reliability=qos.reliability, durability=qos.durability)
+            self.node.create_subscription(msg_type, topic, self._keeper(name), deep)
         self._ex = SingleThreadedExecutor(context=self._ctx)
         self._ex.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
