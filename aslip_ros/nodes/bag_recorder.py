@@ -44,8 +44,10 @@ from aslip_ros.nodes import common as c
 DEFAULT_TOPICS = [c.AUDIO_TOPIC, c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC,
                   c.METADATA_TOPIC, c.SLIP_TRUTH_TOPIC, topics.TF, topics.TF_STATIC]
 
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+
 #: The contract's latched topics and their types: subscribed before any publisher appears.
-LATCHED = {topics.METADATA: bags.STRING_TYPE, topics.TF_STATIC: "tf2_msgs/msg/TFMessage"}
+LATCHED = {topics.METADATA: bags.STRING_TYPE, topics.TF_STATIC: TF_TYPE}
 
 #: The contract's other topics: type and whether their publishers are reliable
 #: (docs/design.md, "Topics"). Subscribed at start too: waiting for discovery to name them
@@ -53,7 +55,7 @@ LATCHED = {topics.METADATA: bags.STRING_TYPE, topics.TF_STATIC: "tf2_msgs/msg/TF
 #: Streams are read best effort, which every publisher serves, whatever a driver offers.
 STREAMS = {topics.AUDIO: (bags.AUDIO_TYPE, False), topics.FINGER: (bags.POSE_TYPE, False),
            topics.OBJECT: (bags.POSE_TYPE, False), topics.TCP: (bags.POSE_TYPE, False),
-           topics.SLIP_TRUTH: (bags.SLIP_TYPE, True), topics.TF: ("tf2_msgs/msg/TFMessage", True)}
+           topics.SLIP_TRUTH: (bags.SLIP_TYPE, True), topics.TF: (TF_TYPE, True)}
 
 #: Reader queue: a burst that arrives while the recorder is busy writing is kept.
 QUEUE_DEPTH = 1000
@@ -189,8 +191,9 @@ class Recorder(Node):
         return write
 
     def _diagnose(self) -> None:
-        missing = [t for t in self.p["topics"] if t not in self._subs or (
-            t in LATCHED and not self.get_publishers_info_by_topic(t))]
+        # Subscribed at start or not, a topic nobody publishes yet is reported as missing.
+        missing = [t for t in self.p["topics"]
+                   if t not in self._subs or not self.get_publishers_info_by_topic(t)]
         # A volatile publisher on a latched topic cannot serve the latched reader.
         volatile = [t for t in self._subs if t in LATCHED and any(
             i.qos_profile.durability != DurabilityPolicy.TRANSIENT_LOCAL
