@@ -37,6 +37,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("aslip_ros.experiments.bench", "latency against accuracy (Pareto chart)"),
     "stability": ("aslip_ros.experiments.stability", "accuracy under stressors"),
     "demo": ("aslip_ros.experiments.demo", "closed-loop slip-stop and slip-track (Table III)"),
+    "check": ("aslip_ros.bringup.check",
+              "bring-up checks of a new cell: audio, taps, mocap, grasp plane, arm"),
 }
 
 

@@ -2,14 +2,20 @@
 
 Simulation (default; the launch ends when `duration_s` of scene time is recorded):
     ros2 launch aslip_ros data_collection.launch.py scenario:=external_induced object:=chips_can
-Hardware (records until Ctrl-C):
-    ros2 launch aslip_ros data_collection.launch.py sim:=false audio_device:=UMC404HD \
-        finger_topic:=/mocap/finger/pose object_topic:=/mocap/object/pose object:=chips_can
+Hardware (docs/hardware-quickstart.md; the cell file names the device, channels, mocap
+topics, grasp planes and arm limits; the launch ends after `duration_s`, 0 = at Ctrl-C):
+    ros2 launch aslip_ros data_collection.launch.py sim:=false cell:=my_cell.yaml \
+        object:=chips_can bag:=bags/ext_001
+    ros2 launch aslip_ros data_collection.launch.py sim:=false cell:=my_cell.yaml \
+        induced:=robot object:=probe bag:=bags/robot_001    # the arm sweeps the grasp
 
 `recorder:=ros2bag` records with `ros2 bag record` (mcap), `recorder:=aslip` with the
 package's own `bag_recorder` node (no rosbag2 needed), `auto` (default) picks ros2bag when it
-is installed. A recorder that stops while the launch runs shuts the whole launch down with
-the reason: a collection that records nothing must not look like one that works.
+is installed. Either records the audio, the pose topics the graph uses (remapped ones
+included), the TCP, the ground truth, TF and the metadata, which on hardware carries the
+cell's grasp-plane calibrations and the pose topic names (`aslip export` reads both). A
+recorder that stops while the launch runs shuts the whole launch down with the reason: a
+collection that records nothing must not look like one that works.
 """
 
 import os
@@ -19,17 +25,18 @@ from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, ExecuteProcess, LogInfo, OpaqueFunction,
                             RegisterEventHandler, Shutdown, TimerAction)
-from launch.conditions import IfCondition, UnlessCondition
 from launch.event_handlers import OnProcessExit
-from launch.substitutions import LaunchConfiguration as LC
-from launch.substitutions import PythonExpression
 from launch_ros.actions import Node
-from launch_ros.parameter_descriptions import ParameterValue
 
-from aslip_ros.nodes.bag_recorder import DEFAULT_TOPICS
-from aslip_ros.nodes.closed_loop_launch import fail, required, share_dir
+from aslip_ros.cell import CellError
+from aslip_ros.nodes.bag_recorder import record_topics
+from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
+                                                capture_params, cell_arguments, fail,
+                                                load_checked_cell, mocap_topics,
+                                                recording_metadata, required, share_dir)
 
 RECORDERS = ("auto", "ros2bag", "aslip")
+INDUCED = ("external", "robot")
 #: Seconds between the end of a finite scene run and the end of the launch.
 END_GRACE_S = 1.0
 
@@ -43,9 +50,9 @@ def ros2bag_found() -> bool:
     return shutil.which("ros2") is not None
 
 
-def _recorder(context) -> list:
-    choice = LC("recorder").perform(context)
-    bag = LC("bag").perform(context)
+def _recorder(context, topics: list, poses: list) -> list:
+    choice = arg(context, "recorder")
+    bag = arg(context, "bag")
     if choice not in RECORDERS:
         return fail(f"recorder:={choice} is none of {', '.join(RECORDERS)}")
     if choice == "auto":
@@ -54,13 +61,12 @@ def _recorder(context) -> list:
         if not ros2bag_found():
             return fail("recorder:=ros2bag but rosbag2 (`ros2 bag`) is not installed; "
                         "use recorder:=aslip")
-        rec = ExecuteProcess(cmd=["ros2", "bag", "record", "-s", "mcap", "-o", bag]
-                             + DEFAULT_TOPICS, name="ros2_bag_record", output="screen")
+        rec = ExecuteProcess(cmd=["ros2", "bag", "record", "-s", "mcap", "-o", bag] + topics,
+                             name="ros2_bag_record", output="screen")
     else:
         rec = Node(package="aslip_ros", executable="bag_recorder", name="bag_recorder",
-                   output="screen",
-                   parameters=[{"output": ParameterValue(bag, value_type=str),
-                                "topics": list(DEFAULT_TOPICS)}])
+                   output="screen", parameters=[{"output": bag, "topics": list(topics),
+                                                 "pose_topics": list(poses)}])
 
     def stopped(event, ctx):
         if ctx.is_shutdown:
@@ -68,79 +74,123 @@ def _recorder(context) -> list:
         return fail(f"the recorder ({choice}) exited with code {event.returncode} while "
                     f"the launch was running: nothing more is recorded to {bag}")
 
-    return [LogInfo(msg=f"recording with {choice} to {bag}"), rec,
+    return [LogInfo(msg=f"recording {', '.join(topics)} with {choice} to {bag}"), rec,
             RegisterEventHandler(OnProcessExit(target_action=rec, on_exit=stopped))]
 
 
-def _scene_ended(event, ctx):
-    if ctx.is_shutdown:
-        return None
-    if event.returncode != 0:
-        return fail(f"scene_sim exited with code {event.returncode}")
-    why = "the scene ran its duration_s: collection finished"
-    # The recorder still receives what was in flight when the scene ended; then the launch
-    # ends. (A launch test can also finish its checks before the launch is gone.)
-    return [LogInfo(msg=why),
-            TimerAction(period=END_GRACE_S, actions=[Shutdown(reason=why)])]
+def _ended(who: str, done: str):
+    """``on_exit`` of the node whose end is the end of the collection (``who``)."""
+    def ended(event, ctx):
+        if ctx.is_shutdown:
+            return None
+        if event.returncode != 0:
+            return fail(f"{who} exited with code {event.returncode}")
+        why = f"{done}: collection finished"
+        # The recorder still receives what was in flight when the node ended; then the
+        # launch ends. (A launch test can also finish its checks before the launch is gone.)
+        return [LogInfo(msg=why),
+                TimerAction(period=END_GRACE_S, actions=[Shutdown(reason=why)])]
+    return ended
+
+
+def _flag(context, name: str) -> bool:
+    return arg(context, name).lower() in ("true", "1", "yes")
+
+
+def _duration(context) -> float:
+    text = arg(context, "duration_s")
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"duration_s:={text} is not a number of seconds") from None
+    if not value >= 0.0:
+        raise ValueError(f"duration_s:={text} must be >= 0 (0 = until Ctrl-C)")
+    return value
+
+
+def _graph(context) -> list:
+    try:
+        return _nodes(context)
+    except (CellError, ValueError) as exc:
+        return fail(str(exc))
+
+
+def _nodes(context) -> list:
+    cfg = os.path.join(share_dir(), "config")
+    sim = _flag(context, "sim")
+    cell = load_checked_cell(arg(context, "cell"))
+    duration = _duration(context)
+    induced = arg(context, "induced")
+    if induced not in INDUCED:
+        raise ValueError(f"induced:={induced} is none of {', '.join(INDUCED)}")
+    bridge = Node(package="aslip_ros", executable="mocap_bridge", name="mocap_bridge",
+                  output="screen", on_exit=required,
+                  parameters=[os.path.join(cfg, "mocap_bridge.yaml"),
+                              bridge_params(context, cell, sim)])
+    actions = [bridge]
+    if sim:
+        scenario = arg(context, "scenario")
+        scene = Node(package="aslip_ros", executable="scene_sim", name="scene_sim",
+                     output="screen",
+                     parameters=[os.path.join(cfg, "scene_sim.yaml"),
+                                 {"scenario": scenario, "object": arg(context, "object"),
+                                  "seed": int(arg(context, "seed")), "duration_s": duration,
+                                  "exit_when_done": duration > 0,
+                                  "condition": "robot_moving" if scenario == "robot_induced"
+                                  else "robot_stationary"}])
+        actions += [scene,
+                    RegisterEventHandler(OnProcessExit(
+                        target_action=scene,
+                        on_exit=_ended("scene_sim", "the scene ran its duration_s")))]
+    else:
+        robot = induced == "robot"
+        condition = arg(context, "condition") or ("robot_moving" if robot
+                                                  else "robot_stationary")
+        meta = recording_metadata(context, cell, object=arg(context, "object"),
+                                  induced=induced, condition=condition)
+        actions.append(Node(package="aslip_ros", executable="audio_capture",
+                            name="audio_capture", output="screen", on_exit=required,
+                            parameters=[os.path.join(cfg, "audio_capture.yaml"),
+                                        capture_params(context, cell, meta)]))
+        if robot:
+            # The sweeps end the recording: their duration, then back to the start.
+            sweeps = arm_params(context, cell, "robot_sweeps", sim=False)
+            sweeps.update(duration_s=duration, exit_when_done=duration > 0,
+                          seed=int(arg(context, "seed")))
+            node = Node(package="aslip_ros", executable="robot_sweeps", name="robot_sweeps",
+                        output="screen",
+                        parameters=[os.path.join(cfg, "robot_sweeps.yaml"), sweeps])
+            actions += [node, RegisterEventHandler(OnProcessExit(
+                target_action=node, on_exit=_ended("robot_sweeps", "the sweeps are done")))]
+        elif duration > 0:
+            why = f"recorded for duration_s:={duration:g}: collection finished"
+            actions.append(TimerAction(period=duration, actions=[
+                LogInfo(msg=why), Shutdown(reason=why)]))
+    if _flag(context, "record"):
+        poses = mocap_topics(context, cell)
+        actions += _recorder(context, record_topics(*poses), list(poses))
+    return actions
 
 
 def generate_launch_description():
-    cfg = os.path.join(share_dir(), "config")
-    sim = IfCondition(LC("sim"))
-    real = UnlessCondition(LC("sim"))
     args = [
         DeclareLaunchArgument("sim", default_value="true", description="simulated scene"),
         DeclareLaunchArgument("scenario", default_value="external_induced",
                               description="sim: external_induced | robot_induced"),
+        DeclareLaunchArgument("induced", default_value="external",
+                              description="hw: external (someone moves the object) | robot "
+                                          "(robot_sweeps moves the arm; a clamped probe)"),
+        DeclareLaunchArgument("condition", default_value="",
+                              description="hw: recorded as the trial's condition (default "
+                                          "robot_stationary, robot_moving for induced:=robot)"),
         DeclareLaunchArgument("object", default_value="chips_can"),
         DeclareLaunchArgument("seed", default_value="0"),
         DeclareLaunchArgument("duration_s", default_value="30.0",
-                              description="sim: scene time to record [s], then the launch "
-                                          "ends; 0 = until Ctrl-C"),
-        DeclareLaunchArgument("audio_device", default_value="",
-                              description="hw: PortAudio device name or index"),
-        DeclareLaunchArgument("channels", default_value="4"),
-        DeclareLaunchArgument("sample_rate", default_value="48000.0"),
-        DeclareLaunchArgument("finger_topic", default_value="/aslip/mocap/finger"),
-        DeclareLaunchArgument("object_topic", default_value="/aslip/mocap/object"),
+                              description="sim: scene time to record; hw: seconds from the "
+                                          "launch; then the launch ends; 0 = until Ctrl-C"),
         DeclareLaunchArgument("bag", default_value="aslip_bag", description="output bag"),
         DeclareLaunchArgument("record", default_value="true"),
         DeclareLaunchArgument("recorder", default_value="auto",
                               description="auto | ros2bag | aslip (no rosbag2 needed)"),
-    ]
-    scene = Node(package="aslip_ros", executable="scene_sim", name="scene_sim",
-                 condition=sim, output="screen",
-                 parameters=[os.path.join(cfg, "scene_sim.yaml"),
-                             {"scenario": LC("scenario"), "object": LC("object"),
-                              "seed": ParameterValue(LC("seed"), value_type=int),
-                              "duration_s": ParameterValue(LC("duration_s"), value_type=float),
-                              "exit_when_done": ParameterValue(PythonExpression(
-                                  ["float('", LC("duration_s"), "') > 0"]), value_type=bool),
-                              "condition": PythonExpression([
-                                  "'robot_moving' if '", LC("scenario"),
-                                  "' == 'robot_induced' else 'robot_stationary'"])}])
-    # Strings stay strings: a device index ("0") and the JSON text would otherwise be
-    # parsed as YAML into an integer and a dict.
-    capture = Node(package="aslip_ros", executable="audio_capture", name="audio_capture",
-                   condition=real, output="screen", on_exit=required,
-                   parameters=[os.path.join(cfg, "audio_capture.yaml"),
-                               {"source": "device",
-                                "device": ParameterValue(LC("audio_device"), value_type=str),
-                                "channels": ParameterValue(LC("channels"), value_type=int),
-                                "sample_rate": ParameterValue(LC("sample_rate"),
-                                                              value_type=float),
-                                "metadata_json": ParameterValue(PythonExpression([
-                                    "__import__('json').dumps({'object': '", LC("object"),
-                                    "'})"]), value_type=str)}])
-    bridge = Node(package="aslip_ros", executable="mocap_bridge", name="mocap_bridge",
-                  output="screen", on_exit=required,
-                  parameters=[os.path.join(cfg, "mocap_bridge.yaml"),
-                              {"finger_topic": LC("finger_topic"),
-                               "object_topic": LC("object_topic"),
-                               "calibration": PythonExpression([
-                                   "'metadata' if '", LC("sim"), "' == 'true' else 'param'"])}])
-    return LaunchDescription(args + [
-        scene, capture, bridge,
-        RegisterEventHandler(OnProcessExit(target_action=scene, on_exit=_scene_ended)),
-        OpaqueFunction(function=_recorder, condition=IfCondition(LC("record"))),
-    ])
+    ] + cell_arguments()
+    return LaunchDescription(args + [OpaqueFunction(function=_graph)])

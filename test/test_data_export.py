@@ -313,3 +313,21 @@ def test_a_calibration_with_a_near_zero_quaternion_is_refused(tmp_path):
     with pytest.raises(ValueError, match="grasp_plane_in_finger must be a pose"):
         export([tmp_path / "b"], tmp_path / "ds", progress=False)
     assert not (tmp_path / "ds").exists()
+
+
+def test_pose_topics_named_in_the_metadata_need_no_flags(tmp_path, capsys):
+    """A cell whose mocap driver publishes on its own names: the recording's metadata
+    names them (data_collection.launch.py writes it) and export follows it, from the CLI
+    too; a flag given still wins."""
+    topics = bags.Topics(finger="/natnet/finger/pose", object="/natnet/object/pose")
+    write_synthetic_bag(tmp_path / "bags" / "hw", duration_s=1.5, topics=topics,
+                        extra_metadata={"topics": {"finger": topics.finger,
+                                                   "object": topics.object,
+                                                   "tcp": "/aslip/robot/tcp_pose"}})
+    rc = cli.main(["export", str(tmp_path / "bags"), "-o", str(tmp_path / "ds"),
+                   "--no-progress"])
+    assert rc == 0, capsys.readouterr().err
+    assert len(Dataset(tmp_path / "ds")) > 0
+    rc = cli.main(["export", str(tmp_path / "bags"), "-o", str(tmp_path / "ds2"),
+                   "--finger-topic", "/elsewhere", "--no-progress"])
+    assert rc == 1 and "/elsewhere" in capsys.readouterr().err

@@ -195,9 +195,11 @@ def _by_exe(ev: Evaluated) -> dict:
 LAUNCHES = [
     ("slip_stop.launch.py", {}),
     ("slip_stop.launch.py", {"rviz": "true", "direction": "[1.0, 0.0, 0.0]"}),
-    ("slip_stop.launch.py", {"sim": "false", "audio_device": "0", "autostart": "false"}),
+    ("slip_stop.launch.py", {"sim": "false", "audio_device": "0", "autostart": "false",
+                             "checkpoint": "my_model.pt"}),
     ("slip_track.launch.py", {}),
-    ("slip_track.launch.py", {"sim": "false", "audio_device": "UMC404HD", "gain": "1"}),
+    ("slip_track.launch.py", {"sim": "false", "audio_device": "UMC404HD", "gain": "1",
+                              "checkpoint": "my_model.pt", "channel_names": "[a,b]"}),
     ("slip_track.launch.py", {"input_timeout_s": "0.1"}),
     ("data_collection.launch.py", {}),
     ("data_collection.launch.py", {"sim": "false", "record": "false", "audio_device": "0"}),
@@ -256,7 +258,7 @@ def test_the_watchdog_timeout_is_a_launch_argument(launch_file):
 
 @needs_launch
 @pytest.mark.parametrize("launch_file,args", [
-    ("slip_stop.launch.py", {"sim": "false", "audio_device": "0"}),
+    ("slip_stop.launch.py", {"sim": "false", "audio_device": "0", "checkpoint": "m.pt"}),
     ("data_collection.launch.py", {"sim": "false", "record": "false", "audio_device": "0"})])
 def test_a_numeric_audio_device_stays_a_string(launch_file, args):
     capture = _by_exe(evaluate(launch_file, args))["audio_capture"]
@@ -267,7 +269,8 @@ def test_a_numeric_audio_device_stays_a_string(launch_file, args):
 def test_data_collection_metadata_is_json_text():
     nodes = _by_exe(evaluate("data_collection.launch.py",
                              {"sim": "false", "record": "false", "object": "pla_rod"}))
-    assert json.loads(nodes["audio_capture"]["metadata_json"]) == {"object": "pla_rod"}
+    meta = json.loads(nodes["audio_capture"]["metadata_json"])
+    assert meta["object"] == "pla_rod" and meta["induced"] == "external"
 
 
 @needs_launch
@@ -285,6 +288,145 @@ def test_data_collection_records_every_topic_and_ends_with_the_scene():
     assert {"scene_sim", "bag_recorder", "mocap_bridge"} <= watched, watched
     endless = _by_exe(evaluate("data_collection.launch.py", {"duration_s": "0"}))
     assert endless["scene_sim"]["exit_when_done"] is False
+
+
+# -- a lab's cell (issue: the documented hardware path) --------------------------------
+
+CELL = """\
+audio_capture:
+  device: "rig_pcm"
+  channel_names: [pad_a, pad_b]
+mocap_bridge:
+  finger_topic: /natnet/finger/pose
+  object_topic: /natnet/object/pose
+  grasp_plane_in_finger: [0.01, 0.0, 0.05, 0, 0, 0, 1]
+arm:
+  xarm_ip: 10.0.0.7
+  xarm_max_speed_m_s: 0.05
+  xarm_workspace_min_m: [0.2, -0.3, 0.05]
+  xarm_workspace_max_m: [0.6, 0.3, 0.5]
+  grasp_plane_in_tcp: [0, 0, 0.17, 0, 0, 0, 1]
+slip_stop:
+  approach_speed_m_s: 0.005
+"""
+
+HW = {"sim": "false", "checkpoint": "my_model.pt"}
+
+
+@pytest.fixture
+def cell(tmp_path):
+    path = tmp_path / "lab_cell.yaml"
+    path.write_text(CELL)
+    return str(path)
+
+
+@needs_launch
+def test_the_data_collection_records_the_pose_topics_the_graph_uses(cell):
+    """A driver publishing on its own names: those are recorded (with /tf_static and the
+    metadata), not the contract's defaults nobody publishes."""
+    for args in ({"cell": cell}, {"finger_topic": "/natnet/finger/pose",
+                                  "object_topic": "/natnet/object/pose"}):
+        ev = evaluate("data_collection.launch.py", dict(args, sim="false", recorder="aslip"))
+        nodes = _by_exe(ev)
+        rec = nodes["bag_recorder"]
+        assert {"/natnet/finger/pose", "/natnet/object/pose", "/tf_static",
+                "/aslip/metadata", "/aslip/audio"} <= set(rec["topics"]), rec["topics"]
+        assert "/aslip/mocap/finger" not in rec["topics"]
+        assert set(rec["pose_topics"]) == {"/natnet/finger/pose", "/natnet/object/pose"}
+        bridge = nodes["mocap_bridge"]
+        assert (bridge["finger_topic"], bridge["object_topic"]) == \
+            ("/natnet/finger/pose", "/natnet/object/pose")
+        check_parameters(ev)
+
+
+@needs_launch
+def test_the_metadata_of_a_hardware_recording_carries_the_cells_calibration(cell):
+    nodes = _by_exe(evaluate("data_collection.launch.py",
+                             {"sim": "false", "record": "false", "cell": cell}))
+    meta = json.loads(nodes["audio_capture"]["metadata_json"])
+    assert meta["grasp_plane_in_finger"] == [0.01, 0.0, 0.05, 0.0, 0.0, 0.0, 1.0]
+    assert meta["grasp_plane_in_tcp"] == [0.0, 0.0, 0.17, 0.0, 0.0, 0.0, 1.0]
+    assert meta["topics"]["finger"] == "/natnet/finger/pose"
+    assert nodes["mocap_bridge"]["calibration"] == "param"
+    assert list(nodes["mocap_bridge"]["grasp_plane_in_finger"]) == meta["grasp_plane_in_finger"]
+
+
+@needs_launch
+@pytest.mark.parametrize("names", [["solo"], ["pad_a", "pad_b"], ["a", "b", "c", "d"]])
+def test_channel_names_are_a_launch_argument_for_1_2_and_4_microphones(names):
+    for launch_file, extra in (("data_collection.launch.py", {"record": "false"}),
+                               ("slip_stop.launch.py", {"checkpoint": "m.pt"})):
+        ev = evaluate(launch_file, dict(extra, sim="false",
+                                        channel_names="[" + ",".join(names) + "]"))
+        capture = _by_exe(ev)["audio_capture"]
+        assert list(capture["channel_names"]) == names and capture["channels"] == len(names)
+        check_parameters(ev)
+    two = _by_exe(evaluate("data_collection.launch.py",
+                           {"sim": "false", "record": "false", "channels": "2"}))
+    assert list(two["audio_capture"]["channel_names"]) == ["ch0", "ch1"]
+
+
+@needs_launch
+@pytest.mark.parametrize("launch_file", ["slip_stop.launch.py", "slip_track.launch.py"])
+def test_every_closed_loop_takes_the_cells_limits_and_grasp_plane(cell, launch_file):
+    task = launch_file.split(".")[0]
+    ev = evaluate(launch_file, dict(HW, cell=cell))
+    nodes = _by_exe(ev)
+    ctrl = nodes[task]
+    assert ctrl["arm"] == "xarm" and ctrl["xarm_ip"] == "10.0.0.7"
+    assert ctrl["xarm_max_speed_m_s"] == 0.05
+    assert list(ctrl["xarm_workspace_min_m"]) == [0.2, -0.3, 0.05]
+    assert list(ctrl["grasp_plane_in_tcp"]) == [0.0, 0.0, 0.17, 0.0, 0.0, 0.0, 1.0]
+    assert list(nodes["audio_capture"]["channel_names"]) == ["pad_a", "pad_b"]
+    assert nodes["audio_capture"]["device"] == "rig_pcm"
+    if task == "slip_stop":
+        assert ctrl["approach_speed_m_s"] == 0.005
+    check_parameters(ev)
+    # A launch argument given overrides the cell.
+    ip = _by_exe(evaluate(launch_file, dict(HW, cell=cell, xarm_ip="10.0.0.9")))[task]
+    assert ip["xarm_ip"] == "10.0.0.9"
+
+
+@needs_launch
+@pytest.mark.parametrize("launch_file", ["slip_stop.launch.py", "slip_track.launch.py"])
+def test_hardware_refuses_to_run_the_scenes_model(launch_file):
+    ev = evaluate(launch_file, {"sim": "false"})
+    assert ev.shutdowns and not ev.nodes
+    assert any("checkpoint:=" in m and "simulated scene" in m for m in ev.logs), ev.logs
+
+
+@needs_launch
+@pytest.mark.parametrize("text,needle", [
+    ("arm:\n  xarm_max_speed: 0.05\n", "unknown key 'xarm_max_speed'"),
+    ("arm:\n  xarm_max_speed_m_s: 5.0\n", "xarm_max_speed_m_s"),
+    ("slip_stop:\n  aproach_speed_m_s: 0.01\n", "'aproach_speed_m_s' is not a parameter"),
+    ("slip_stop:\n  xarm_ip: 1.2.3.4\n", "belongs in the 'arm' section"),
+    ("grippers: {}\n", "unknown section 'grippers'"),
+    ("- not a mapping\n", "must be a mapping")])
+def test_a_wrong_cell_file_stops_every_launch_before_anything_starts(tmp_path, text, needle):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    for launch_file, extra in (("slip_stop.launch.py", HW), ("slip_track.launch.py", HW),
+                               ("data_collection.launch.py", {"sim": "false"})):
+        ev = evaluate(launch_file, dict(extra, cell=str(path)))
+        assert ev.shutdowns and not ev.nodes, launch_file
+        assert any(needle in m and "bad.yaml" in m for m in ev.logs), (needle, ev.logs)
+
+
+@needs_launch
+def test_robot_induced_recording_on_hardware_sweeps_the_arm_within_the_cells_limits(cell):
+    ev = evaluate("data_collection.launch.py", {"sim": "false", "cell": cell,
+                                                "induced": "robot", "duration_s": "20",
+                                                "recorder": "aslip"})
+    nodes = _by_exe(ev)
+    sweeps = nodes["robot_sweeps"]
+    assert sweeps["arm"] == "xarm" and sweeps["xarm_max_speed_m_s"] == 0.05
+    assert sweeps["duration_s"] == 20.0 and sweeps["exit_when_done"] is True
+    meta = json.loads(nodes["audio_capture"]["metadata_json"])
+    assert meta["induced"] == "robot" and meta["condition"] == "robot_moving"
+    assert "/aslip/robot/tcp_pose" in nodes["bag_recorder"]["topics"]
+    assert any(handles_exit(ev, n[3]) for n in ev.nodes if n[0] == "robot_sweeps")
+    check_parameters(ev)
 
 
 @needs_launch

@@ -219,6 +219,49 @@ def test_calibration_resets_on_gap_restart_time_jump_and_service(live):
     assert all(v[f"gain_db_{name}"] == 0.0 for name in SCENE_NAMES)
 
 
+class _LoggedNode:
+    """The bus node, with what is logged through it kept (GraspCalibration reports there)."""
+
+    def __init__(self, node) -> None:
+        self.node, self.lines = node, []
+
+    def __getattr__(self, name):
+        return getattr(self.node, name)
+
+    def get_logger(self):
+        lines = self.lines
+
+        class Logger:
+            def info(self, text, **kw):
+                lines.append(("info", text))
+
+            def warning(self, text, **kw):
+                lines.append(("warning", text))
+        return Logger()
+
+
+def test_a_controller_restarts_the_calibration_at_a_grasp_and_says_when_it_converged(live):
+    """What a controller does at each task start (nodes/grasp_calibration.py), against the
+    real slip_inference: the service starts a new grasp, /aslip/calibration announces it
+    and then its convergence, and the user is told to hold still, then that it converged."""
+    from aslip_ros.nodes.grasp_calibration import GraspCalibration
+    bus, stream, proc, _ = live
+    node = _LoggedNode(bus.node)
+    cal = GraspCalibration(node)
+    assert cal.client.wait_for_service(timeout_sec=10)
+    assert bus.wait(lambda: cal.calibrated is True, 10), proc.output[-3000:]
+    grasp = cal.grasp
+    cal.begin()
+    assert bus.wait(lambda: cal.grasp == grasp + 1, 10), proc.output[-3000:]
+    assert cal.values() == {"calibration": "calibrating"}
+    assert any("hold the grasped object still" in t for _, t in node.lines), node.lines
+    stream.feed(stream_audio(90, seed=7))        # converge_frames=60 frames of 10 ms
+    assert bus.wait(lambda: cal.values()["calibration"] == "converged", 20), \
+        proc.output[-3000:]
+    assert cal.values()["calibration_converged_after_s"] > 0
+    assert any(t.startswith("calibration converged") for _, t in node.lines), node.lines
+
+
 def _refused(ros_env, ckpt):
     proc = NodeProcess("slip_inference", ros_env, {"checkpoint": str(ckpt)})
     try:

@@ -113,10 +113,20 @@ def _track_scene_arm(bus, ros_env) -> None:
 
 
 def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros_env):
+    from std_srvs.srv import Trigger
     bus = Bus(rclpy_context)
     _listen(bus)
+    calls = []
+
+    def recalibrate(request, response):
+        calls.append(time.monotonic())
+        response.success, response.message = True, "calibration reset"
+        return response
+    # slip_inference's service: the task start (a new grasp) restarts its calibration.
+    bus.node.create_service(Trigger, "/slip_inference/recalibrate", recalibrate)
     src = SlipSource(bus, velocity=(0.02, 0.0))
     _track_scene_arm(bus, ros_env)
+    assert len(calls) == 1, calls
     src.close()
     bus.close()
 

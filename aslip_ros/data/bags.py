@@ -23,7 +23,7 @@ import json
 import os
 import struct
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -45,6 +45,10 @@ METADATA_FORMAT = "aslip-metadata"
 METADATA_VERSION = 1
 
 
+#: The pose topics of :class:`Topics` (a recording's metadata may name its own).
+POSE_TOPICS = ("finger", "object", "tcp")
+
+
 @dataclass(frozen=True)
 class Topics:
     """Topic names of the recording contract (aslip_ros/topics.py); override per deployment."""
@@ -55,6 +59,16 @@ class Topics:
     tcp: str = topics.TCP
     metadata: str = topics.METADATA
     slip_truth: str = topics.SLIP_TRUTH
+
+    def named_in(self, meta: dict, keep: tuple = ()) -> "Topics":
+        """These names, with the pose topics a recording's metadata names (``topics``:
+        finger, object, tcp: a motion-capture driver's own) except those in ``keep``."""
+        named = meta.get("topics") if isinstance(meta, dict) else None
+        if not isinstance(named, dict):
+            return self
+        return replace(self, **{k: named[k] for k in POSE_TOPICS
+                                if isinstance(named.get(k), str) and named[k]
+                                and k not in keep})
 
 
 DEFAULT_TOPICS = Topics()

@@ -1,10 +1,9 @@
 """Export rosbags to the windowed training dataset (library and ``aslip export``).
 
-Everything about the recording comes from the bag: sample rate, channel count and names
-from the ``AudioFrame`` messages, pose rates from the pose stamps, scenario fields from the
-metadata (``custom_data['aslip']`` or the metadata topic). Defaults when a bag carries no
-metadata: labels from motion capture, identity grasp-plane calibration, trial id = the
-bag's name, and ``object``/``pad``/``condition``/``induced`` = ``"unknown"``.
+Everything about the recording comes from the bag: sample rate, channels from the
+``AudioFrame`` messages, pose rates from the stamps; scenario fields, calibrations and pose
+topic names from the metadata (``custom_data['aslip']`` or the metadata topic; without it:
+mocap labels, identity calibration, trial id = the bag's name, the rest ``"unknown"``).
 
 Windows follow a regular grid in the audio stream's sample index: window ``n =
 round(window_s * sample_rate)`` frames every ``hop = round(hop_s * sample_rate)`` frames
@@ -38,8 +37,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from aslip_ros.data.bags import (CUSTOM_DATA_KEY, DEFAULT_TOPICS, BagDamaged, BagError,
-                                 BagReader, Topics, find_bags)
+from aslip_ros.data.bags import (CUSTOM_DATA_KEY, DEFAULT_TOPICS, POSE_TOPICS, BagDamaged,
+                                 BagError, BagReader, Topics, find_bags)
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
 from aslip_ros.data.export_bench import measure_export_speed  # noqa: F401 (public name)
 from aslip_ros.data.export_read import (AudioClock, BagStreams, StreamFormat, WindowGrid,
@@ -65,6 +64,7 @@ class ExportConfig:
     label_source: str = "auto"
     max_gap_s: float = DEFAULT_MAX_GAP_S
     topics: Topics = DEFAULT_TOPICS
+    topics_given: tuple = ()    # pose topics given: the others as a bag's metadata names them
     overwrite: bool = False
     skip_bad: bool = False
     recover: bool = False
@@ -266,6 +266,7 @@ def _read_bag(reader: BagReader, cfg: ExportConfig, writer: DatasetWriter, strea
               bar) -> tuple[dict, BagResult, dict]:
     with reader as r:
         meta = r.read_metadata(cfg.topics.metadata) or {}
+        cfg = replace(cfg, topics=cfg.topics.named_in(meta, cfg.topics_given))
         source = _label_source(cfg, meta)
         r.require([cfg.topics.audio], "audio")
         r.require(_label_topics(cfg, source), f"labels from {source}")
@@ -397,9 +398,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-gap", type=float, default=DEFAULT_MAX_GAP_S,
                         help="longest pose dropout bridged by interpolation in s "
                              "(default %(default)s)")
-    for name in ("audio", "finger", "object", "tcp", "metadata"):
-        parser.add_argument(f"--{name}-topic", default=getattr(DEFAULT_TOPICS, name),
-                            help=f"{name} topic (default %(default)s)")
+    for name in ("audio", "metadata", "finger", "object", "tcp"):     # poses: as recorded
+        pose, default = name in POSE_TOPICS, getattr(DEFAULT_TOPICS, name)
+        parser.add_argument(f"--{name}-topic", default=None if pose else default, help=(
+            f"{name} topic (default: {'as the metadata names it, else ' * pose}{default})"))
     parser.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
     parser.add_argument("--skip-bad", action="store_true",
                         help="skip unreadable or inconsistent bags instead of failing")
@@ -425,9 +427,9 @@ def run(args: argparse.Namespace) -> int:
     cfg = ExportConfig(
         window_s=args.window, hop_s=args.hop, epsilon_m_s=args.epsilon,
         label_source=args.labels, max_gap_s=args.max_gap,
-        topics=Topics(audio=args.audio_topic, finger=args.finger_topic,
-                      object=args.object_topic, tcp=args.tcp_topic,
-                      metadata=args.metadata_topic),
+        topics=Topics(**{k: getattr(args, f"{k}_topic") or getattr(DEFAULT_TOPICS, k)
+                         for k in ("audio", "metadata") + POSE_TOPICS}),
+        topics_given=tuple(k for k in POSE_TOPICS if getattr(args, f"{k}_topic")),
         overwrite=args.overwrite, skip_bad=args.skip_bad, recover=args.recover,
         progress=not args.no_progress)
     try:

@@ -53,11 +53,14 @@ from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.scene_params import scene_params
 from aslip_ros.nodes.topic_audio import open_topic
+from aslip_ros.scene.layouts import DEFAULT_LAYOUT, LAYOUTS
 
 #: Sources by name: the ROS-free ones of hw/ and the topic bridge.
 SOURCES = dict(audio_source.SOURCES, topic=open_topic)
 _SOURCE_CHOICES = f"one of {', '.join(SOURCES)}, or module.path:factory"
-DEFAULT_NAMES = ["left_front", "left_rear", "right_front", "right_rear"]
+#: The default microphones: the scene's 4-microphone layout, the names the shipped models
+#: and docs/hardware.md use (a cell with other microphones names its own).
+DEFAULT_NAMES = list(LAYOUTS[DEFAULT_LAYOUT].channel_names)
 
 
 def _source(v) -> Optional[str]:
@@ -88,7 +91,8 @@ class AudioCapture(LifecycleNode):
                     c.in_range(1000.0, 384000.0), read_only=True),
             c.Param("channel_names", list(DEFAULT_NAMES),
                     "channel names in column order (device, wav, topic)", read_only=True),
-            c.Param("layout", "4mic", "microphone layout name ('' = unknown)", read_only=True),
+            c.Param("layout", DEFAULT_LAYOUT, "microphone layout name ('' = unknown)",
+                    read_only=True),
             c.Param("wav_path", "", "wav: file to replay", read_only=True),
             c.Param("bag_path", "", "bag: rosbag2 to replay", read_only=True),
             c.Param("bag_topic", c.AUDIO_TOPIC, "bag: AudioFrame topic in the bag",

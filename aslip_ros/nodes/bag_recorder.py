@@ -57,6 +57,14 @@ STREAMS = {topics.AUDIO: (bags.AUDIO_TYPE, False), topics.FINGER: (bags.POSE_TYP
            topics.OBJECT: (bags.POSE_TYPE, False), topics.TCP: (bags.POSE_TYPE, False),
            topics.SLIP_TRUTH: (bags.SLIP_TYPE, True), topics.TF: (TF_TYPE, True)}
 
+
+def record_topics(finger: str = topics.FINGER, object_: str = topics.OBJECT) -> list:
+    """What ``data_collection.launch.py`` records when the poses come on ``finger`` and
+    ``object_`` (a motion-capture driver's own names): :data:`DEFAULT_TOPICS` with those."""
+    swap = {topics.FINGER: finger, topics.OBJECT: object_}
+    return [swap.get(t, t) for t in DEFAULT_TOPICS]
+
+
 #: Reader queue: a burst that arrives while the recorder is busy writing is kept.
 QUEUE_DEPTH = 1000
 
@@ -119,11 +127,16 @@ class Recorder(Node):
                     c.non_empty, read_only=True),
             c.Param("topics", list(DEFAULT_TOPICS), "topics to record", _topic_list,
                     read_only=True),
+            c.Param("pose_topics", [""], "PoseStamped streams among topics, subscribed at "
+                    "start like the contract's (a mocap driver's own names; '' = none)",
+                    read_only=True),
             c.Param("overwrite", False, "replace an existing bag at output", read_only=True),
             c.Param("discovery_period_s", 0.2, "look for new publishers this often [s]",
                     c.in_range(0.01, 10.0), read_only=True),
         ]
         self.p = c.declare_params(self, specs)
+        self.streams = dict(STREAMS, **{t: (bags.POSE_TYPE, False)
+                                        for t in self.p["pose_topics"] if t})
         try:
             self.writer = RawBagWriter(self.p["output"], overwrite=bool(self.p["overwrite"]))
             self.writer.__enter__()
@@ -148,8 +161,8 @@ class Recorder(Node):
             if topic in LATCHED:
                 self._subscribe(topic, LATCHED[topic], latched=True, reliable=True)
                 continue
-            if topic in STREAMS:
-                self._subscribe(topic, STREAMS[topic][0], False, STREAMS[topic][1])
+            if topic in self.streams:
+                self._subscribe(topic, self.streams[topic][0], False, self.streams[topic][1])
                 continue
             if available is None:
                 available = dict(self.get_topic_names_and_types())

@@ -96,7 +96,7 @@ def declare_params(node, specs: Sequence[Param],
             # check below refuses it in the same words as every other invalid value.
             node.declare_parameter(s.name, s.default, descriptor(s, with_range=False))
     values = {s.name: node.get_parameter(s.name).value for s in specs}
-    checked = ((n, _check(by_name[n], v)) for n, v in values.items())
+    checked = ((n, check_value(by_name[n], v)) for n, v in values.items())
     problems = [f"{n}: {err}" for n, err in checked if err]
     if not problems and cross_check is not None:
         err = cross_check(dict(values))
@@ -111,7 +111,7 @@ def declare_params(node, specs: Sequence[Param],
             spec = by_name.get(p.name)
             if spec is None:
                 continue
-            err = _check(spec, p.value)
+            err = check_value(spec, p.value)
             if err:
                 errors.append(f"{p.name}: {err}")
         if not errors and cross_check is not None:
@@ -132,7 +132,8 @@ def declare_params(node, specs: Sequence[Param],
     return values
 
 
-def _check(spec: Param, value) -> Optional[str]:
+def check_value(spec: Param, value) -> Optional[str]:
+    """The error text of ``value`` for ``spec`` (its validator), or None."""
     if spec.check is None:
         return None
     try:

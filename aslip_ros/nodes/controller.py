@@ -1,16 +1,11 @@
 """The lifecycle-node shell shared by ``slip_stop`` and ``slip_track``.
 
 The task logic lives in :mod:`aslip_ros.control` (pure, clock-injectable); this module only
-wires it to topics and an arm, chosen by name from :mod:`aslip_ros.nodes.arms`:
-
-- ``arm:=sim``: :class:`~aslip_ros.nodes.topic_arm.TopicArm` publishes
-  ``/aslip/arm/cmd_vel`` (TwistStamped, ``link_base``), which ``scene_sim`` executes on the
-  scene's simulated arm, and reads the TCP from ``/aslip/robot/tcp_pose``.
-- ``arm:=xarm``: :class:`aslip_ros.hw.xarm.XArmAdapter` at ``xarm_ip``; the TCP comes from
-  the SDK's report stream (polled on the arm thread where there is none) and is republished
-  on ``/aslip/robot/tcp_pose``, stamped when it was measured.
-- ``arm:=module.path:factory``: an arm from outside the package, within the ``xarm_*``
-  speed and workspace limits (docs/design.md, "Extending").
+wires it to topics and an arm, chosen by name from :mod:`aslip_ros.nodes.arms` (``sim``: the
+scene's arm over topics; ``xarm``; ``module.path:factory``, docs/design.md "Extending").
+The TCP of an arm that measures it is republished on ``/aslip/robot/tcp_pose``, stamped
+when measured. Each task start is a new grasp: the per-grasp calibration of
+``slip_inference`` starts again then (:mod:`.grasp_calibration`).
 
 Every arm call runs on a thread of its own (:mod:`aslip_ros.control.arm_worker`): the
 control step only posts its command, so slip and pose callbacks never wait behind arm I/O.
@@ -18,13 +13,11 @@ A stale input is acted on by a one-shot deadline per stream, re-armed by each va
 so the stop leaves ``slip_timeout_s`` (or ``pose_timeout_s``) after the last valid input,
 not at the next control tick.
 
-Lifecycle: ``configure`` builds and connects the arm (an unreachable xArm fails the
-transition, is reported on diagnostics and leaves the node unconfigured: nothing moves),
-``activate`` enables velocity mode and starts the task, ``deactivate``/``cleanup``/
-``shutdown`` stop the arm. With ``autostart`` (default) the node configures and activates
-itself. Safety: stale slip or TCP input (watchdogs in the core), any arm error and process
-shutdown all stop the arm, and no velocity command follows a stop until the next
-activation.
+Lifecycle: ``configure`` connects the arm (an unreachable xArm fails the transition and
+nothing moves), ``activate`` enables velocity mode and starts the task, ``deactivate``/
+``cleanup``/``shutdown`` stop the arm; ``autostart`` (default) does the first two. Stale
+slip or TCP input, any arm error and shutdown stop the arm, and no velocity command
+follows a stop until the next activation.
 """
 
 from __future__ import annotations
@@ -48,6 +41,7 @@ from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.arms import ARMS, resolve_arm
+from aslip_ros.nodes.grasp_calibration import DEFAULT_SERVICE, GraspCalibration
 
 IDENTITY = [float(x) for x in poses.IDENTITY_POSE]
 
@@ -86,6 +80,8 @@ def arm_params() -> list:
                 "slip_timeout_s of the previous one (a steady stream, not the first one)",
                 c.int_range(1, 1000),
                 read_only=True),
+        c.Param("recalibrate_service", DEFAULT_SERVICE, "called at each task start (a new "
+                "grasp) to restart the per-grasp calibration; '' = never", read_only=True),
         c.Param("autostart", True, "configure and activate at start", read_only=True),
         c.Param("exit_when_done", False, "exit once the task has ended", read_only=True),
     ]
@@ -140,6 +136,7 @@ class ControllerNode(LifecycleNode):
         self.diag = c.Diagnostics(self, f"aslip: {name}", self.p["arm"])
         self.arm_kind = resolve_arm(self.p["arm"])
         self.pub_tcp = None
+        self.calibration = GraspCalibration(self, self.p["recalibrate_service"])
         # One dispatch thread (common._executor): callback groups would change nothing.
         self.create_subscription(SlipVector, self.p["slip_topic"], self._on_slip,
                                  c.RELIABLE_QOS)
@@ -410,6 +407,8 @@ class ControllerNode(LifecycleNode):
                     self._started = self.start_task(now)
                 except RuntimeError:
                     return  # no fresh pose yet: try again next cycle
+                if self._started:
+                    self.calibration.begin()
             self.post(self.task.step(now))
             self.after_step(now)
 
@@ -437,6 +436,7 @@ class ControllerNode(LifecycleNode):
             values.update(self.status())
             values.update(self.inputs.values())
             values.update(self.stop_latency())
+            values.update(self.calibration.values())
             worker = self.worker
         if worker is not None:
             values.update(arm_commands_sent=worker.sent,

@@ -22,6 +22,7 @@ EXECUTABLES = {
     "slip_track": ("aslip_ros.nodes.slip_track", "SlipTrackNode"),
     "scene_sim": ("aslip_ros.nodes.scene_sim", "SceneSim"),
     "bag_recorder": ("aslip_ros.nodes.bag_recorder", "Recorder"),
+    "robot_sweeps": ("aslip_ros.nodes.robot_sweeps", "RobotSweeps"),
 }
 
 

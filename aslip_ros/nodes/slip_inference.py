@@ -34,7 +34,9 @@ checkpoints without calibration, the predictor's calibrated one-sigma direction 
 the estimate's speed (``learn.output_calibration``; -1 when the checkpoint has no sigma
 model, as older ones; a message that is not slipping carries -1). ``/diagnostics`` shows
 ``calibration_converged``, ``calibration_accepted_frames``, ``calibration_frames``,
-``calibration_resets`` and ``gain_db_<channel>``.
+``calibration_resets`` and ``gain_db_<channel>``. Every new grasp and every convergence is
+also announced on the latched ``/aslip/calibration`` (std_msgs/String, JSON: ``calibrated``,
+``grasp``, ``converged``, ``reason``, ``stamp_s``), which the controllers report to the user.
 
 Timing: the model runs on a thread of its own, never inside the audio callback, so a slow
 forward pass cannot hold up the audio subscription (which would overflow its best-effort
@@ -51,6 +53,7 @@ SlipVector per 10 ms hop, state resets in ``stream_resets`` and ``last_reset_rea
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from typing import Optional
@@ -63,6 +66,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from aslip_ros import topics
 from aslip_ros.learn.backends import model_backend
 from aslip_ros.learn.channel_check import dead_channels
 from aslip_ros.learn.stream import RingBuffer, StreamGate
@@ -125,6 +129,10 @@ class SlipInference(Node):
             pr.predict(self._front)
         self.pub_slip = self.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
         self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
+        self.pub_calibration = self.create_publisher(String, topics.CALIBRATION, c.LATCHED_QOS)
+        self._grasp = 0                          # grasps begun (resets of the calibration)
+        self._announced_converged = False
+        self._announce_calibration("start")
         self.diag = c.Diagnostics(self, "aslip: slip_inference", self.source)
         self._worker = threading.Thread(target=self._infer_loop, name="slip_inference_model",
                                         daemon=True)
@@ -173,6 +181,7 @@ class SlipInference(Node):
         with self._lock:
             if self.predictor.calibrated:
                 self.predictor.reset_calibration()
+                self._announce_calibration("~/recalibrate")
         response.success = self.predictor.calibrated
         response.message = "calibration reset" if response.success else \
             "the checkpoint has no per-grasp calibration"
@@ -186,6 +195,20 @@ class SlipInference(Node):
         self.ring.reset()
         self.predictor.reset_calibration()
         self._since_hop = 0
+        if self.predictor.calibrated:
+            self._announce_calibration(reason)
+
+    def _announce_calibration(self, reason: str) -> None:
+        """A new grasp (``reason``) or, when already announced, its convergence."""
+        pr = self.predictor
+        calibrated = bool(getattr(pr, "calibrated", False))   # a streaming model has none
+        converged = calibrated and pr.calibration_converged
+        if not converged:
+            self._grasp += 1
+        self._announced_converged = converged
+        self.pub_calibration.publish(String(data=json.dumps({
+            "calibrated": calibrated, "grasp": self._grasp, "converged": converged,
+            "reason": reason, "stamp_s": time.time()})))
 
     def _drop(self, reason: str, detail: str) -> None:
         if self.stream and reason not in ("repeated", "out_of_order", "time_jump"):
@@ -253,6 +276,8 @@ class SlipInference(Node):
             return self._stream_block(a, t_in)
         self.ring.push(a.block)
         pr.push_audio(a.block)
+        if pr.calibration_converged and not self._announced_converged:
+            self._announce_calibration("converged")
         self._since_hop += a.frames
         if self.ring.filled < self.ring.length or self._since_hop < self.hop_frames:
             return

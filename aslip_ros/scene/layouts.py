@@ -87,6 +87,9 @@ LAYOUTS: dict[str, Layout] = {
         Mic("right_rear_top", "right", -_C, _C))),
 }
 
+#: The layout of the paper, the scene's default and that of the shipped models.
+DEFAULT_LAYOUT = "4mic"
+
 
 @dataclass(frozen=True)
 class ObjectSpec:
