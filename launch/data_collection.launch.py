@@ -29,6 +29,7 @@ from launch.event_handlers import OnProcessExit
 from launch_ros.actions import Node
 
 from aslip_ros.cell import CellError
+from aslip_ros.topics import AUDIO
 from aslip_ros.nodes.bag_recorder import record_topics
 from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
                                                 capture_params, cell_arguments, fail,
@@ -50,13 +51,22 @@ def ros2bag_found() -> bool:
     return shutil.which("ros2") is not None
 
 
-def _recorder(context, topics: list, poses: list) -> list:
+def _recorder_choice(context) -> str:
+    """The recorder ``recorder:=`` picks ('auto': ros2bag where installed)."""
+    choice = arg(context, "recorder")
+    if choice == "auto":
+        return "ros2bag" if ros2bag_found() else "aslip"
+    return choice
+
+
+def _recorder(context, topics: list, poses: list, duration_s: float) -> list:
+    """The recorder; with ``duration_s`` > 0 (hardware, aslip recorder) it ends the
+    collection once the audio spans that long."""
     choice = arg(context, "recorder")
     bag = arg(context, "bag")
     if choice not in RECORDERS:
         return fail(f"recorder:={choice} is none of {', '.join(RECORDERS)}")
-    if choice == "auto":
-        choice = "ros2bag" if ros2bag_found() else "aslip"
+    choice = _recorder_choice(context)
     if choice == "ros2bag":
         if not ros2bag_found():
             return fail("recorder:=ros2bag but rosbag2 (`ros2 bag`) is not installed; "
@@ -66,11 +76,15 @@ def _recorder(context, topics: list, poses: list) -> list:
     else:
         rec = Node(package="aslip_ros", executable="bag_recorder", name="bag_recorder",
                    output="screen", parameters=[{"output": bag, "topics": list(topics),
-                                                 "pose_topics": list(poses)}])
+                                                 "pose_topics": list(poses),
+                                                 "duration_s": duration_s,
+                                                 "duration_topics": [AUDIO] + list(poses)}])
 
     def stopped(event, ctx):
         if ctx.is_shutdown:
             return None
+        if event.returncode == 0 and duration_s > 0 and choice == "aslip":
+            return _ended("bag_recorder", f"recorded {duration_s:g} s")(event, ctx)
         return fail(f"the recorder ({choice}) exited with code {event.returncode} while "
                     f"the launch was running: nothing more is recorded to {bag}")
 
@@ -162,13 +176,18 @@ def _nodes(context) -> list:
                         parameters=[os.path.join(cfg, "robot_sweeps.yaml"), sweeps])
             actions += [node, RegisterEventHandler(OnProcessExit(
                 target_action=node, on_exit=_ended("robot_sweeps", "the sweeps are done")))]
-        elif duration > 0:
-            why = f"recorded for duration_s:={duration:g}: collection finished"
-            actions.append(TimerAction(period=duration, actions=[
-                LogInfo(msg=why), Shutdown(reason=why)]))
+    # On hardware an external trial ends with its recording: duration_s of audio in the bag
+    # (ros2 bag, or no recorder: duration_s from the launch).
+    recorded = not sim and induced == "external" and _flag(context, "record") and \
+        _recorder_choice(context) == "aslip"
+    if not sim and induced == "external" and duration > 0 and not recorded:
+        why = f"ran for duration_s:={duration:g}: collection finished"
+        actions.append(TimerAction(period=duration, actions=[
+            LogInfo(msg=why), Shutdown(reason=why)]))
     if _flag(context, "record"):
         poses = mocap_topics(context, cell)
-        actions += _recorder(context, record_topics(*poses), list(poses))
+        actions += _recorder(context, record_topics(*poses), list(poses),
+                             duration if recorded else 0.0)
     return actions
 
 

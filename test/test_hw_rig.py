@@ -320,7 +320,9 @@ def test_raw_commands_over_the_limits_are_refused_and_logged(start_rig):
     assert speed["problems"][0]["max_speed_m_s"] == pytest.approx(0.1)
 
 
-def test_robot_induced_records_and_checks_but_does_not_execute(start_rig):
+def test_robot_induced_executes_the_commands_against_a_still_probe(start_rig):
+    """A cell's robot-induced recording: the arm moves as commanded (the scene's own sweeps
+    are off), the limits still hold."""
     rig = start_rig(scenario="robot_induced", extra=("--max-speed", "0.1"))
     wrapper = _load_fake_wrapper()
     os.environ["ASLIP_FAKE_XARM_PORT"] = str(rig.info["xarm_port"])
@@ -334,7 +336,7 @@ def test_robot_induced_records_and_checks_but_does_not_execute(start_rig):
     assert api.vc_set_cartesian_velocity([200.0, 0, 0, 0, 0, 0], duration=0.1) != 0
     api.disconnect()
     vel = [c for c in rig.calls_log() if c.get("call") == "vc_set_cartesian_velocity"]
-    assert [(c["ret"] == 0, c["executed"]) for c in vel] == [(True, False), (False, False)]
+    assert [(c["ret"] == 0, c["executed"]) for c in vel] == [(True, True), (False, False)]
 
 
 def test_fake_sdk_unconnected_returns_codes_like_the_sdk(monkeypatch):

@@ -333,6 +333,7 @@ def test_the_data_collection_records_the_pose_topics_the_graph_uses(cell):
                 "/aslip/metadata", "/aslip/audio"} <= set(rec["topics"]), rec["topics"]
         assert "/aslip/mocap/finger" not in rec["topics"]
         assert set(rec["pose_topics"]) == {"/natnet/finger/pose", "/natnet/object/pose"}
+        assert rec["duration_s"] == 30.0        # the trial's length counts recorded audio
         bridge = nodes["mocap_bridge"]
         assert (bridge["finger_topic"], bridge["object_topic"]) == \
             ("/natnet/finger/pose", "/natnet/object/pose")

@@ -175,3 +175,48 @@ def test_a_topic_named_only_by_a_subscriber_waits_for_its_publisher(rclpy_contex
         rec.before_shutdown()
     finally:
         graph.close()
+
+
+def test_a_timed_recording_counts_from_its_streams_not_the_start_up(rclpy_context, tmp_path):
+    """duration_s: the recording ends (the node is done) duration_s after the last of
+    duration_topics delivered its first message, however late that came: a bag of the
+    asked length on a cell whose nodes and discovery take seconds to start (a launch timer
+    cut trials of the hardware rehearsal to under a second of audio, and a pose stream
+    started 2 s into another)."""
+    from rclpy.parameter import Parameter
+
+    from aslip_ros.data.bags import BagReader
+    from aslip_ros.msg import AudioFrame
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.bag_recorder import Recorder
+    graph = Graph(rclpy_context)
+    rec = graph.add(Recorder(context=graph.context, parameter_overrides=[
+        Parameter("output", value=str(tmp_path / "bag")),
+        Parameter("topics", value=[c.AUDIO_TOPIC, "/driver/pose"]),
+        Parameter("pose_topics", value=["/driver/pose"]),
+        Parameter("duration_topics", value=[c.AUDIO_TOPIC, "/driver/pose"]),
+        Parameter("duration_s", value=0.3)]))
+    pub = graph.node("audio_source").create_publisher(AudioFrame, c.AUDIO_TOPIC,
+                                                      c.SENSOR_QOS)
+    from geometry_msgs.msg import PoseStamped
+    poses = graph.node("mocap_driver").create_publisher(PoseStamped, "/driver/pose",
+                                                        c.SENSOR_QOS)
+    graph.until(lambda: pub.get_subscription_count() > 0 and
+                poses.get_subscription_count() > 0, "match")
+    # Audio alone for longer than duration_s: the poses are not in yet, not done.
+    audio_only = time.monotonic() + 0.5
+    graph.until(lambda: pub.publish(AudioFrame()) or time.monotonic() > audio_only,
+                "half a second of audio alone", timeout=5)
+    assert not rec.done and rec.counts[c.AUDIO_TOPIC] > 0
+    t0 = time.monotonic()
+
+    def send():
+        pub.publish(AudioFrame())
+        poses.publish(PoseStamped())
+        return rec.done
+    graph.until(send, "the end of the timed recording")
+    assert time.monotonic() - t0 >= 0.3 and rec.counts[c.AUDIO_TOPIC] >= 2
+    rec.before_shutdown()
+    with BagReader(tmp_path / "bag") as reader:
+        assert dict(reader.info.counts)[c.AUDIO_TOPIC] == rec.counts[c.AUDIO_TOPIC]
+    graph.close()

@@ -144,3 +144,34 @@ def test_robot_noise_only_when_arm_moves():
     still = np.all(np.abs(np.diff(tcp, axis=0)) < 1e-9, axis=1)
     idx = (np.array([s[0] for s in moving[2]])[1:][still] * 48000).astype(int)
     assert np.abs(diff[idx[idx < len(diff)]]).max() < 1e-6   # silent when still
+
+
+def test_a_commanded_arm_sweeps_across_the_still_probe():
+    """robot_induced with commanded_arm (a cell's robot_sweeps): the arm moves only as
+    commanded and the slip is minus its in-plane motion; without the flag commands are
+    refused (the scene drives its own sweeps)."""
+    from dataclasses import replace
+
+    import numpy as np
+    import pytest
+
+    from aslip_ros.control.arm import ArmError
+    from aslip_ros.scene import World, scenarios
+    scn = scenarios.robot_induced(seed=3, duration_s=None)
+    own = World(scn)
+    own.arm.connect(), own.arm.enable_velocity_mode()
+    with pytest.raises(ArmError, match="drive the arm themselves"):
+        own.arm.send_velocity(np.array([0.01, 0.0, 0.0]), 0.1)
+    world = World(replace(scn, commanded_arm=True))
+    world.arm.connect(), world.arm.enable_velocity_mode()
+    still = world.step(4800)
+    assert np.abs(still.v_rel).max() == 0.0          # nothing moves until commanded
+    start = world.tcp_pose()[:3].copy()
+    along = yaw_rotation(scn.yaw_rad)[:, 0]          # the grasp plane's x in the world
+    for _ in range(50):
+        world.arm.send_velocity(0.02 * along, 0.1)
+        chunk = world.step(480)
+    moved = world.tcp_pose()[:3] - start
+    assert moved @ along == pytest.approx(0.02 * 0.5, abs=1.5e-3)
+    assert np.linalg.norm(moved - (moved @ along) * along) < 1e-9
+    assert chunk.v_rel[-1] == pytest.approx([-0.02, 0.0], abs=1e-4)

@@ -19,7 +19,13 @@ When each topic is subscribed, and with which QoS:
 - any other topic (a motion-capture driver's own, say) once a *publisher* of it is seen (a
   subscriber alone names the topic but says nothing of the QoS to use), with the QoS every
   publisher can serve: reliable only where all of them are, transient-local only where all
-  of them are.
+  of them are; ``pose_topics`` names PoseStamped streams of a driver's own to subscribe at
+  once like the contract's.
+
+``duration_s`` ends a recording by itself (the node exits 0) that long after every one of
+``duration_topics`` (the audio and the poses, on a cell) has delivered a message: a
+hardware trial is as long as asked with all its streams, however long the nodes and
+discovery took to start (measured: a pose stream 2 s late).
 
 Subscribing to a latched topic on the strength of a subscriber alone (mocap_bridge reads
 the metadata) made the reader volatile and best effort: a metadata message published
@@ -30,6 +36,7 @@ from __future__ import annotations
 
 import importlib
 import threading
+import time
 from typing import Optional
 
 from rclpy.node import Node
@@ -130,6 +137,11 @@ class Recorder(Node):
             c.Param("pose_topics", [""], "PoseStamped streams among topics, subscribed at "
                     "start like the contract's (a mocap driver's own names; '' = none)",
                     read_only=True),
+            c.Param("duration_s", 0.0, "end the recording duration_s after every one of "
+                    "duration_topics has delivered a message [s], then exit; 0 = until "
+                    "stopped", c.in_range(0.0, 86400.0), read_only=True),
+            c.Param("duration_topics", [topics.AUDIO], "the streams duration_s waits for",
+                    _topic_list, read_only=True),
             c.Param("overwrite", False, "replace an existing bag at output", read_only=True),
             c.Param("discovery_period_s", 0.2, "look for new publishers this often [s]",
                     c.in_range(0.01, 10.0), read_only=True),
@@ -144,6 +156,9 @@ class Recorder(Node):
             raise c.ConfigError(f"cannot record to {self.p['output']}: {exc}") from exc
         self._lock = threading.Lock()
         self._closed = False
+        self.done = False
+        self._waiting = set(self.p["duration_topics"])   # not delivered yet
+        self._start: Optional[float] = None    # when the last of them did (monotonic)
         self._subs: dict = {}
         self.counts: dict = {}
         self.refused: dict = {}
@@ -201,7 +216,24 @@ class Recorder(Node):
                 self.writer.write_raw(topic, type_name, data,
                                       self.get_clock().now().nanoseconds, kind)
                 self.counts[topic] += 1
+                if self.p["duration_s"] > 0:
+                    self._count_duration(topic)
         return write
+
+    def _count_duration(self, topic: str) -> None:
+        """Called with ``_lock`` held: the recording is done ``duration_s`` after the last of
+        ``duration_topics`` delivered its first message (not after the start: the nodes and
+        discovery take their time, and a trial gets its full length with every stream)."""
+        now = time.monotonic()
+        if self._start is None:
+            self._waiting.discard(topic)
+            if not self._waiting:
+                self._start = now
+                self.get_logger().info(f"every stream of {self.p['duration_topics']} is in: "
+                                       f"recording {self.p['duration_s']:g} s")
+        elif not self.done and now - self._start >= self.p["duration_s"]:
+            self.done = True
+            self.get_logger().info(f"recorded {self.p['duration_s']:g} s: done")
 
     def _diagnose(self) -> None:
         # Subscribed at start or not, a topic nobody publishes yet is reported as missing.

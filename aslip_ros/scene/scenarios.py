@@ -64,6 +64,9 @@ class Scenario:
     one_sided_spread_rad: float = np.pi / 6.0
     no_slip_touch_fraction: float = 0.2
     script: tuple[tuple[float, float, float, float], ...] = ()
+    #: robot_induced: the arm follows velocity commands (a driver such as robot_sweeps on
+    #: a cell) instead of the scene's own sweeps; the probe still stands in the world.
+    commanded_arm: bool = False
     trial_id: str = ""
     acoustics: Acoustics = field(default_factory=Acoustics)
 

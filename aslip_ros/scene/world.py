@@ -90,8 +90,10 @@ class SimArm:
             raise ValueError(f"duration_s must be positive, got {duration_s!r}")
         if not self._velocity_mode:
             raise ArmError("call connect() and enable_velocity_mode() before send_velocity()")
-        if self._world.scenario.kind == "robot_induced":
-            raise ArmError("robot_induced scenarios drive the arm themselves")
+        scn = self._world.scenario
+        if scn.kind == "robot_induced" and not scn.commanded_arm:
+            raise ArmError("robot_induced scenarios drive the arm themselves "
+                           "(commanded_arm=False)")
         if np.linalg.norm(v) > MAX_ARM_SPEED_M_S:
             raise ArmError(f"speed {np.linalg.norm(v):.3f} m/s exceeds "
                            f"{MAX_ARM_SPEED_M_S} m/s")
@@ -159,7 +161,7 @@ class World:
         self._r = np.zeros(2)
         self._v_rel_last = np.zeros(2)
         self._sweeps = self._wander = self._agent = self._touch = self._drag = None
-        if scn.kind == "robot_induced":
+        if scn.kind == "robot_induced" and not scn.commanded_arm:
             self._sweeps = sc.robot_sweeps(scn, motion_rng)
         if scn.kind == "external_induced":
             self._agent, self._touch = sc.agent_pushes(scn, agent_rng)
@@ -285,7 +287,7 @@ class World:
             v_tcp = self._wander.evaluate(t)
         else:
             v_tcp = np.zeros((n, 3))
-        if scn.kind != "robot_induced":
+        if scn.kind != "robot_induced" or scn.commanded_arm:
             v_tcp = v_tcp + self.arm.velocities(t)
         p_tcp = self._p_tcp + np.cumsum(v_tcp, axis=0) / fs
 

@@ -44,9 +44,9 @@ Runs an :class:`aslip_ros.scene.World` in real time and speaks what the real cel
   1 mm tolerance) and ``duration > 0``; a violation is a ``{"violation": {...}}`` line and
   the command is refused (code 12 parameter error, -6 Cartesian limit). Accepted commands
   drive the world's simulated arm (``arm.send_velocity``; first-order lag, stops after
-  ``duration``); ``set_state(4)`` stops it. In ``robot_induced`` scenarios the world drives
-  its own arm and refuses commands: they are recorded and limit-checked, not executed
-  (``"executed": false`` in the log), and answered 0. ``get_position`` answers the world's
+  ``duration``); ``set_state(4)`` stops it. ``robot_induced`` runs with the scene's
+  ``commanded_arm``: the probe stands in the world and the arm moves as commanded (by
+  robot_sweeps), not by the scene's own sweeps. ``get_position`` answers the world's
   TCP in mm and rad (fixed-axis x-y-z roll/pitch/yaw, as the driver reads them).
 
 Other outputs: one JSON line on stdout when ready (``{"ready": true, "xarm_port": P, ...}``)
@@ -298,8 +298,6 @@ class Controller:
             return code, {"executed": False}
         if not (self.enabled and self.mode == MODE_VELOCITY and self.state == STATE_MOTION):
             return CODE_NOT_READY, {"executed": False}
-        if rig.world.scenario.kind == "robot_induced":
-            return 0, {"executed": False}
         rig.world.arm.send_velocity(v, duration)
         self.executed += 1
         return 0, {"executed": True}
@@ -359,13 +357,19 @@ class Rig:
             scenario=a.scenario, seed=a.seed, object=a.object, layout=a.layout, pad=a.pad,
             condition=a.condition, sample_rate=a.sample_rate,
             wall_distance_m=a.wall_distance_m, drag_speed_m_s=a.drag_speed_m_s))
+        if self.world.scenario.kind == "robot_induced":
+            # A cell's robot-induced recording: the probe stands in the world and the arm
+            # moves as its driver (robot_sweeps) commands, not by the scene's own sweeps.
+            from dataclasses import replace
+
+            from aslip_ros.scene import World
+            self.world = World(replace(self.world.scenario, commanded_arm=True))
         names = self.world.layout.channel_names
         if len(names) != a.channels:
             raise SystemExit(f"hw_rig: layout {a.layout} has {len(names)} channels "
                              f"({names}), --channels {a.channels}")
         self.world.arm.connect()
-        if self.world.scenario.kind != "robot_induced":
-            self.world.arm.enable_velocity_mode()
+        self.world.arm.enable_velocity_mode()
         self.lock = threading.Lock()
         self.stopping = threading.Event()
         self.log_positions = not a.no_log_positions
@@ -422,8 +426,10 @@ class Rig:
         self.events.write({"event": "start", "wall0": wall0, "fs": fs, "block_frames": block,
                            "channels": self.a.channels, "layout": self.a.layout,
                            "scenario": self.world.scenario.kind, "pid": os.getpid()})
+        from aslip_ros.hw.sources import world_metadata
         print(json.dumps({"ready": True, "xarm_port": self.port, "fifo": self.a.fifo,
                           "pid": os.getpid(), "wall0": wall0, "block_frames": block,
+                          "task": world_metadata(self.world)["task"],
                           "alsa_config": alsa_config(self.a.fifo)}), flush=True)
         limit = self.a.duration_s
         lead = self.a.audio_lead_blocks
