@@ -99,3 +99,15 @@ def test_the_check_fails_on_an_undeclared_argument(monkeypatch):
     """The check itself: a command with an option the command lacks is reported."""
     assert _options(_parser("export"), ["bags", "--no-such-option"]) == ["--no-such-option"]
     assert _options(_parser("export"), ["bags", "-o", "ds", "--overwrite"]) == []
+
+
+def test_every_document_a_file_cites_exists():
+    """A path under docs/ named by the README, a document, a config file or a launch file
+    exists (the config files cited a docs/nodes.md that never did)."""
+    sources = DOCS + sorted((ROOT / "config").glob("*.yaml"))
+    missing = []
+    for path in sources:
+        for cited in set(re.findall(r"(?<![\w/.])docs/[\w.-]+\.md\b", path.read_text())):
+            if not (ROOT / cited).is_file():
+                missing.append(f"{path.name}: {cited}")
+    assert not missing, missing

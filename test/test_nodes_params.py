@@ -11,6 +11,7 @@ import time
 
 import pytest
 
+from conftest import ROOT
 from node_support import Bus, NodeProcess
 
 pytestmark = pytest.mark.ros
@@ -155,3 +156,18 @@ def test_a_node_takes_parameter_overrides_through_its_constructor(rclpy_context)
     with pytest.raises(ConfigError, match=r"rate_hz: must lie in \[1.0, 1000.0\]"):
         MocapBridge(context=rclpy_context,
                     parameter_overrides=[Parameter("rate_hz", value=5000.0)])
+
+
+def test_audio_capture_names_its_default_microphones_as_the_shipped_models_do():
+    """The default channel names are those the shipped checkpoints and the scene use (they
+    were left_front, left_rear, ...: a default stream that every shipped model refused)."""
+    from aslip_ros.learn.checkpoint import load_checkpoint
+    from aslip_ros.nodes.introspect import declared_by_name
+    names = declared_by_name("audio_capture")["channel_names"].default
+    for model in ("aslip_cnn.pt", "svm.pt"):
+        path = ROOT / "models" / model
+        if path.is_file():
+            assert load_checkpoint(path).channel_names == names, model
+    import yaml
+    cfg = yaml.safe_load((ROOT / "config" / "audio_capture.yaml").read_text())
+    assert cfg["audio_capture"]["ros__parameters"]["channel_names"] == names
