@@ -86,6 +86,7 @@ def evaluate(launch_file: str, args: dict) -> Evaluated:
     from launch.utilities import perform_substitutions
     from launch_ros.actions import Node
 
+    from aslip_ros.nodes.closed_loop_launch import LaunchFailed
     ns = runpy.run_path(str(ROOT / "launch" / launch_file))
     desc = ns["generate_launch_description"]()
     context = LaunchContext()
@@ -123,7 +124,12 @@ def evaluate(launch_file: str, args: dict) -> Evaluated:
         elif isinstance(entity, RegisterEventHandler):
             out.handlers.append(entity.event_handler)
         elif isinstance(entity, OpaqueFunction):
-            for e in entity.execute(context) or []:
+            try:
+                entities = entity.execute(context) or []
+            except LaunchFailed as exc:          # fail(): the launch ends, exit code 1
+                out.shutdowns.append(exc)
+                return
+            for e in entities:
                 visit(e)
         elif isinstance(entity, GroupAction):
             for e in entity.get_sub_entities():
@@ -652,6 +658,7 @@ def test_a_failing_recorder_shuts_data_collection_down(ros_env, tmp_path):
         proc.wait(timeout=150)
         text = log.read_text()
         assert "the recorder (aslip) exited with code 2" in text, text[-3000:]
+        assert proc.returncode == 1, text[-3000:]      # a script sees the failure
         assert _wait_gone(_started_pids(log), 30.0) == []
     finally:
         if proc.poll() is None:

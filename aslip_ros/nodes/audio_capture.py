@@ -61,6 +61,8 @@ _SOURCE_CHOICES = f"one of {', '.join(SOURCES)}, or module.path:factory"
 #: The default microphones: the scene's 4-microphone layout, the names the shipped models
 #: and docs/hardware.md use (a cell with other microphones names its own).
 DEFAULT_NAMES = list(LAYOUTS[DEFAULT_LAYOUT].channel_names)
+#: Seconds between two tries to start the stream.
+START_RETRY_S = 1.0
 
 
 def _source(v) -> Optional[str]:
@@ -106,6 +108,8 @@ class AudioCapture(LifecycleNode):
             c.Param("autostart", True, "configure and activate at start", read_only=True),
             c.Param("latency", "low", "device: PortAudio input latency: low, high or seconds",
                     _latency, read_only=True),
+            c.Param("start_attempts", 3, "tries to start the stream before activation fails",
+                    c.int_range(1, 10), read_only=True),
             c.Param("stall_timeout_s", 0.5,
                     "no block for this long is an ERROR (device stopped delivering) [s]",
                     c.in_range(0.05, 10.0)),
@@ -169,13 +173,25 @@ class AudioCapture(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state) -> TransitionCallbackReturn:
-        """Start the source and the reader thread."""
-        try:
-            self.src.start()
-        except (RuntimeError, OSError) as exc:
-            self.error = str(exc)
-            self.get_logger().error(f"cannot start audio source: {exc}")
-            return TransitionCallbackReturn.FAILURE
+        """Start the source (``start_attempts`` tries, ``START_RETRY_S`` apart: an interface
+        that is slow to deliver its first period times PortAudio's start out) and the
+        reader thread."""
+        attempts = self.p["start_attempts"]
+        for attempt in range(1, attempts + 1):
+            try:
+                self.src.start()
+                break
+            except (RuntimeError, OSError) as exc:
+                self.error = str(exc)
+                if attempt == attempts:
+                    self.get_logger().error(f"cannot start audio source ({attempts} "
+                                            f"attempts): {exc}")
+                    return TransitionCallbackReturn.FAILURE
+                self.get_logger().warning(f"audio source did not start (attempt {attempt} of "
+                                          f"{attempts}): {exc}; retrying in "
+                                          f"{START_RETRY_S:g} s")
+                time.sleep(START_RETRY_S)
+        self.error = ""
         self.stalled = 0.0
         self._running.set()
         self._thread = threading.Thread(target=self._pump, name="audio-pump", daemon=True)

@@ -68,9 +68,18 @@ def rviz_actions(condition=None) -> list:
                         "ros-jazzy-rviz2 to see the slip arrows)")]
 
 
+class LaunchFailed(RuntimeError):
+    """Raised inside the launch to end it with exit code 1 (a Shutdown exits 0)."""
+
+
 def fail(why: str) -> list:
-    """Log ``why`` as an error and shut the launch down with it as the reason."""
-    return [LogInfo(msg=f"ERROR: {why}"), Shutdown(reason=why)]
+    """Log ``why`` as an error and end the launch with exit code 1: ``ros2 launch`` exits 0
+    after a Shutdown action, so a script recording trial after trial (`set -e`, a loop)
+    would go on after a failed one. The launch service turns an exception raised by an
+    action into a shutdown with that reason and exit code 1."""
+    def raise_(context):
+        raise LaunchFailed(why)
+    return [LogInfo(msg=f"ERROR: {why}"), OpaqueFunction(function=raise_)]
 
 
 def required(event, context):

@@ -57,3 +57,25 @@ def open_fake(params, node=None):
     meta = {"format": "aslip-metadata", "version": 1, "sample_rate": RATE,
             "channel_names": NAMES, "source": "fake"}
     return OpenedSource(FakeSource(n_blocks), meta, layout="fake2", finite=False)
+
+
+class FlakySource(FakeSource):
+    """Fails its first ``start`` as PortAudio does when an interface is slow to deliver its
+    first period; starts on the next."""
+
+    def __init__(self, n_blocks: int) -> None:
+        super().__init__(n_blocks)
+        self.starts = 0
+
+    def start(self) -> None:
+        """Refused once, then started."""
+        self.starts += 1
+        if self.starts == 1:
+            raise RuntimeError("Error starting stream: Wait timed out [PaErrorCode -9987]")
+
+
+def open_flaky(params, node=None):
+    """``source:=fake_audio_source:open_flaky``."""
+    meta = {"format": "aslip-metadata", "version": 1, "sample_rate": RATE,
+            "channel_names": NAMES, "source": "flaky"}
+    return OpenedSource(FlakySource(1000), meta, layout="fake2", finite=False)
