@@ -36,12 +36,12 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
 from aslip_ros import frames
 from aslip_ros.control.arm import ArmError
-from aslip_ros.control.arm_worker import ArmWorker
 from aslip_ros.control.command import VelocityCommand
 from aslip_ros.control.sweeps import SweepConfig, SweepEnd, SweepState, SweepTask
 from aslip_ros.control.watchdog import ArrivalStats
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
+from aslip_ros.nodes.arm_link import OPEN_ERRORS, close_arm, open_arm
 from aslip_ros.nodes.arms import resolve_arm
 from aslip_ros.nodes.controller import arm_params
 
@@ -164,21 +164,15 @@ class RobotSweeps(LifecycleNode):
     def on_configure(self, state) -> TransitionCallbackReturn:
         """Create and connect the arm; an unreachable arm fails the transition."""
         try:
-            arm = self.arm_kind.make(self, self.p)
-            arm.connect()
-        except (ArmError, ValueError, ImportError, OSError) as exc:
+            arm, worker = open_arm(self, self.arm_kind, self.p, self._on_arm_pose,
+                                   self._on_arm_error, "robot_sweeps-arm-io")
+        except OPEN_ERRORS as exc:
             self.arm_error = f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"arm not available ({self.arm_error}); the node stays "
                                     "unconfigured and commands nothing")
             self._diagnose()
             return TransitionCallbackReturn.FAILURE
-        streams = self.arm_kind.pose_from_topic
-        listen = getattr(arm, "set_pose_listener", None)
-        if listen is not None:
-            streams = bool(listen(self._on_arm_pose))
-        poll = None if streams else 1.0 / self.p["control_rate_hz"]
-        self.worker = ArmWorker(arm, self._on_arm_error, on_pose=self._on_arm_pose,
-                                poll_period_s=poll, name="robot_sweeps-arm-io")
+        self.worker = worker
         self.arm = arm
         self.arm_error = ""
         return TransitionCallbackReturn.SUCCESS
@@ -250,16 +244,7 @@ class RobotSweeps(LifecycleNode):
             arm, self.arm = self.arm, None
             worker, self.worker = self.worker, None
             self.active = False
-        if worker is not None:
-            worker.close(2.0)
-        if arm is not None:
-            listen = getattr(arm, "set_pose_listener", None)
-            if listen is not None:
-                listen(None)
-            try:
-                arm.close()
-            except Exception as exc:  # noqa: BLE001
-                self.get_logger().error(f"arm close failed: {exc}")
+        close_arm(arm, worker, self.get_logger())
 
     def _on_change(self, changed: dict) -> None:
         self.p.update(changed)
