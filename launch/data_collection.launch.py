@@ -32,7 +32,7 @@ from aslip_ros.cell import CellError
 from aslip_ros.topics import AUDIO
 from aslip_ros.nodes.bag_recorder import record_topics
 from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
-                                                capture_params, cell_arguments, fail,
+                                                capture_params, cell_arguments, fail, flag,
                                                 load_checked_cell, mocap_topics,
                                                 recording_metadata, required, share_dir)
 
@@ -107,10 +107,6 @@ def _ended(who: str, done: str):
     return ended
 
 
-def _flag(context, name: str) -> bool:
-    return arg(context, name).lower() in ("true", "1", "yes")
-
-
 def _duration(context) -> float:
     text = arg(context, "duration_s")
     try:
@@ -131,7 +127,7 @@ def _graph(context) -> list:
 
 def _nodes(context) -> list:
     cfg = os.path.join(share_dir(), "config")
-    sim = _flag(context, "sim")
+    sim = flag(context, "sim")
     cell = load_checked_cell(arg(context, "cell"))
     duration = _duration(context)
     induced = arg(context, "induced")
@@ -178,13 +174,13 @@ def _nodes(context) -> list:
                 target_action=node, on_exit=_ended("robot_sweeps", "the sweeps are done")))]
     # On hardware an external trial ends with its recording: duration_s of audio in the bag
     # (ros2 bag, or no recorder: duration_s from the launch).
-    recorded = not sim and induced == "external" and _flag(context, "record") and \
+    recorded = not sim and induced == "external" and flag(context, "record") and \
         _recorder_choice(context) == "aslip"
     if not sim and induced == "external" and duration > 0 and not recorded:
         why = f"ran for duration_s:={duration:g}: collection finished"
         actions.append(TimerAction(period=duration, actions=[
             LogInfo(msg=why), Shutdown(reason=why)]))
-    if _flag(context, "record"):
+    if flag(context, "record"):
         poses = mocap_topics(context, cell)
         actions += _recorder(context, record_topics(*poses), list(poses),
                              duration if recorded else 0.0)

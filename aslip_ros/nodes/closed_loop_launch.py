@@ -142,7 +142,7 @@ def _as_type(default, value):
     return value
 
 
-def cell_arguments(hardware_help: str = "") -> list:
+def cell_arguments() -> list:
     """The launch arguments every launch file takes for a real cell (empty: the cell
     file's value, else the node's default)."""
     return [
@@ -176,6 +176,11 @@ def cell_arguments(hardware_help: str = "") -> list:
 def arg(context, name: str) -> str:
     """A launch argument's value, stripped ('' when not given and empty by default)."""
     return LC(name).perform(context).strip()
+
+
+def flag(context, name: str) -> bool:
+    """A true/false launch argument."""
+    return arg(context, name).lower() in ("true", "1", "yes")
 
 
 def _name_list(text: str) -> list:
@@ -308,7 +313,7 @@ def _given(context, name: str, default):
 
 def _closed_loop_nodes(context, controller, scenario, task_arg):
     cfg = os.path.join(share_dir(), "config")
-    sim = arg(context, "sim").lower() in ("true", "1", "yes")
+    sim = flag(context, "sim")
     declared = declared_by_name(controller)
     cell = load_checked_cell(arg(context, "cell"))
     checkpoint = arg(context, "checkpoint")

@@ -201,7 +201,7 @@ class SlipInference(Node):
     def _announce_calibration(self, reason: str) -> None:
         """A new grasp (``reason``) or, when already announced, its convergence."""
         pr = self.predictor
-        calibrated = bool(getattr(pr, "calibrated", False))   # a streaming model has none
+        calibrated = pr.calibrated             # a streaming model has none
         converged = calibrated and pr.calibration_converged
         if not converged:
             self._grasp += 1
