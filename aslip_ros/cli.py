@@ -31,7 +31,8 @@ EXIT_INTERRUPTED = 130
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("aslip_ros.data.simulate", "record simulated scenarios to rosbag2 (mcap) files"),
     "export": ("aslip_ros.data.export", "turn rosbags into a windowed training dataset"),
-    "train": ("aslip_ros.learn.train", "train a slip model (chosen on your data, or by name)"),
+    "train": ("aslip_ros.learn.training.cli",
+              "train a slip model (chosen on your data, or by name)"),
     "evaluate": ("aslip_ros.learn.evaluate", "evaluate a checkpoint on a dataset (JSON metrics)"),
     "ablation": ("aslip_ros.experiments.ablation", "the paper's Table I and II on the scene"),
     "bench": ("aslip_ros.experiments.bench", "latency against accuracy (Pareto chart)"),

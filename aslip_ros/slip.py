@@ -13,8 +13,10 @@ from __future__ import annotations
 #: Components of the slip velocity, in order: the columns of every ``(..., 2)`` velocity
 #: array (labels, dataset, model outputs) and the fields of ``SlipVector.velocity``.
 VELOCITY_COMPONENTS = ("vx", "vz")
-#: The message field of ``geometry_msgs/Vector3`` each component fills.
+#: The message field of ``geometry_msgs/Vector3`` each component fills, and its index in
+#: a grasp-plane (x, y, z) vector (mocap labels keep y for diagnostics: it is not slip).
 VELOCITY_FIELDS = ("x", "z")
+VELOCITY_AXES = tuple("xyz".index(f) for f in VELOCITY_FIELDS)
 N_VELOCITY = len(VELOCITY_COMPONENTS)
 VELOCITY_UNIT = "m/s"
 

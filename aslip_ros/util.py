@@ -51,6 +51,20 @@ def read_json(path: str | os.PathLike) -> Any:
     return json.loads(Path(path).read_text())
 
 
+def peak_rss_mib() -> float | None:
+    """This process's own peak resident memory [MiB] since its program started (Linux
+    ``VmHWM``: the current address space only, unlike ``ru_maxrss``, which keeps the peak of
+    the parent a ``vfork``-ed child was exec-ed from); None where the kernel does not say."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
 def die_with_parent() -> None:
     """``preexec_fn`` for child processes: SIGTERM the child when its parent dies (Linux).
 

@@ -147,7 +147,7 @@ def make_checkpoint(path, channel_names=SCENE_NAMES, sample_rate: float = 48000.
 
     from aslip_ros.learn.checkpoint import save_checkpoint
     from aslip_ros.learn.features import FeatureConfig
-    from aslip_ros.learn.network import ModelConfig, SlipNet
+    from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
     fc = FeatureConfig(n_mels=16, n_fft=256, hop=160)
     mc = ModelConfig(n_channels=len(channel_names), n_mels=fc.n_mels, width=4, depth=2,
                      temporal_layers=1, temporal_channels=8, gate_hidden=4, head_hidden=8,

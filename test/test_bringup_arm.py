@@ -154,9 +154,9 @@ def _parsed(*argv):
 def test_setup_file_gives_the_arm_section_and_flags_override_it(tmp_path):
     pytest.importorskip('aslip_ros.cell')
     path = tmp_path / 'cell.yaml'
-    path.write_text('arm:\n  xarm_ip: 10.0.0.7\n  xarm_max_speed_m_s: 0.05\n'
-                    '  xarm_workspace_min_m: [0.2, -0.2, 0.1]\n'
-                    '  xarm_workspace_max_m: [0.6, 0.2, 0.5]\n')
+    path.write_text('arm:\n  xarm_ip: 10.0.0.7\n  arm_max_speed_m_s: 0.05\n'
+                    '  arm_workspace_min_m: [0.2, -0.2, 0.1]\n'
+                    '  arm_workspace_max_m: [0.6, 0.2, 0.5]\n')
     check, args = _parsed('--setup', str(path))
     cfg = check._arm_config(args)
     assert (cfg.ip, cfg.max_speed_m_s, cfg.workspace_min_m, cfg.workspace_max_m) == \

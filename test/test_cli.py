@@ -109,7 +109,7 @@ def test_a_refused_input_reaching_the_top_is_one_line(monkeypatch, capsys):
 
 def test_train_help_documents_every_stage_and_its_default(capsys):
     from aslip_ros import cli
-    from aslip_ros.learn.train import STAGES
+    from aslip_ros.learn.training.config import STAGES
     with pytest.raises(SystemExit):
         cli.main(["train", "--help"])
     text = " ".join(capsys.readouterr().out.split())

@@ -4,18 +4,20 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from aslip_ros.control.slip_track import (SlipTrack, SlipTrackConfig, TrackState,
-                                          shape_slip)
+from aslip_ros.control.slip_track import SlipTrack, SlipTrackConfig, TrackState, shape_slip
 from fake_clock import FakeClock
 
 DT = 0.01
 LEVEL = [0.4, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0]    # TCP axes aligned with link_base
+#: The bare law: the tuned defaults' low-pass, decay and position term off, a short hold;
+#: the tests below switch each part on by itself.
+RAW = dict(lowpass_tau_s=0.0, hold_s=0.05, decay_s=0.0, position_gain_1_s=0.0,
+           position_leak_s=0.0)
 
 
 def make(pose=LEVEL, **kw):
     clock = FakeClock()
-    kw.setdefault('hold_s', 0.05)
-    ctl = SlipTrack(SlipTrackConfig(**kw), clock)
+    ctl = SlipTrack(SlipTrackConfig(**dict(RAW, **kw)), clock)
     ctl.on_tcp_pose(pose)
     ctl.on_slip((0.0, 0.0), False)
     ctl.start()
@@ -115,7 +117,7 @@ class FirstOrderArm:
 def _closed_loop(v_obj_of_t, duration, window_s=0.2, scale=1.0, **kw):
     """Object moved by an agent; a model that reports the window-mean relative velocity
     (times ``scale``) every 10 ms hop; returns times and relative displacements (x)."""
-    cfg = dict(hold_s=0.3, decay_s=0.2, max_speed_m_s=0.1, deadband_m_s=0.002)
+    cfg = dict(RAW, hold_s=0.3, decay_s=0.2, max_speed_m_s=0.1, deadband_m_s=0.002)
     cfg.update(kw)
     clock = FakeClock()
     ctl = SlipTrack(SlipTrackConfig(**cfg), clock)
@@ -219,7 +221,7 @@ def test_lowpass_converges_and_is_rate_independent():
     results = []
     for dt in (0.01, 0.005):
         clock = [0.0]
-        ctl = SlipTrack(SlipTrackConfig(lowpass_tau_s=0.05), lambda: clock[0])
+        ctl = SlipTrack(SlipTrackConfig(**dict(RAW, lowpass_tau_s=0.05)), lambda: clock[0])
         ctl.on_tcp_pose(LEVEL)
         ctl.on_slip((0.02, 0.0), True)
         ctl.start()

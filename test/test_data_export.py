@@ -231,6 +231,17 @@ def test_export_benchmark_reports_the_childs_own_peak_memory(tmp_path):
                    check=True)
     res = measure_export_speed(duration_s=2.0, workdir=tmp_path)
     assert 20.0 < res["peak_rss_mib"] < 500.0
+
+
+def test_export_benchmark_memory_is_not_its_big_parents(tmp_path):
+    """Regression: a child started by vfork reported its parent's peak (ru_maxrss survives
+    the exec), so the benchmark run after training showed the test process's memory."""
+    from aslip_ros.data.export import measure_export_speed
+    ballast = bytearray(700 * 2**20)
+    ballast[::4096] = b"x" * len(ballast[::4096])       # resident in this process
+    res = measure_export_speed(duration_s=2.0, workdir=tmp_path)
+    del ballast
+    assert 20.0 < res["peak_rss_mib"] < 500.0
     assert res["windows"] > 0 and res["realtime_factor"] > 0
 
 

@@ -62,7 +62,7 @@ def test_end_to_end_on_a_short_scene_run(tmp_path):
 
     from aslip_ros.learn.checkpoint import save_checkpoint
     from aslip_ros.learn.features import FeatureConfig
-    from aslip_ros.learn.streaming_model import StreamConfig, StreamNet
+    from aslip_ros.learn.models.aslip_stream import StreamConfig, StreamNet
     from aslip_ros.scene.layouts import get_layout
     torch.manual_seed(0)
     names = list(get_layout("4mic").channel_names)

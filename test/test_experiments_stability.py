@@ -12,7 +12,8 @@ from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
 from aslip_ros.experiments import stability
 from aslip_ros.experiments.common import DataPlan, Recipe
 from aslip_ros.learn.data_io import open_dataset
-from aslip_ros.learn.train import TrainConfig, train_cnn
+from aslip_ros.learn.training.config import TrainConfig
+from aslip_ros.learn.training.train import train_cnn
 
 
 def test_breakdown_on_hand_made_curves():
@@ -46,7 +47,7 @@ def test_stability_end_to_end(tmp_path):
     assert set(seeds["summary"]["dir_mae_deg"]) >= {"mean", "std"}
 
 
-# --- degenerate batches through learn.train ------------------------------------------------
+# --- degenerate batches through learn.training.train --------------------------------------
 
 def _degenerate_dataset(path, mode: str, n_trials: int = 6, seconds: float = 1.0):
     """4-channel noise with degenerate labels: all no-slip, antipodal directions, or slip

@@ -198,7 +198,8 @@ def test_a_dataset_at_another_rate_is_resampled_to_the_models_rate(tmp_path):
 
 
 def test_the_aslip_method_is_what_aslip_train_does_by_default(tmp_path, monkeypatch):
-    from aslip_ros.learn import train
+    from aslip_ros.learn.training import train
+    from aslip_ros.learn.training import cli as train_cli
     seen = {}
 
     def fake_run(args):
@@ -213,7 +214,7 @@ def test_the_aslip_method_is_what_aslip_train_does_by_default(tmp_path, monkeypa
     aslip, svm, raw = (seen[str(tmp_path / "m" / f"{m}.pt")]
                        for m in ("aslip", "paper_svm", "aslip_uncalibrated"))
     p = transfer.argparse.ArgumentParser()
-    train.add_arguments(p)
+    train_cli.add_arguments(p)
     default = p.parse_args(["--dataset", "x", "--out", "y"])
     assert (aslip.stage, aslip.calibration) == (default.stage, default.calibration) == \
         ("auto", "background")

@@ -47,7 +47,7 @@ def test_an_arm_from_test_code_is_driven_within_the_limits(rclpy_context, ros_en
 
     t = threading.Thread(target=slip, daemon=True)
     t.start()
-    params = {"arm": "fake_arm:make_arm", "xarm_max_speed_m_s": 0.01,
+    params = {"arm": "fake_arm:make_arm", "arm_max_speed_m_s": 0.01,
               "slip_timeout_s": 0.1, "pose_timeout_s": 0.5}
     with NodeProcess("slip_track", env, params) as ctl:
         ctl.wait_ready()
@@ -68,7 +68,7 @@ def test_an_arm_from_test_code_is_driven_within_the_limits(rclpy_context, ros_en
     names = [k["call"] for k in calls]
     assert names[:2] == ["connect", "enable"], names[:5]
     speeds = [np.linalg.norm(k["v"]) for k in calls if k["call"] == "velocity"]
-    # The limits wrapper held every command to xarm_max_speed_m_s (the law wanted 5 cm/s).
+    # The limits wrapper held every command to arm_max_speed_m_s (the law wanted 5 cm/s).
     assert max(speeds) == pytest.approx(0.01, rel=1e-6)
     assert all(k["duration"] <= 0.5 for k in calls if k["call"] == "velocity")
     # Shutdown: a stop, the arm released, and no velocity command after the first stop.

@@ -1,7 +1,7 @@
-"""Extending: a model added in test code alone (test/helpers/fake_model.py), written with the
-one metadata builder and run through the real pipeline: ``evaluate_checkpoint`` and
-``Predictor`` in this process (registered), ``aslip evaluate`` and the ``slip_inference``
-node in child processes (declared as an entry point) (docs/design.md, "Extending")."""
+"""Extending: a model added in test code alone (test/helpers/fake_model.py), with its training
+stage, run through the real pipeline: ``evaluate_checkpoint`` and ``Predictor`` in this
+process (registered); ``aslip train``, ``aslip evaluate`` and the ``slip_inference`` node in
+child processes (declared as an entry point) (docs/design.md, "Extending")."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ import time
 import numpy as np
 import pytest
 
-from aslip_ros.learn import backends
+from aslip_ros.learn.models import registry as backends
 from aslip_ros.learn.checkpoint import load_checkpoint
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.evaluate import evaluate_checkpoint
-from aslip_ros.learn.predictor import Predictor
+from aslip_ros.learn.inference.predictor import Predictor
 from aslip_ros.learn.synthetic import make_synthetic_dataset
 from conftest import HELPERS
 from helpers.fake_model import LevelModel, write_checkpoint
@@ -90,7 +90,8 @@ def test_registration_checks_the_backend():
         backends.register_model(Taken)
     with pytest.raises(ValueError, match="built-in"):
         backends.unregister_model("aslip_cnn")
-    assert backends.model_backend("aslip_cnn") is backends.CnnBackend
+    from aslip_ros.learn.models.aslip_cnn import CnnBackend
+    assert backends.model_backend("aslip_cnn") is CnnBackend
 
 
 def test_a_model_that_returns_bad_shapes_or_nan_is_refused(dataset, registered, tmp_path,
@@ -197,3 +198,75 @@ def test_slip_inference_runs_a_model_declared_as_an_entry_point(
     assert got, node.output
     assert got[-1].source == "test_level" and got[-1].slipping
     assert math.hypot(got[-1].velocity.x, got[-1].velocity.z) == pytest.approx(0.03, rel=1e-4)
+
+
+@pytest.mark.ros
+def test_a_model_from_test_code_is_trained_evaluated_and_served_through_the_commands(
+        dataset, rclpy_context, ros_env, tmp_path):
+    """Nothing of the package names the model: ``aslip train --stage test_level`` finds its
+    training stage through the entry point, the pipeline writes the checkpoint (split,
+    metadata, validation metrics, output calibration), ``aslip evaluate`` scores it and a
+    real ``slip_inference`` process serves it."""
+    env = _child_env(tmp_path)
+    ckpt = tmp_path / "trained.pt"
+    out = subprocess.run([sys.executable, "-m", "aslip_ros.cli", "train", "--dataset",
+                          str(dataset), "--stage", "test_level", "--out", str(ckpt),
+                          "--threads", "1", "--no-progress"],
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    meta = load_checkpoint_with(LevelModel, ckpt).meta
+    assert meta["model_type"] == "test_level"
+    assert meta["provenance"]["stage"] == "test_level"
+    assert meta["provenance"]["metrics"]["val"]["detection_accuracy"] > 0.9
+    assert "output_calibration" in meta and 0.0 <= meta["threshold"] <= 1.0
+    # Without the declaration the stage is refused in one line, no traceback.
+    bare = subprocess.run([sys.executable, "-m", "aslip_ros.cli", "train", "--dataset",
+                           str(dataset), "--stage", "test_level", "--out",
+                           str(tmp_path / "x.pt")], capture_output=True, text=True,
+                          timeout=300, env=dict(os.environ, PYTHONPATH=str(HELPERS)))
+    assert bare.returncode == 1 and "test_level" in bare.stderr
+    assert "Traceback" not in bare.stderr and not (tmp_path / "x.pt").exists()
+
+    res = subprocess.run([sys.executable, "-m", "aslip_ros.cli", "evaluate", "--checkpoint",
+                          str(ckpt), "--dataset", str(dataset), "--split", "all", "--json",
+                          str(tmp_path / "m.json"), "--threads", "1"],
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert json.loads((tmp_path / "m.json").read_text())["overall"]["detection_accuracy"] > 0.9
+
+    from aslip_ros.msg import AudioFrame, SlipVector
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes import convert
+    from node_support import Bus, NodeProcess
+
+    ds = open_dataset(dataset)
+    speed = ds.speed(np.arange(len(ds)))
+    loud = ds.window_audio(np.flatnonzero(speed > 0.02)[:1], np.arange(len(ds.channel_names)))[0]
+    bus = Bus(rclpy_context)
+    bus.listen(SlipVector, "/aslip/slip", c.RELIABLE_QOS)
+    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+    n = int(ds.sample_rate * 0.01)
+    with NodeProcess("slip_inference", _child_env(tmp_path / "node", ros_env),
+                     {"checkpoint": str(ckpt)}) as node:
+        node.wait_ready()
+        assert bus.wait(lambda: pub.get_subscription_count() > 0, 20), node.output
+        index, stamp = 0, 1_000_000_000_000
+        deadline = time.monotonic() + 60.0
+        while not any(m.slipping for m in bus.messages("/aslip/slip")) and \
+                time.monotonic() < deadline:
+            at = index % (loud.shape[0] - n)
+            pub.publish(convert.audio_to_msg(index, stamp, ds.sample_rate, ds.channel_names,
+                                             loud[at:at + n].astype(np.float32), ds.layout))
+            index, stamp = index + n, stamp + 10_000_000
+            time.sleep(0.005)
+        got = bus.messages("/aslip/slip")
+    bus.close()
+    assert any(m.slipping and m.source == "test_level" for m in got), node.output
+
+
+def load_checkpoint_with(backend, path):
+    backends.register_model(backend)
+    try:
+        return load_checkpoint(path)
+    finally:
+        backends.unregister_model(backend.model_type)

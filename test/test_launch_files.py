@@ -308,9 +308,9 @@ mocap_bridge:
   grasp_plane_in_finger: [0.01, 0.0, 0.05, 0, 0, 0, 1]
 arm:
   xarm_ip: 10.0.0.7
-  xarm_max_speed_m_s: 0.05
-  xarm_workspace_min_m: [0.2, -0.3, 0.05]
-  xarm_workspace_max_m: [0.6, 0.3, 0.5]
+  arm_max_speed_m_s: 0.05
+  arm_workspace_min_m: [0.2, -0.3, 0.05]
+  arm_workspace_max_m: [0.6, 0.3, 0.5]
   grasp_plane_in_tcp: [0, 0, 0.17, 0, 0, 0, 1]
 slip_stop:
   approach_speed_m_s: 0.005
@@ -381,8 +381,8 @@ def test_every_closed_loop_takes_the_cells_limits_and_grasp_plane(cell, launch_f
     nodes = _by_exe(ev)
     ctrl = nodes[task]
     assert ctrl["arm"] == "xarm" and ctrl["xarm_ip"] == "10.0.0.7"
-    assert ctrl["xarm_max_speed_m_s"] == 0.05
-    assert list(ctrl["xarm_workspace_min_m"]) == [0.2, -0.3, 0.05]
+    assert ctrl["arm_max_speed_m_s"] == 0.05
+    assert list(ctrl["arm_workspace_min_m"]) == [0.2, -0.3, 0.05]
     assert list(ctrl["grasp_plane_in_tcp"]) == [0.0, 0.0, 0.17, 0.0, 0.0, 0.0, 1.0]
     assert list(nodes["audio_capture"]["channel_names"]) == ["pad_a", "pad_b"]
     assert nodes["audio_capture"]["device"] == "rig_pcm"
@@ -404,8 +404,8 @@ def test_hardware_refuses_to_run_the_scenes_model(launch_file):
 
 @needs_launch
 @pytest.mark.parametrize("text,needle", [
-    ("arm:\n  xarm_max_speed: 0.05\n", "unknown key 'xarm_max_speed'"),
-    ("arm:\n  xarm_max_speed_m_s: 5.0\n", "xarm_max_speed_m_s"),
+    ("arm:\n  arm_max_speed: 0.05\n", "unknown key 'arm_max_speed'"),
+    ("arm:\n  arm_max_speed_m_s: 5.0\n", "arm_max_speed_m_s"),
     ("slip_stop:\n  aproach_speed_m_s: 0.01\n", "'aproach_speed_m_s' is not a parameter"),
     ("slip_stop:\n  xarm_ip: 1.2.3.4\n", "belongs in the 'arm' section"),
     ("grippers: {}\n", "unknown section 'grippers'"),
@@ -427,7 +427,7 @@ def test_robot_induced_recording_on_hardware_sweeps_the_arm_within_the_cells_lim
                                                 "recorder": "aslip"})
     nodes = _by_exe(ev)
     sweeps = nodes["robot_sweeps"]
-    assert sweeps["arm"] == "xarm" and sweeps["xarm_max_speed_m_s"] == 0.05
+    assert sweeps["arm"] == "xarm" and sweeps["arm_max_speed_m_s"] == 0.05
     assert sweeps["duration_s"] == 20.0 and sweeps["exit_when_done"] is True
     meta = json.loads(nodes["audio_capture"]["metadata_json"])
     assert meta["induced"] == "robot" and meta["condition"] == "robot_moving"

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from aslip_ros.learn import baselines
-from aslip_ros.learn.evaluate import compute_metrics
+from aslip_ros.learn.metrics import compute_metrics
 
 
 def easy(n=240, c=4, m=48, t=14, seed=0):

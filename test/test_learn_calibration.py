@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from aslip_ros.learn import calibration as cal
+from aslip_ros.learn.calibration import grasp as cal
 from aslip_ros.learn.checkpoint import CheckpointMismatch, load_checkpoint, save_checkpoint
 from aslip_ros.learn.features import FeatureConfig
-from aslip_ros.learn.svm import SvmConfig
+from aslip_ros.learn.models.svm import SvmConfig
 
 C, M = 4, 8
 MIC_ANGLE = np.array([0.25, 0.75, 1.25, 1.75]) * np.pi

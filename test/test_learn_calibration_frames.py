@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
-from aslip_ros.learn import calibration as cal
-from aslip_ros.learn.calibration_frames import (FrameCutter, StreamCalibration, grasp_frames,
+from aslip_ros.learn.calibration import grasp as cal
+from aslip_ros.learn.calibration.frames import (FrameCutter, StreamCalibration, grasp_frames,
                                                 window_offsets)
 from aslip_ros.learn.checkpoint import Checkpoint, CheckpointMismatch
 from aslip_ros.learn.features import FeatureConfig
@@ -107,8 +107,8 @@ def test_one_sided_grasp_does_not_bias_the_gain_estimate(constants):
 def _predictor(k, sample_rate=SR, channel_names=NAMES):
     import torch
 
-    from aslip_ros.learn.network import ModelConfig, SlipNet
-    from aslip_ros.learn.predictor import Predictor
+    from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
+    from aslip_ros.learn.inference.predictor import Predictor
     torch.manual_seed(0)
     mc = ModelConfig(n_channels=4, n_mels=FC.n_mels, width=4, depth=2, temporal_layers=1,
                      temporal_channels=8, gate_hidden=4, head_hidden=8)

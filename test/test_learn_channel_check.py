@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from aslip_ros.learn.channel_check import DEAD_FLOOR_RMS, DEAD_MARGIN_DB, dead_channels
+from aslip_ros.learn.inference.channel_check import DEAD_FLOOR_RMS, DEAD_MARGIN_DB, dead_channels
 
 NAMES = ["left_front_top", "left_rear_bottom", "right_front_bottom", "right_rear_top"]
 

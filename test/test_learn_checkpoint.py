@@ -9,9 +9,9 @@ import torch
 from aslip_ros.learn.checkpoint import (CheckpointMismatch, check_compatible, load_checkpoint,
                                         save_checkpoint)
 from aslip_ros.learn.features import FeatureConfig
-from aslip_ros.learn.network import ModelConfig, SlipNet
-from aslip_ros.learn.predictor import Predictor
-from aslip_ros.learn.svm import SvmArrays, SvmConfig, SvmFeaturizer, fit_svm
+from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
+from aslip_ros.learn.inference.predictor import Predictor
+from aslip_ros.learn.models.svm import SvmArrays, SvmConfig, SvmFeaturizer, fit_svm
 
 NAMES = ["left_front", "left_back", "right_back", "right_front"]
 
@@ -87,7 +87,7 @@ def test_svm_arrays_match_sklearn_and_survive_checkpoint(tmp_path):
     arrays, est = fit_svm(x, slip, v, SvmConfig())
     z = (x - arrays.mean) / arrays.std
     np.testing.assert_allclose(arrays.slip(z), est["svc"].decision_function(z), atol=1e-6)
-    np.testing.assert_allclose(arrays.vx(z), est["svr_vx"].predict(z), atol=1e-6)
+    np.testing.assert_allclose(arrays.velocity["vx"](z), est["svr_vx"].predict(z), atol=1e-6)
     prob, vel = arrays.predict(x)
     np.testing.assert_array_equal(prob >= 0.5, est["svc"].predict(z) == 1)
     save_checkpoint(tmp_path / "svm.pt", {**cnn_meta(ModelConfig(), FeatureConfig()),

@@ -4,8 +4,8 @@ import math
 
 import torch
 
-from aslip_ros.learn.losses import LossWeights, slip_loss
-from aslip_ros.learn.network import SlipOutput
+from aslip_ros.learn.training.losses import LossWeights, slip_loss
+from aslip_ros.learn.models.aslip_cnn import SlipOutput
 
 
 def _out(logit, mag, direction):

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from aslip_ros.learn.network import ModelConfig, SlipNet, fuse_for_inference
+from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet, fuse_for_inference
 
 
 @pytest.mark.parametrize("n_channels", [1, 2, 4])

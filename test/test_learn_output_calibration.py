@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from aslip_ros.learn import output_calibration as oc
+from aslip_ros.learn.calibration import output as oc
 from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint, validate_meta
 
 SLOW_SD, FAST_SD = 0.6, 0.15           # rad: the true direction-error spread per speed range
@@ -214,9 +214,10 @@ def test_evaluate_checks_sigma_on_the_test_split_and_draws_the_diagram(tmp_path,
 
 def test_training_fits_threshold_and_sigma_on_the_validation_windows(tmp_path):
     from aslip_ros.learn.data_io import open_dataset, select_windows
-    from aslip_ros.learn.svm import SvmConfig
+    from aslip_ros.learn.models.svm import SvmConfig
     from aslip_ros.learn.synthetic import make_synthetic_dataset
-    from aslip_ros.learn.train import TrainConfig, train_svm
+    from aslip_ros.learn.training.config import TrainConfig
+    from aslip_ros.learn.training.train import train_svm
     ds = open_dataset(make_synthetic_dataset(tmp_path / "ds", n_trials=12, seed=4))
     res = train_svm(ds, TrainConfig(stage="svm", progress=False), svm_config=SvmConfig(),
                     log=lambda s: None)

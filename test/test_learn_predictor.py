@@ -6,8 +6,8 @@ import torch
 
 from aslip_ros.learn.checkpoint import Checkpoint
 from aslip_ros.learn.features import FeatureConfig
-from aslip_ros.learn.network import ModelConfig, SlipNet
-from aslip_ros.learn.predictor import Predictor
+from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
+from aslip_ros.learn.inference.predictor import Predictor
 
 
 def make_predictor(threshold=None, bias=0.0, n_channels=2, sr=16000.0):
@@ -132,7 +132,7 @@ def test_direction_sigma_comes_from_the_checkpoint_at_the_raw_speed(tmp_path):
 
 
 def test_streaming_predictor_reports_the_checkpoint_sigma(tmp_path):
-    from aslip_ros.learn.streaming_predictor import StreamingPredictor
+    from aslip_ros.learn.inference.stream_predictor import StreamingPredictor
     from test_learn_streaming_model import audio, blocks, make_checkpoint
     one_bin = {"threshold": 0.0, "direction_sigma": {"model": {"speed_edges_m_s": [],
                                                                "sigma_rad": [0.4]}}}

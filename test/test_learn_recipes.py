@@ -8,11 +8,17 @@ import numpy as np
 import pytest
 import torch
 
-from aslip_ros.learn import recipes, train
+from aslip_ros.learn.training import recipes
+
+from aslip_ros.learn.training import train
+
+from aslip_ros.learn.training import config as train_config
+
+from aslip_ros.learn.training import cli as train_cli
 from aslip_ros.learn.checkpoint import load_checkpoint
 from aslip_ros.learn.data_io import open_dataset, trial_splits
 from aslip_ros.learn.synthetic import make_synthetic_dataset
-from aslip_ros.learn.train_loop import resolve_device
+from aslip_ros.learn.training.loop import resolve_device
 
 SMALL = ["--width", "8", "--depth", "2", "--temporal-channels", "32", "--head-hidden", "16",
          "--n-mels", "32", "--threads", "1", "--no-progress"]
@@ -21,8 +27,8 @@ SMALL_MODEL = dict(width=8, depth=2, temporal_channels=32, head_hidden=16)
 
 def cli(argv):
     p = argparse.ArgumentParser()
-    train.add_arguments(p)
-    return train.run(p.parse_args(argv))
+    train_cli.add_arguments(p)
+    return train_cli.run(p.parse_args(argv))
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +42,7 @@ def data(tmp_path_factory):
 def _cfg(**kw):
     base = dict(epochs=6, patience=6, threads=1, progress=False)
     base.update(kw)
-    return train.TrainConfig(**base)
+    return train_config.TrainConfig(**base)
 
 
 # --- the criterion -----------------------------------------------------------------------
@@ -173,7 +179,7 @@ def test_device_cpu_and_auto_without_cuda(monkeypatch):
     with pytest.raises(ValueError, match="no CUDA GPU"):
         resolve_device("cuda")
     with pytest.raises(ValueError, match="device must be one of"):
-        train.TrainConfig(device="tpu")
+        train_config.TrainConfig(device="tpu")
 
 
 def test_auto_takes_cuda_where_torch_sees_it(monkeypatch):
@@ -205,8 +211,8 @@ def test_device_auto_trains_on_cpu_here(data, tmp_path, monkeypatch):
 
 
 def test_encoder_learning_rate_groups():
-    from aslip_ros.learn.network import ModelConfig, SlipNet
-    from aslip_ros.learn.train_loop import param_groups
+    from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
+    from aslip_ros.learn.training.loop import param_groups
     net = SlipNet(ModelConfig(n_channels=2, n_mels=16, width=4, depth=1, temporal_channels=8,
                               head_hidden=8))
     net.freeze_encoder(("conv1d", "pool"))

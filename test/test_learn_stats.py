@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from aslip_ros.learn import stats
-from aslip_ros.learn.evaluate import compute_metrics
+from aslip_ros.learn.metrics import compute_metrics
 
 
 def data(n_trials=10, per=50, spread=10.0, seed=0):

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from aslip_ros.learn.stream import RingBuffer, StreamGate
+from aslip_ros.learn.inference.audio_window import RingBuffer, StreamGate
 
 RATE = 48000.0
 N = 480                       # 10 ms blocks

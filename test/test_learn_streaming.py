@@ -5,8 +5,8 @@ import pytest
 from scipy import signal as sps
 
 from aslip_ros.learn.features import FeatureConfig
-from aslip_ros.learn.streaming import (StreamingLogMel, decimation_factor, decimation_filter,
-                                       stream_logmel)
+from aslip_ros.learn.incremental_features import (StreamingLogMel, decimation_factor,
+                                                  decimation_filter, stream_logmel)
 
 
 def noisy_trial(n=24000, c=3, seed=0):
@@ -99,7 +99,7 @@ def test_evaluate_scores_a_streaming_checkpoint_at_each_window_end(stream_datase
     had produced last when the window ended; the window's own label scores it."""
     from aslip_ros.learn.data_io import open_dataset
     from aslip_ros.learn.evaluate import evaluate_checkpoint, predict_split
-    from aslip_ros.learn.streaming_predictor import StreamingPredictor
+    from aslip_ros.learn.inference.stream_predictor import StreamingPredictor
     from test_learn_streaming_model import blocks, make_checkpoint
     ckpt = make_checkpoint(tmp_path / "s.pt", threshold=0.5)
     p = predict_split(ckpt, stream_dataset, "all")
@@ -146,7 +146,7 @@ def test_aslip_evaluate_cli_on_a_streaming_checkpoint(stream_dataset, tmp_path, 
 
 def test_warm_up_and_feed_leave_a_predictor_as_fresh_as_a_new_one(tmp_path):
     """The node's path: warm_up, then feed (no gate) with reset where the node restarts."""
-    from aslip_ros.learn.streaming_predictor import StreamingPredictor
+    from aslip_ros.learn.inference.stream_predictor import StreamingPredictor
     from test_learn_streaming_model import audio, blocks, make_checkpoint, outputs
     ckpt = make_checkpoint(tmp_path / "s.pt")
     bl = blocks(audio(n=14400, seed=2), 480)
@@ -187,7 +187,7 @@ def test_stream_training_device(stream_train_dataset, monkeypatch):
     import torch
 
     from aslip_ros.learn.data_io import open_dataset
-    from aslip_ros.learn.train_stream import StreamTrainConfig, train_stream
+    from aslip_ros.learn.training.stream import StreamTrainConfig, train_stream
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     ds = open_dataset(stream_train_dataset)
     cfg = dict(epochs=1, steps_per_epoch=2, batch_size=4, seq_frames=40, progress=False)

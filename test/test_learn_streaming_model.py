@@ -13,10 +13,11 @@ from aslip_ros.data.synthetic import write_synthetic_bag
 from aslip_ros.learn.checkpoint import CheckpointMismatch, load_checkpoint, save_checkpoint
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.features import FeatureConfig
-from aslip_ros.learn.streaming import stream_logmel
+from aslip_ros.learn.incremental_features import stream_logmel
 from aslip_ros.data.stream_labels import Smoother, frame_labels, load_track, smooth_velocity
-from aslip_ros.learn.streaming_model import GruStepper, StreamConfig, StreamNet, offline_outputs
-from aslip_ros.learn.streaming_predictor import StreamingPredictor
+from aslip_ros.learn.models.aslip_stream import (GruStepper, StreamConfig, StreamNet,
+                                                 offline_outputs)
+from aslip_ros.learn.inference.stream_predictor import StreamingPredictor
 
 RATE = 48000.0
 NAMES = ["m0", "m1"]
@@ -232,7 +233,7 @@ def test_guard_band_covers_the_smoothed_onset_and_end():
 
 
 def test_threshold_is_chosen_for_the_false_alarm_rate():
-    from aslip_ros.learn.train_stream import false_alarms_per_min, select_threshold
+    from aslip_ros.learn.training.stream import false_alarms_per_min, select_threshold
     n = 6000                                     # one minute of 10 ms hops
     slip = np.zeros(n, bool)
     slip[1000:1200] = True

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from aslip_ros.learn import evaluate, train
+from aslip_ros.learn import evaluate
+
+from aslip_ros.learn.training import cli as train_cli
 from aslip_ros.learn.checkpoint import load_checkpoint
 from aslip_ros.learn.data_io import open_dataset, select_windows, trial_splits
 from aslip_ros.learn.synthetic import make_synthetic_dataset
@@ -27,8 +29,9 @@ def work(tmp_path_factory):
     root = tmp_path_factory.mktemp("learn")
     robot = make_synthetic_dataset(root / "robot", n_trials=12, induced="robot", seed=1)
     ext = make_synthetic_dataset(root / "ext", n_trials=9, induced="external", seed=2)
-    assert cli(train, ["--dataset", str(robot), "--stage", "pretrain", "--out",
-                       str(root / "pre.pt"), "--epochs", "15", "--patience", "15"] + SMALL) == 0
+    assert cli(train_cli, ["--dataset", str(robot), "--stage", "pretrain", "--out",
+                           str(root / "pre.pt"), "--epochs", "15", "--patience", "15"]
+               + SMALL) == 0
     return root, robot, ext
 
 
@@ -61,8 +64,8 @@ def test_pretrain_learns_and_evaluate_writes_json(work):
 
 def test_finetune_trains_heads_only(work):
     root, _, ext = work
-    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
-                       str(root / "pre.pt"), "--out", str(root / "ft.pt"), "--epochs", "3"]
+    assert cli(train_cli, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                           str(root / "pre.pt"), "--out", str(root / "ft.pt"), "--epochs", "3"]
                + SMALL) == 0
     pre, ft = load_checkpoint(root / "pre.pt"), load_checkpoint(root / "ft.pt")
     enc = [k for k in pre.tensors if not k.startswith("heads.")]
@@ -77,34 +80,34 @@ def test_finetune_trains_heads_only(work):
 def test_gain_augmentation_flags_reach_the_checkpoint(work, tmp_path, capsys):
     root, _, ext = work
     out = tmp_path / "g.pt"
-    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
-                       str(root / "pre.pt"), "--out", str(out), "--epochs", "1",
-                       "--gain-db", "2.5", "--channel-gain-db", "0"] + SMALL) == 0
+    assert cli(train_cli, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                           str(root / "pre.pt"), "--out", str(out), "--epochs", "1",
+                           "--gain-db", "2.5", "--channel-gain-db", "0"] + SMALL) == 0
     cfg = load_checkpoint(out).meta["train_config"]
     assert (cfg["gain_db"], cfg["channel_gain_db"]) == (2.5, 0.0)
-    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
-                       str(root / "pre.pt"), "--out", str(tmp_path / "bad.pt"),
-                       "--gain-db", "-1"] + SMALL) == 1
+    assert cli(train_cli, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                           str(root / "pre.pt"), "--out", str(tmp_path / "bad.pt"),
+                           "--gain-db", "-1"] + SMALL) == 1
     assert "gain_db" in capsys.readouterr().err and not (tmp_path / "bad.pt").exists()
 
 
 def test_finetune_refuses_other_channels(work, tmp_path):
     root, _, _ = work
     other = make_synthetic_dataset(tmp_path / "other", n_trials=3, channel_names=("a", "b"))
-    assert cli(train, ["--dataset", str(other), "--stage", "finetune", "--init",
-                       str(root / "pre.pt"), "--out", str(tmp_path / "x.pt")] + SMALL) == 1
+    assert cli(train_cli, ["--dataset", str(other), "--stage", "finetune", "--init",
+                           str(root / "pre.pt"), "--out", str(tmp_path / "x.pt")] + SMALL) == 1
     assert cli(evaluate, ["--checkpoint", str(root / "pre.pt"), "--dataset", str(other)]) == 1
 
 
 def test_svm_baseline_and_single_channel(work, tmp_path):
     root, robot, _ = work
-    assert cli(train, ["--dataset", str(robot), "--stage", "svm", "--out",
-                       str(tmp_path / "svm.pt"), "--no-progress"]) == 0
+    assert cli(train_cli, ["--dataset", str(robot), "--stage", "svm", "--out",
+                           str(tmp_path / "svm.pt"), "--no-progress"]) == 0
     res = evaluate.evaluate_checkpoint(tmp_path / "svm.pt", robot, "test")
     assert res["model_type"] == "svm" and res["overall"]["detection_accuracy"] > 0.8
     # A single-microphone model picked by name from the 4-mic dataset.
-    assert cli(train, ["--dataset", str(robot), "--stage", "scratch", "--channels",
-                       "left_front", "--out", str(tmp_path / "one.pt"), "--epochs", "2"]
+    assert cli(train_cli, ["--dataset", str(robot), "--stage", "scratch", "--channels",
+                           "left_front", "--out", str(tmp_path / "one.pt"), "--epochs", "2"]
                + SMALL) == 0
     res = evaluate.evaluate_checkpoint(tmp_path / "one.pt", robot, "test")
     assert res["channel_names"] == ["left_front"]
@@ -113,8 +116,8 @@ def test_svm_baseline_and_single_channel(work, tmp_path):
 def test_training_is_deterministic(work, tmp_path):
     _, robot, _ = work
     for name in ("a", "b"):
-        assert cli(train, ["--dataset", str(robot), "--out", str(tmp_path / f"{name}.pt"),
-                           "--epochs", "1", "--seed", "5"] + SMALL) == 0
+        assert cli(train_cli, ["--dataset", str(robot), "--out", str(tmp_path / f"{name}.pt"),
+                               "--epochs", "1", "--seed", "5"] + SMALL) == 0
     a, b = load_checkpoint(tmp_path / "a.pt"), load_checkpoint(tmp_path / "b.pt")
     for k in a.tensors:
         assert torch.equal(a.tensors[k], b.tensors[k]), k
@@ -138,16 +141,16 @@ def test_metrics_definitions():
 def test_calibrated_checkpoint_round_trips_and_evaluate_applies_it(work, tmp_path):
     """`aslip train` (default --calibration background) stores the constants fitted on the
     training trials; evaluate reads windows with each trial's causal offsets removed."""
-    from aslip_ros.learn.calibration import CalibrationConstants
-    from aslip_ros.learn.calibration_frames import dataset_offsets
+    from aslip_ros.learn.calibration.grasp import CalibrationConstants
+    from aslip_ros.learn.calibration.frames import dataset_offsets
     from aslip_ros.learn.checkpoint import save_checkpoint
-    from aslip_ros.learn.predictor import Predictor
+    from aslip_ros.learn.inference.predictor import Predictor
     root, _, _ = work
     robot = make_synthetic_dataset(root / "coupled", n_trials=9, seed=3, coupling_db=3.0,
                                    background=0.02)
     path = tmp_path / "svm.pt"
-    assert cli(train, ["--dataset", str(robot), "--stage", "svm", "--out", str(path),
-                       "--no-progress"]) == 0
+    assert cli(train_cli, ["--dataset", str(robot), "--stage", "svm", "--out", str(path),
+                           "--no-progress"]) == 0
     ck = load_checkpoint(path)
     k = CalibrationConstants.from_dict(ck.meta["calibration"])
     assert k.method == "background" and k.channel_names == tuple(ck.channel_names)
@@ -182,8 +185,8 @@ def test_calibrated_checkpoint_round_trips_and_evaluate_applies_it(work, tmp_pat
 
 def test_calibration_off_writes_no_calibration_key(work, tmp_path):
     _, robot, _ = work
-    assert cli(train, ["--dataset", str(robot), "--stage", "svm", "--calibration", "off",
-                       "--out", str(tmp_path / "svm.pt"), "--no-progress"]) == 0
+    assert cli(train_cli, ["--dataset", str(robot), "--stage", "svm", "--calibration", "off",
+                           "--out", str(tmp_path / "svm.pt"), "--no-progress"]) == 0
     ck = load_checkpoint(tmp_path / "svm.pt")
     assert "calibration" not in ck.meta
     assert evaluate.evaluate_checkpoint(tmp_path / "svm.pt", robot)["calibration"] is None
@@ -194,10 +197,10 @@ def test_finetune_keeps_the_init_calibration(work, tmp_path):
     pre = load_checkpoint(root / "pre.pt")
     assert "calibration" in pre.meta                   # the fixture trained with the default
     out = tmp_path / "ft.pt"
-    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
-                       str(root / "pre.pt"), "--out", str(out), "--epochs", "2"] + SMALL) == 0
+    assert cli(train_cli, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                           str(root / "pre.pt"), "--out", str(out), "--epochs", "2"] + SMALL) == 0
     assert load_checkpoint(out).meta["calibration"] == pre.meta["calibration"]
     # Raw features into an encoder trained on calibrated ones: refused.
-    assert cli(train, ["--dataset", str(ext), "--stage", "finetune", "--init",
-                       str(root / "pre.pt"), "--out", str(tmp_path / "x.pt"), "--epochs", "2",
-                       "--calibration", "off"] + SMALL) == 1
+    assert cli(train_cli, ["--dataset", str(ext), "--stage", "finetune", "--init",
+                           str(root / "pre.pt"), "--out", str(tmp_path / "x.pt"), "--epochs", "2",
+                           "--calibration", "off"] + SMALL) == 1

@@ -136,13 +136,13 @@ def test_the_contract_streams_are_read_before_their_publishers_exist(rclpy_conte
                                                                      tmp_path):
     """Audio, poses, slip truth and TF are subscribed at start with their documented types:
     a recording started before the scene loses none of its beginning to discovery."""
-    from aslip_ros.nodes.bag_recorder import DEFAULT_TOPICS
+    from aslip_ros.nodes.bag_recorder import RECORDED_TOPICS
     graph = Graph(rclpy_context)
     try:
         rec = _recorder(graph, tmp_path / "bag")
         graph.ex.spin_once(timeout_sec=0.0)
-        assert set(rec.counts) == set(DEFAULT_TOPICS)
-        assert not rec.get_publishers_info_by_topic(DEFAULT_TOPICS[0])
+        assert set(rec.counts) == set(RECORDED_TOPICS)
+        assert not rec.get_publishers_info_by_topic(RECORDED_TOPICS[0])
         rec.before_shutdown()
     finally:
         graph.close()

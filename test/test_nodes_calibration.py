@@ -25,7 +25,7 @@ GAINS = np.array([2.0, 1.0, 0.5, 1.4])             # per-microphone coupling of 
 
 def constants(names=SCENE_NAMES, **kw):
     """Permissive constants: every frame above -100 counts as background."""
-    from aslip_ros.learn.calibration import CalibrationConstants
+    from aslip_ros.learn.calibration.grasp import CalibrationConstants
     m = 16                                          # make_checkpoint's n_mels
     d = dict(channel_names=tuple(names), n_mels=m, hop_s=0.01, gate_mean=(0.0,) * m,
              gate_std=(1.0,) * m, gate_coef=(0.0,) * m, gate_bias=-5.0, floor_level=-100.0,
@@ -119,9 +119,9 @@ def _diag(bus, predicate=lambda v: True):
 def test_streaming_calibration_in_the_node_equals_offline(live):
     """Every published estimate equals the offline computation over the same stream:
     the window ending at its stamp, with the offsets of the frames complete by then."""
-    from aslip_ros.learn.calibration import CalibrationState
-    from aslip_ros.learn.calibration_frames import FrameCutter, window_offsets
-    from aslip_ros.learn.predictor import Predictor
+    from aslip_ros.learn.calibration.grasp import CalibrationState
+    from aslip_ros.learn.calibration.frames import FrameCutter, window_offsets
+    from aslip_ros.learn.inference.predictor import Predictor
     bus, stream, proc, ckpt = live
     audio = stream_audio(150)
     before = _diag(bus)

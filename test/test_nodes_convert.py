@@ -59,7 +59,7 @@ def test_audio_to_msg_refuses_wrong_shapes():
 
 
 def test_prediction_to_slip_vector_and_zero_vector_when_not_slipping():
-    from aslip_ros.learn.predictor import Prediction
+    from aslip_ros.learn.inference.predictor import Prediction
     from aslip_ros.nodes import convert
     pred = Prediction(0.9, True, 0.03, -0.04, 0.05, (0.6, -0.8), 0.2, threshold=0.8)
     msg = convert.prediction_to_slip(pred, 2_000_000_000, "aslip_cnn")

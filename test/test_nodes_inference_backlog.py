@@ -67,8 +67,8 @@ class Graph:
         while not predicate():
             if time.monotonic() > deadline:
                 raise AssertionError(f"no {what} within {timeout:g} s; node counts: "
-                                     f"gaps {self.node.stats.gaps}, accepted "
-                                     f"{self.node.stats.blocks_ok}")
+                                     f"gaps {self.node.est.stats.gaps}, accepted "
+                                     f"{self.node.est.stats.blocks_ok}")
             self.ex.spin_once(timeout_sec=0.02)
 
     def estimated(self, end_ns: int) -> bool:
@@ -92,19 +92,19 @@ def _starve(context, checkpoint) -> tuple[int, int, bool]:
         g.until(lambda: len(g.estimates) > 0 or g.send() is None, "a first estimate")
         end = g.send()
         g.until(lambda: g.estimated(end), "an estimate on the newest block")
-        gaps0, ok0 = g.node.stats.gaps, g.node.stats.blocks_ok
+        gaps0, ok0 = g.node.est.stats.gaps, g.node.est.stats.blocks_ok
         for _ in range(STARVED_BLOCKS):          # the executor is not spun meanwhile
             last = g.send()
-        g.until(lambda: g.node.stats.blocks_ok - ok0 >= STARVED_BLOCKS or
-                g.node.stats.gaps > gaps0, "the queued blocks taken")
+        g.until(lambda: g.node.est.stats.blocks_ok - ok0 >= STARVED_BLOCKS or
+                g.node.est.stats.gaps > gaps0, "the queued blocks taken")
         got_last = False
         deadline = time.monotonic() + 30.0
-        while time.monotonic() < deadline and g.node.stats.gaps == gaps0:
+        while time.monotonic() < deadline and g.node.est.stats.gaps == gaps0:
             if g.estimated(last):
                 got_last = True
                 break
             g.ex.spin_once(timeout_sec=0.02)
-        return g.node.stats.gaps - gaps0, g.node.stats.blocks_ok - ok0, got_last
+        return g.node.est.stats.gaps - gaps0, g.node.est.stats.blocks_ok - ok0, got_last
     finally:
         g.close()
 

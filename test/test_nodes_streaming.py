@@ -121,7 +121,7 @@ def _resets_after(bus, before, n_blocks) -> int:
 
 def _offline(blocks, continue_from=None, threshold=0.0):
     """StreamingPredictor over ``blocks`` (after ``continue_from`` ones, if given)."""
-    from aslip_ros.learn.streaming_predictor import StreamingPredictor
+    from aslip_ros.learn.inference.stream_predictor import StreamingPredictor
     p = StreamingPredictor.from_checkpoint(STREAM_CKPT, threshold=threshold)
     for b in continue_from or []:
         p.push(b)

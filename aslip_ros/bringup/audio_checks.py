@@ -15,7 +15,7 @@ from typing import Any, Callable, List, Optional, Sequence, Union
 from aslip_ros.bringup import levels as lv
 from aslip_ros.bringup import taps as tp
 from aslip_ros.bringup.verdict import Verdict
-from aslip_ros.hw.audio import AudioBlock, AudioError
+from aslip_ros.hw.audio_block import AudioBlock, AudioError
 
 #: A device that delivers nothing for this long has stopped.
 DEFAULT_STALL_S = 5.0

@@ -166,9 +166,9 @@ def _arm_config(args: argparse.Namespace):
     if not ip:
         raise ValueError('--ip is needed (the xArm controller\'s address), or a --setup file '
                          'whose arm section has xarm_ip')
-    return arm_config(str(ip), pick(args.max_speed, 'xarm_max_speed_m_s'),
-                      pick(args.workspace_min, 'xarm_workspace_min_m'),
-                      pick(args.workspace_max, 'xarm_workspace_max_m'))
+    return arm_config(str(ip), pick(args.max_speed, 'arm_max_speed_m_s'),
+                      pick(args.workspace_min, 'arm_workspace_min_m'),
+                      pick(args.workspace_max, 'arm_workspace_max_m'))
 
 
 def _mocap(args: argparse.Namespace, out) -> int:

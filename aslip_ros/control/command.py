@@ -15,6 +15,10 @@ import numpy as np
 
 from aslip_ros.control.arm import Arm
 
+#: Validity of a velocity command on the arm [s]: it stops by itself this long after the
+#: newest command (every controller's ``command_duration_s`` default).
+DEFAULT_DURATION_S = 0.1
+
 
 # eq=False: field-wise == on numpy arrays is ambiguous; compare fields explicitly.
 @dataclass(frozen=True, eq=False)
@@ -27,7 +31,7 @@ class VelocityCommand:
     """
 
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    duration_s: float = 0.1
+    duration_s: float = DEFAULT_DURATION_S
     stop: bool = False
     reason: str = ''
 

@@ -51,7 +51,9 @@ def checked_command(v_xyz_m_s: Any, duration_s: Any) -> Tuple[np.ndarray, float]
 
 @dataclass(frozen=True)
 class ArmLimits:
-    """The limits every command obeys (SI units, ``link_base``).
+    """The limits every command obeys (SI units, ``link_base``); the defaults are every
+    arm's (the xArm's config, the sweeps and the nodes' ``arm_*`` parameters take them from
+    here). The workspace default is a conservative box in front of an arm on a table.
 
     :param max_speed_m_s: TCP speed limit; faster commands are scaled down (direction kept).
     :param max_acc_m_s2: limit on the change of commanded velocity per second; a zero

@@ -28,7 +28,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from aslip_ros.control.command import VelocityCommand
+from aslip_ros.control.command import DEFAULT_DURATION_S, VelocityCommand
 from aslip_ros.control.frames import as_pose, as_vector3
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, Watchdog
 
@@ -91,7 +91,7 @@ class SlipStopConfig:
     debounce_count: int = 3
     slip_timeout_s: float = DEFAULT_TIMEOUT_S
     pose_timeout_s: float = DEFAULT_TIMEOUT_S
-    command_duration_s: float = 0.1
+    command_duration_s: float = DEFAULT_DURATION_S
     time_margin: float = 2.0
 
     def __post_init__(self) -> None:

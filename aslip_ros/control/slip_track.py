@@ -58,7 +58,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from aslip_ros.control.command import VelocityCommand
+from aslip_ros.control.command import DEFAULT_DURATION_S, VelocityCommand
 from aslip_ros.control.frames import (IDENTITY_POSE, as_pose, base_to_grasp, grasp_to_base,
                                       planar_slip)
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, Watchdog
@@ -88,7 +88,9 @@ def _finite(name: str, value: float, minimum: float, strict: bool) -> float:
 
 @dataclass(frozen=True)
 class SlipTrackConfig:
-    """Parameters of slip tracking (SI units).
+    """Parameters of slip tracking (SI units). The defaults are the tuned law the node, its
+    config file and the demo run (a 50 ms low-pass, a 0.3 s hold decaying over 0.2 s, a
+    2 /s position term leaking over 3 s); each ``0`` below switches its part off.
 
     :param gain: fraction of the estimated slip corrected (1 = command the estimated object
         velocity; the steady state matches the object for any gain in (0, 2)).
@@ -114,18 +116,18 @@ class SlipTrackConfig:
     gain: float = 1.0
     deadband_m_s: float = 0.002
     max_speed_m_s: float = 0.05
-    lowpass_tau_s: float = 0.0
-    hold_s: float = 0.2
-    decay_s: float = 0.0
+    lowpass_tau_s: float = 0.05
+    hold_s: float = 0.3
+    decay_s: float = 0.2
     velocity_window_s: float = 0.2
-    position_gain_1_s: float = 0.0
-    position_leak_s: float = 0.0
+    position_gain_1_s: float = 2.0
+    position_leak_s: float = 3.0
     max_offset_m: float = 0.03
     stop_on_slip_end: bool = False
     grasp_plane_in_tcp: Sequence[float] = tuple(IDENTITY_POSE)
     slip_timeout_s: float = DEFAULT_TIMEOUT_S
     pose_timeout_s: float = DEFAULT_TIMEOUT_S
-    command_duration_s: float = 0.1
+    command_duration_s: float = DEFAULT_DURATION_S
 
     def __post_init__(self) -> None:
         _finite('gain', self.gain, 0.0, strict=True)

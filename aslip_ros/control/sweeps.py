@@ -37,7 +37,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from aslip_ros.control.command import VelocityCommand
+from aslip_ros.control.command import DEFAULT_DURATION_S, VelocityCommand
 from aslip_ros.control.frames import IDENTITY_POSE, as_pose, grasp_to_base, planar_slip
 from aslip_ros.control.limits import ArmLimits
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, Watchdog
@@ -103,7 +103,7 @@ class SweepConfig:
     return_tolerance_m: float = 0.001
     return_timeout_s: float = 10.0
     pose_timeout_s: float = DEFAULT_TIMEOUT_S
-    command_duration_s: float = 0.1
+    command_duration_s: float = DEFAULT_DURATION_S
 
     def __post_init__(self) -> None:
         if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:

@@ -1,7 +1,7 @@
 """Writing rosbag2 (mcap) bags of the project's topics, without ROS (``bags.BagWriter``).
 
-Bags get the project's typestore and offered-QoS records (``aslip_ros.data.bags``) and the
-MCAP CRCs that rosbags leaves at zero (``aslip_ros.data.mcap_crc``).
+Bags get the project's typestore and offered-QoS records (``aslip_ros.data.bag_format``) and
+the MCAP CRCs that rosbags leaves at zero (``aslip_ros.data.mcap_crc``).
 """
 
 from __future__ import annotations
@@ -14,11 +14,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from aslip_ros.data.bags import (AUDIO_TYPE, CUSTOM_DATA_KEY, DEFAULT_TOPICS,
-                                 METADATA_FORMAT, METADATA_VERSION, POSE_FRAMES, POSE_TYPE,
-                                 SLIP_TYPE, STRING_TYPE, BagError, Topics, _qos, _time_msg,
-                                 typestore)
 from aslip_ros import frames
+from aslip_ros.data.bag_errors import BagError
+from aslip_ros.data.bag_format import (AUDIO_TYPE, CUSTOM_DATA_KEY, DEFAULT_TOPICS,
+                                       METADATA_FORMAT, METADATA_VERSION, POSE_FRAMES, POSE_TYPE,
+                                       SLIP_TYPE, STRING_TYPE, Topics, offered_qos, time_msg,
+                                       typestore)
+from aslip_ros.slip import DEFAULT_THRESHOLD
 from aslip_ros.util import atomic_path
 
 
@@ -93,7 +95,7 @@ class BagWriter:
         return ns
 
     def _header(self, ns: int, frame_id: str):
-        return self._T["std_msgs/msg/Header"](stamp=_time_msg(self._store, ns),
+        return self._T["std_msgs/msg/Header"](stamp=time_msg(self._store, ns),
                                               frame_id=frame_id)
 
     def write(self, topic: str, msgtype: str, msg: Any, log_ns: int,
@@ -108,7 +110,7 @@ class BagWriter:
         conn = self._conns.get(topic)
         if conn is None:
             conn = self._writer.add_connection(topic, msgtype, typestore=self._store,
-                                               offered_qos_profiles=_qos(qos))
+                                               offered_qos_profiles=offered_qos(qos))
             self._conns[topic] = conn
         elif conn.msgtype != msgtype:
             raise BagError(f"topic {topic} already holds {conn.msgtype}, not {msgtype}")
@@ -169,7 +171,7 @@ class BagWriter:
         ns = self._ns(t_end)
         msg = T[SLIP_TYPE](
             header=self._header(ns, frame_id), probability=1.0 if slipping else 0.0,
-            slipping=bool(slipping), threshold=0.5,
+            slipping=bool(slipping), threshold=DEFAULT_THRESHOLD,
             velocity=T["geometry_msgs/msg/Vector3"](
                 x=float(vx) if slipping else 0.0, y=0.0, z=float(vz) if slipping else 0.0),
             speed=speed if slipping else 0.0,

@@ -1,159 +1,46 @@
 """rosbag2 (mcap) input and output for the project's topics, without ROS.
 
-The project's own message types (``msg/*.msg``) are registered with a ``rosbags`` typestore
-built on the Jazzy standard types, so bags written here hold the same definitions, type
-hashes and CDR bytes that rosbag2 records from live publishers.
-
-Where the ``.msg`` text comes from, first match wins:
-
-1. the environment variable ``ASLIP_MSG_DIR``;
-2. the source tree (``<repo>/msg`` beside the ``aslip_ros`` package);
-3. ``share/aslip_ros/msg`` under every ``AMENT_PREFIX_PATH`` entry (colcon install);
-4. ``share/aslip_ros/msg`` under ``sys.prefix`` (``pip install .`` ships them there as
-   ``data_files``).
-
-Reading does not depend on that search when the bag carries its own message definitions
-(mcap always does): types unknown to the Jazzy store are registered from the bag itself.
+Reading is here (:class:`BagReader`, :func:`read_messages`, :func:`find_bags`); writing is
+:class:`~aslip_ros.data.bag_writer.BagWriter`, and what both hold to (message types, topic
+names, metadata, the typestore) is :mod:`aslip_ros.data.bag_format`. This module is the one
+name for all of it: the writer and the format's names are importable from here too.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import struct
-import sys
-from dataclasses import dataclass, field, replace
-from functools import lru_cache
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from aslip_ros import frames, topics
-from aslip_ros.audio_frame import stamp_to_ns  # noqa: F401 - part of this API
+from aslip_ros.audio_frame import stamp_to_ns
 from aslip_ros.data.bag_errors import BagDamaged, BagError
+from aslip_ros.data.bag_format import (AUDIO_TYPE, CUSTOM_DATA_KEY, DEFAULT_TOPICS,
+                                       METADATA_FORMAT, METADATA_VERSION, PACKAGE, POSE_FRAMES,
+                                       POSE_TOPICS, POSE_TYPE, SLIP_TYPE, STRING_TYPE, Topics,
+                                       base_store, find_msg_dir, make_metadata, offered_qos,
+                                       parse_metadata, project_msg_texts, time_msg, typestore)
+from aslip_ros.data.bag_writer import BagWriter
 from aslip_ros.data.pose_cdr import StampedPose, decode_pose_stamped
 
-PACKAGE = "aslip_ros"
-AUDIO_TYPE = "aslip_ros/msg/AudioFrame"
-SLIP_TYPE = "aslip_ros/msg/SlipVector"
-POSE_TYPE = "geometry_msgs/msg/PoseStamped"
-STRING_TYPE = "std_msgs/msg/String"
-CUSTOM_DATA_KEY = "aslip"
-METADATA_FORMAT = "aslip-metadata"
-METADATA_VERSION = 1
 
-
-#: The pose topics of :class:`Topics` (a recording's metadata may name its own).
-POSE_TOPICS = ("finger", "object", "tcp")
-
-
-@dataclass(frozen=True)
-class Topics:
-    """Topic names of the recording contract (aslip_ros/topics.py); override per deployment."""
-
-    audio: str = topics.AUDIO
-    finger: str = topics.FINGER
-    object: str = topics.OBJECT
-    tcp: str = topics.TCP
-    metadata: str = topics.METADATA
-    slip_truth: str = topics.SLIP_TRUTH
-
-    def named_in(self, meta: dict, keep: tuple = ()) -> "Topics":
-        """These names, with the pose topics a recording's metadata names (``topics``:
-        finger, object, tcp: a motion-capture driver's own) except those in ``keep``."""
-        named = meta.get("topics") if isinstance(meta, dict) else None
-        if not isinstance(named, dict):
-            return self
-        return replace(self, **{k: named[k] for k in POSE_TOPICS
-                                if isinstance(named.get(k), str) and named[k]
-                                and k not in keep})
-
-
-DEFAULT_TOPICS = Topics()
-
-# Frames each pose topic is expressed in (aslip_ros/frames.py).
-POSE_FRAMES = {"finger": frames.WORLD, "object": frames.WORLD, "tcp": frames.BASE}
-
-
-def _qos(kind: str):
-    """Offered QoS recorded with each topic, as docs/design.md specifies for its publisher."""
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
-                                    QosReliability, QosTime)
-    zero = QosTime(0, 0)
-    reliability, durability, depth = {
-        "sensor": (QosReliability.BEST_EFFORT, QosDurability.VOLATILE, 10),
-        "latched": (QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, 1),
-        "reliable": (QosReliability.RELIABLE, QosDurability.VOLATILE, 10),
-    }[kind]
-    return [Qos(QosHistory.KEEP_LAST, depth, reliability, durability, zero, zero,
-                QosLiveliness.AUTOMATIC, zero, False)]
-
-
-# ---------------------------------------------------------------------------------------
-# Message definitions and typestore
-
-
-def _msg_dir_candidates() -> list[Path]:
-    out: list[Path] = []
-    env = os.environ.get("ASLIP_MSG_DIR")
-    if env:
-        out.append(Path(env))
-    out.append(Path(__file__).resolve().parents[2] / "msg")
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            out.append(Path(prefix) / "share" / PACKAGE / "msg")
-    for prefix in dict.fromkeys([sys.prefix, sys.base_prefix]):
-        out.append(Path(prefix) / "share" / PACKAGE / "msg")
-    return out
-
-
-def find_msg_dir() -> Path:
-    """Return the directory holding the project's ``.msg`` files (see module docstring)."""
-    tried = _msg_dir_candidates()
-    for cand in tried:
-        if (cand / "AudioFrame.msg").is_file():
-            return cand
-    raise FileNotFoundError(
-        "aslip_ros message definitions (AudioFrame.msg) not found; looked in: "
-        + ", ".join(str(p) for p in tried)
-        + ". Set ASLIP_MSG_DIR to the package's msg/ directory.")
-
-
-def project_msg_texts(msg_dir: str | os.PathLike | None = None) -> dict[str, str]:
-    """Map ROS 2 type name (``aslip_ros/msg/<Name>``) to its ``.msg`` text."""
-    root = Path(msg_dir) if msg_dir is not None else find_msg_dir()
-    texts = {f"{PACKAGE}/msg/{p.stem}": p.read_text()
-             for p in sorted(root.glob("*.msg"))}
-    if not texts:
-        raise FileNotFoundError(f"no .msg files in {root}")
-    return texts
-
-
-def _base_store():
-    from rosbags.typesys import Stores, get_typestore
-    return get_typestore(Stores.ROS2_JAZZY)
-
-
-@lru_cache(maxsize=1)
-def typestore():
-    """Jazzy typestore with the project's message types registered (cached, shared).
-
-    Treat it as read-only: readers that need a bag's own definitions build their own store.
-    """
-    from rosbags.typesys import get_types_from_msg
-    store = _base_store()
-    types: dict = {}
-    for name, text in project_msg_texts().items():
-        types.update(get_types_from_msg(text, name))
-    store.register(types)
-    return store
-
-
-def _time_msg(store, ns: int):
-    Time = store.types["builtin_interfaces/msg/Time"]
-    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+__all__ = [
+    # reading (this module)
+    "BagInfo", "BagMessage", "BagReader", "find_bags", "is_bag", "pose_from_msg",
+    "read_messages",
+    # writing (bag_writer), the errors (bag_errors), pose decoding (pose_cdr)
+    "BagWriter", "BagDamaged", "BagError", "StampedPose", "decode_pose_stamped",
+    "stamp_to_ns",
+    # the format (bag_format)
+    "AUDIO_TYPE", "CUSTOM_DATA_KEY", "DEFAULT_TOPICS", "METADATA_FORMAT", "METADATA_VERSION",
+    "PACKAGE", "POSE_FRAMES", "POSE_TOPICS", "POSE_TYPE", "SLIP_TYPE", "STRING_TYPE",
+    "Topics", "base_store", "find_msg_dir", "make_metadata", "offered_qos", "parse_metadata",
+    "project_msg_texts", "time_msg", "typestore",
+]
 
 
 def pose_from_msg(msg: Any) -> np.ndarray:
@@ -163,35 +50,6 @@ def pose_from_msg(msg: Any) -> np.ndarray:
     pose = getattr(msg, "pose", msg)
     p, q = pose.position, pose.orientation
     return np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=np.float64)
-
-
-def make_metadata(**fields: Any) -> dict:
-    """Scenario metadata dict with the format header of docs/design.md."""
-    meta = {"format": METADATA_FORMAT, "version": METADATA_VERSION}
-    meta.update(fields)
-    return meta
-
-
-def __getattr__(name: str):
-    # The writer lives in its own module; ``bags.BagWriter`` stays its public name.
-    if name == "BagWriter":
-        from aslip_ros.data.bag_writer import BagWriter
-        return BagWriter
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def parse_metadata(text: str, where: str = "metadata") -> dict:
-    """Parse the JSON metadata document; a clear ValueError when it is not one."""
-    try:
-        meta = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise BagError(f"{where}: not valid JSON ({exc})") from None
-    if not isinstance(meta, dict):
-        raise BagError(f"{where}: expected a JSON object, got {type(meta).__name__}")
-    fmt = meta.get("format", METADATA_FORMAT)
-    if fmt != METADATA_FORMAT:
-        raise BagError(f"{where}: format {fmt!r} is not {METADATA_FORMAT!r}")
-    return meta
 
 
 # ---------------------------------------------------------------------------------------
@@ -307,7 +165,7 @@ class BagReader:
     def _typestore_for(self, conns):
         from rosbags.interfaces import MessageDefinitionFormat
         from rosbags.typesys import get_types_from_idl, get_types_from_msg
-        store = _base_store()
+        store = base_store()
         missing = {c.msgtype: c for c in conns if c.msgtype not in store.types}
         if not missing:
             return store

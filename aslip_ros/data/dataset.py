@@ -27,12 +27,16 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from aslip_ros.slip import VELOCITY_COMPONENTS
 from aslip_ros.util import atomic_path, read_json, write_json
 
 FORMAT = "aslip-dataset"
 VERSION = 1
-WINDOW_DTYPE = np.dtype([("trial", "<i4"), ("start", "<i8"), ("vx", "<f4"), ("vz", "<f4"),
-                         ("speed", "<f4"), ("slip", "u1")])
+#: One row per window: its trial and first sample, the slip velocity label (one column per
+#: component of ``aslip_ros.slip.VELOCITY_COMPONENTS``, m/s), its speed and slip flag.
+WINDOW_DTYPE = np.dtype([("trial", "<i4"), ("start", "<i8")]
+                        + [(c, "<f4") for c in VELOCITY_COMPONENTS]
+                        + [("speed", "<f4"), ("slip", "u1")])
 TRIAL_KEYS = ("id", "file", "n_samples", "object", "pad", "layout", "condition", "induced",
               "source_bag", "label_source")
 

@@ -37,6 +37,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from aslip_ros.slip import VELOCITY_COMPONENTS
 from aslip_ros.data.bags import (CUSTOM_DATA_KEY, DEFAULT_TOPICS, POSE_TOPICS, BagDamaged,
                                  BagError, BagReader, Topics, find_bags)
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
@@ -197,8 +198,8 @@ def _window_rows(labels, grid: WindowGrid, cfg: ExportConfig) -> tuple[np.ndarra
     keep = grid.audio_ok & (labels.reason == OK)
     rows = np.zeros(int(keep.sum()), dtype=WINDOW_DTYPE)
     rows["start"] = grid.file_pos[keep]
-    rows["vx"] = labels.vx[keep]
-    rows["vz"] = labels.vz[keep]
+    for name, column in zip(VELOCITY_COMPONENTS, labels.slip_velocity.T):
+        rows[name] = column[keep]
     speed = labels.speed[keep]
     rows["speed"] = speed
     rows["slip"] = speed > cfg.epsilon_m_s
@@ -436,8 +437,8 @@ def run(args: argparse.Namespace) -> int:
         summary = export(args.bags, args.out, cfg)
         print(summary)
         if args.summary_json:
-            from aslip_ros.util import write_json
-            write_json(args.summary_json, summary.to_dict())
+            from aslip_ros.util import peak_rss_mib, write_json
+            write_json(args.summary_json, dict(summary.to_dict(), peak_rss_mib=peak_rss_mib()))
     except (ValueError, OSError) as exc:        # OSError: a full disk, no permission...
         print(f"aslip export: error: {exc}", file=sys.stderr)
         return 1

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from aslip_ros.slip import VELOCITY_AXES
 from aslip_ros.poses import IDENTITY_POSE, as_pose, compose, invert, quat_ok
 
 DEFAULT_MAX_GAP_S = 0.05
@@ -180,9 +181,15 @@ class WindowLabels:
         return self.velocity[:, 2]
 
     @property
+    def slip_velocity(self) -> np.ndarray:
+        """(M, N_VELOCITY): the components of ``aslip_ros.slip`` (the y component is not
+        slip)."""
+        return self.velocity[:, list(VELOCITY_AXES)]
+
+    @property
     def speed(self) -> np.ndarray:
         """Planar speed |(vx, vz)| (the y component is not slip)."""
-        return np.hypot(self.velocity[:, 0], self.velocity[:, 2])
+        return np.linalg.norm(self.slip_velocity, axis=1)
 
 
 def mocap_window_velocity(finger: PoseTrack, obj: PoseTrack, t0, t1,

@@ -36,7 +36,6 @@ from aslip_ros.data.export import DEFAULT_HOP_S, DEFAULT_WINDOW_S, ExportConfig,
 from aslip_ros.data.simulate import simulate
 
 PAPER_OBJECTS = ("pla_rod", "glass_cleaner", "chips_can", "mustard_container", "cracker_box")
-PAPER_LAYOUTS = ("4mic", "2mic_corners", "2mic_same_finger", "2mic_centered", "1mic")
 PROBE = "pla_rod"
 
 SCALES = {
@@ -54,11 +53,9 @@ SCALES = {
 
 
 def _scene_layouts() -> tuple[str, ...]:
-    try:
-        from aslip_ros.scene.layouts import LAYOUTS
-        return tuple(LAYOUTS)
-    except ImportError:
-        return PAPER_LAYOUTS
+    """Every layout of the scene (the registry: aslip_ros/scene/layouts.py)."""
+    from aslip_ros.scene.layouts import LAYOUTS
+    return tuple(LAYOUTS)
 
 
 def build_default_datasets(out_dir: str | Path, scale: str = "default",

@@ -24,8 +24,9 @@ from typing import Iterable, Iterator
 
 import yaml
 
-from aslip_ros.data.bags import (POSE_TYPE, BagError, BagMessage, BagReader, _base_store,
-                                 decode_pose_stamped, project_msg_texts)
+from aslip_ros.data.bag_format import base_store as _base_store
+from aslip_ros.data.bags import (POSE_TYPE, BagError, BagMessage, BagReader, decode_pose_stamped,
+                                 project_msg_texts)
 
 
 @dataclass

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from aslip_ros.data.bags import DEFAULT_TOPICS, BagWriter, Topics, make_metadata
 from aslip_ros.poses import IDENTITY_POSE, as_pose, compose, invert
+from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 
 DEFAULT_CHANNELS = ("left_front", "left_rear", "right_front", "right_rear")
 
@@ -57,7 +58,7 @@ def write_synthetic_bag(path: str | os.PathLike, *, duration_s: float = 3.0,
                         pose_dropouts: Sequence[tuple[float, float]] = (),
                         audio_dropouts: Sequence[tuple[float, float]] = (),
                         start_ns: int = 1_700_000_000_000_000_000, seed: int = 0,
-                        topics: Topics = DEFAULT_TOPICS, layout: str = "4mic",
+                        topics: Topics = DEFAULT_TOPICS, layout: str = DEFAULT_LAYOUT,
                         extra_metadata: Mapping | None = None) -> None:
     """Write a bag whose slip is ``slip_velocity`` (grasp plane, m/s) throughout.
 

@@ -38,13 +38,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from aslip_ros.scene.layouts import PAPER_LAYOUTS
 from aslip_ros.util import read_json, write_json, write_text
 
-from .ablation_report import (CI_COLUMNS, bootstrap_intervals, majority, merge_rows,
-                              orderings, pct, per_object_markdown, robot_noise_markdown,
-                              short, table_markdown)
-from .common import (EXTERNAL_TRIALS, LAYOUTS_2MIC, DataPlan, Log, Recipe, evaluate_cached,
-                     paper_units, set_threads, train_named)
+from .ablation_report import (CI_COLUMNS, bootstrap_intervals, majority, merge_rows, orderings,
+                              pct, per_object_markdown, robot_noise_markdown, short,
+                              table_markdown)
+from .common import (EXTERNAL_TRIALS, DataPlan, Log, Recipe, evaluate_cached, paper_units,
+                     set_threads, train_named)
 
 
 @dataclass(frozen=True)
@@ -264,7 +265,7 @@ class Ablation:
     # --- robot noise ----------------------------------------------------------------------
     def robot_noise(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
-        for layout in ("4mic",) + LAYOUTS_2MIC + ("1mic",):
+        for layout in PAPER_LAYOUTS:
             ckpt, _ = self.finetuned(layout)
             rob = self.evaluate(ckpt, self.ds(layout, "pretrain"), name="robot-val",
                                 split="val")

@@ -35,6 +35,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 from aslip_ros.util import write_json, write_text
 
 from .bench_report import bench_markdown, plot_pareto
@@ -72,7 +73,7 @@ class BenchConfig:
     data: DataPlan = field(default_factory=DataPlan)
     recipe: Recipe = field(default_factory=Recipe)
     ablation_cache: Path | None = Path("results/ablation/cache")
-    layout: str = "4mic"
+    layout: str = DEFAULT_LAYOUT
     sizes: tuple[str, ...] = tuple(MODEL_SIZES)
     features: tuple[str, ...] = DEFAULT_FEATURES
     svm: bool = True
@@ -145,7 +146,7 @@ def measure_latency(ckpt: Path, n_iter: int, n_warmup: int) -> dict[str, float]:
     reading of the uncontended cost, while p99 mostly measures the other processes."""
     import torch
 
-    from aslip_ros.learn.predictor import Predictor
+    from aslip_ros.learn.inference.predictor import Predictor
     torch.set_num_threads(1)
     pred = Predictor.from_checkpoint(ckpt)
     w = (0.01 * np.random.default_rng(1).standard_normal(

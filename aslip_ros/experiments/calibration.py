@@ -27,9 +27,14 @@ from typing import Any
 
 import numpy as np
 
-from aslip_ros.learn import baselines, calibration, stats
+from aslip_ros.learn import baselines
+
+from aslip_ros.learn.calibration import grasp as calibration
+
+from aslip_ros.learn import stats
 from aslip_ros.learn.features import LogMel
 from aslip_ros.scene import OBJECTS, World, get_layout
+from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 from aslip_ros.scene import scenarios as sc
 
 RATE = 16000.0
@@ -85,7 +90,7 @@ def load_split(out: Path, variant: str, split: str, n: int, duration_s: float,
 
 
 def fit(trials: list[dict], method: str) -> calibration.CalibrationConstants:
-    names = get_layout("4mic").channel_names
+    names = get_layout(DEFAULT_LAYOUT).channel_names
     return calibration.fit_constants(
         [t["frames"].astype(np.float32) for t in trials], [t["frame_slip"] for t in trials],
         names, HOP_S / 10.0, method=method,
@@ -156,8 +161,8 @@ def fit_slipnet(x: np.ndarray, v: np.ndarray, slip: np.ndarray, epochs: int = 25
     the architecture on equal terms with the plain CNN, not the documented two-stage recipe."""
     import torch
     from aslip_ros.learn.features import normalization_stats
-    from aslip_ros.learn.losses import slip_loss
-    from aslip_ros.learn.network import ModelConfig, SlipNet
+    from aslip_ros.learn.training.losses import slip_loss
+    from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)

@@ -98,9 +98,9 @@ def convergence(args: argparse.Namespace) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from aslip_ros.learn.calibration import (CalibrationConstants, offsets_at,
-                                             relative_log_gain)
-    from aslip_ros.learn.calibration_frames import FrameCutter
+    from aslip_ros.learn.calibration.grasp import (CalibrationConstants, offsets_at,
+                                                   relative_log_gain)
+    from aslip_ros.learn.calibration.frames import FrameCutter
     from aslip_ros.learn.checkpoint import load_checkpoint
     from aslip_ros.learn.features import FeatureConfig
     from aslip_ros.scene import OBJECTS as SCENE_OBJECTS

@@ -25,9 +25,6 @@ import numpy as np
 
 from aslip_ros.util import read_json, write_json
 
-#: The scene's layouts, in the paper's order of Table I.
-LAYOUTS_2MIC = ("2mic_centered", "2mic_corners", "2mic_same_finger")
-ALL_LAYOUTS = ("4mic",) + LAYOUTS_2MIC + ("1mic",)
 STAGES = ("pretrain", "finetune")
 #: Finetuning-set size of the experiments (trials per object and condition, 10 s each): 50
 #: trials, 7 of them in the test split with every object represented. The default preset
@@ -171,7 +168,7 @@ class Recipe:
     noslip_ratio: float = 3.0
 
     def train_config(self, stage: str, **kw: Any):
-        from aslip_ros.learn.train import TrainConfig
+        from aslip_ros.learn.training.config import TrainConfig
         epochs, budget = self.epochs, self.time_budget_s
         if stage == "finetune":
             # Heads only: fewer parameters to fit, so a smaller budget is enough.
@@ -201,7 +198,7 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     """
     from aslip_ros.learn.checkpoint import load_checkpoint
     from aslip_ros.learn.data_io import open_dataset
-    from aslip_ros.learn.train import train_cnn, train_svm
+    from aslip_ros.learn.training.train import train_cnn, train_svm
 
     ckpt = Path(ckpt)
     kw: dict[str, Any] = {}
@@ -220,7 +217,7 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     ds = open_dataset(dataset)
     t0 = time.perf_counter()
     if stage == "svm":
-        from aslip_ros.learn.svm import SvmConfig
+        from aslip_ros.learn.models.svm import SvmConfig
         res = train_svm(ds, cfg, feature_config=feature_config, channels=channels,
                         svm_config=SvmConfig(max_train=recipe.svm_max_train), log=log)
     else:

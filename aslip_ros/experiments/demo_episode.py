@@ -19,26 +19,30 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
+from aslip_ros.control.slip_stop import SlipStopConfig
+from aslip_ros.control.slip_track import SlipTrackConfig
 from aslip_ros.experiments import demo_metrics as dm
+from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 
 TASKS = ("slip_stop", "slip_track")
 
 
 @dataclass(frozen=True)
 class StopSettings:
-    """Slip-stop timing: the paper's 10 cm retract and re-approach, at demo speeds."""
+    """Slip-stop timing: the paper's 10 cm retract and re-approach, at demo speeds (faster
+    than the node's defaults, :class:`~aslip_ros.control.slip_stop.SlipStopConfig`)."""
 
-    retract_distance_m: float = 0.10
+    retract_distance_m: float = SlipStopConfig.retract_distance_m
     retract_speed_m_s: float = 0.08
     settle_s: float = 0.3
     approach_speed_m_s: float = 0.03
-    debounce_count: int = 3
+    debounce_count: int = SlipStopConfig.debounce_count
     # A missed slip must be able to push past the object's length (a failure by the
     # paper's rule) before the controller's own travel limit ends the approach.
     overshoot_limit_m: float = 0.15
@@ -51,20 +55,26 @@ class TrackSettings:
 
     The law commands the estimated object velocity (TCP velocity over the model's 200 ms
     window + predicted slip) plus a small integrated-slip position term; see the module.
+    Its defaults are the node's, :class:`~aslip_ros.control.slip_track.SlipTrackConfig`'s.
     """
 
     duration_s: float = 4.0
     drag_speed_m_s: float = 0.04
-    gain: float = 1.0
-    deadband_m_s: float = 0.002
-    max_speed_m_s: float = 0.05
-    lowpass_tau_s: float = 0.05
-    hold_s: float = 0.3
-    decay_s: float = 0.2
-    velocity_window_s: float = 0.2
-    position_gain_1_s: float = 2.0
-    position_leak_s: float = 3.0
-    max_offset_m: float = 0.03
+    gain: float = SlipTrackConfig.gain
+    deadband_m_s: float = SlipTrackConfig.deadband_m_s
+    max_speed_m_s: float = SlipTrackConfig.max_speed_m_s
+    lowpass_tau_s: float = SlipTrackConfig.lowpass_tau_s
+    hold_s: float = SlipTrackConfig.hold_s
+    decay_s: float = SlipTrackConfig.decay_s
+    velocity_window_s: float = SlipTrackConfig.velocity_window_s
+    position_gain_1_s: float = SlipTrackConfig.position_gain_1_s
+    position_leak_s: float = SlipTrackConfig.position_leak_s
+    max_offset_m: float = SlipTrackConfig.max_offset_m
+
+    def law(self) -> dict:
+        """The controller's parameters: the fields shared with SlipTrackConfig."""
+        names = {f.name for f in fields(SlipTrackConfig)}
+        return {k: v for k, v in asdict(self).items() if k in names}
 
 
 @dataclass(frozen=True)
@@ -95,7 +105,7 @@ def overrides(params: dict) -> list:
 
 def node_params(ep: Episode, length_m: float) -> dict:
     """Parameters of every node of the episode (SI units)."""
-    scene = {"seed": int(ep.seed), "object": ep.object, "layout": "4mic"}
+    scene = {"seed": int(ep.seed), "object": ep.object, "layout": DEFAULT_LAYOUT}
     if ep.task == "slip_stop":
         s = ep.stop
         scene.update(scenario="wall_push", wall_distance_m=0.0)
@@ -107,14 +117,8 @@ def node_params(ep: Episode, length_m: float) -> dict:
                "debounce_count": int(s.debounce_count),
                "settle_result_s": s.settle_result_s}
     else:
-        k = ep.track
-        scene.update(scenario="drag", drag_speed_m_s=k.drag_speed_m_s)
-        ctl = {"gain": k.gain, "deadband_m_s": k.deadband_m_s,
-               "max_speed_m_s": k.max_speed_m_s, "lowpass_tau_s": k.lowpass_tau_s,
-               "hold_s": k.hold_s, "decay_s": k.decay_s,
-               "velocity_window_s": k.velocity_window_s,
-               "position_gain_1_s": k.position_gain_1_s,
-               "position_leak_s": k.position_leak_s, "max_offset_m": k.max_offset_m}
+        scene.update(scenario="drag", drag_speed_m_s=ep.track.drag_speed_m_s)
+        ctl = ep.track.law()
     return {"scene_sim": scene, "slip_inference": {"checkpoint": str(ep.checkpoint)},
             ep.task: ctl}
 
@@ -159,8 +163,8 @@ def warm_up(checkpoint: str) -> None:
     """
     if checkpoint in _WARM:
         return
-    from aslip_ros.learn.backends import model_backend
-    from aslip_ros.nodes.inference_steps import load_predictor
+    from aslip_ros.learn.models.registry import model_backend
+    from aslip_ros.learn.inference.live import load_predictor
     pred = load_predictor(checkpoint, max_time_jump_s=0.05)
     if model_backend(pred.model_type).streaming:   # slip_inference warms it up itself
         _WARM.add(checkpoint)

@@ -26,6 +26,7 @@ import sys
 import time
 from pathlib import Path
 
+from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 from aslip_ros.util import write_json
 
 OBJECTS = ("pla_rod", "glass_cleaner", "chips_can", "mustard_container", "cracker_box")
@@ -79,7 +80,9 @@ def aslip(argv: list[str]) -> int:
     same defaults as the command line, without importing the command line above this floor)."""
     import argparse
 
-    from aslip_ros.learn import evaluate, train
+    from aslip_ros.learn import evaluate
+
+    from aslip_ros.learn.training import train
     module = {"train": train, "evaluate": evaluate}[argv[0]]
     parser = argparse.ArgumentParser(prog=f"aslip {argv[0]}")
     module.add_arguments(parser)
@@ -122,7 +125,7 @@ def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True) -> P
     for cond in ("robot_moving", "robot_stationary"):
         _log(f"simulating {r[cond]} x {len(OBJECTS)} externally induced trials, {cond}")
         simulate(bags, "external", objects=list(OBJECTS), conditions=[cond], trials=r[cond],
-                 duration_s=r["duration_s"], seed=r["seed"], layout="4mic",
+                 duration_s=r["duration_s"], seed=r["seed"], layout=DEFAULT_LAYOUT,
                  progress=progress)
     _log("exporting")
     export([bags], ds, ExportConfig(window_s=r["window_s"], hop_s=r["hop_s"], overwrite=True,
@@ -179,7 +182,7 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
         stream = None
     man = {"format": "aslip-demo-models", "version": 2, "scene_version": scene_version(),
            "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
-           "layout": "4mic", "files": files,
+           "layout": DEFAULT_LAYOUT, "files": files,
            "calibration": {m: v[2] for m, v in MODELS.items()},
            "train_commands": {m: "aslip " + " ".join(train_command(m, "D", f"models/{f}"))
                               for m, f in files.items()},

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aslip_ros.slip import DEFAULT_THRESHOLD
 from aslip_ros.util import atomic_path
 
 COLORS = {"aslip": "tab:blue", "aslip_uncalibrated": "tab:purple", "svm": "tab:orange",
@@ -165,7 +166,7 @@ def _prediction_figure(plt, eps: _Episodes, task: str) -> Path | None:
             axes[i][j].set_ylabel(f"slip {name} [mm/s]")
             axes[i][j].grid(alpha=0.3)
         axes[2][j].plot(tr["pred_t"], tr["pred_p"], color=COLORS[m])
-        axes[2][j].axhline(0.5, color="k", lw=0.8, ls="--")
+        axes[2][j].axhline(DEFAULT_THRESHOLD, color="k", lw=0.8, ls="--")
         axes[2][j].set_ylabel("p(slip)")
         axes[2][j].set_xlabel("time [s]")
         axes[0][j].set_title(f"{task.replace('_', '-')}, {m}, {r['object']}")

@@ -75,7 +75,7 @@ class _Blk:
 
 def run_stream(ckpt: Path, trial: dict) -> dict[str, np.ndarray]:
     """The live path: blocks of one hop through ``StreamingPredictor.push``."""
-    from aslip_ros.learn.streaming_predictor import StreamingPredictor
+    from aslip_ros.learn.inference.stream_predictor import StreamingPredictor
     pred = StreamingPredictor.from_checkpoint(ckpt)
     pred.check_stream(trial["rate"], trial["names"])
     a = trial["audio"]
@@ -91,7 +91,7 @@ def run_stream(ckpt: Path, trial: dict) -> dict[str, np.ndarray]:
 
 def run_window(ckpt: Path, trial: dict) -> dict[str, np.ndarray]:
     """A window model on the window ending at every hop."""
-    from aslip_ros.learn.predictor import Predictor
+    from aslip_ros.learn.inference.predictor import Predictor
     pred = Predictor.from_checkpoint(ckpt)
     pred.check_stream(trial["rate"], trial["names"])
     a, n = trial["audio"], pred.window_samples
@@ -196,7 +196,7 @@ def hop_latency(kind: str, ckpt: Path, n_iter: int = 400, n_warmup: int = 40,
     """Seconds of compute per new hop on one thread: p50 and p99 (ms)."""
     rng = np.random.default_rng(seed)
     if kind == "stream":
-        from aslip_ros.learn.streaming_predictor import StreamingPredictor
+        from aslip_ros.learn.inference.stream_predictor import StreamingPredictor
         pred = StreamingPredictor.from_checkpoint(ckpt)
         c, rate = len(pred.channel_names), pred.sample_rate
         blocks = (0.01 * rng.standard_normal((n_iter + n_warmup + 4, HOP, c))).astype(
@@ -204,7 +204,7 @@ def hop_latency(kind: str, ckpt: Path, n_iter: int = 400, n_warmup: int = 40,
         fn = [lambda i=i: pred.push(_Blk(i * HOP, rate, blocks[i]))
               for i in range(blocks.shape[0])]
     else:
-        from aslip_ros.learn.predictor import Predictor
+        from aslip_ros.learn.inference.predictor import Predictor
         pred = Predictor.from_checkpoint(ckpt)
         w = (0.01 * rng.standard_normal((pred.window_samples, pred.n_channels))).astype(
             np.float32)

@@ -1,6 +1,6 @@
 """Why the package CNN's magnitude and detection trail a plain CNN: one candidate at a time.
 
-Each *variant* trains the package CNN (``learn.train.train_cnn``, stage ``scratch``, no
+Each *variant* trains the package CNN (``learn.training.train.train_cnn``, stage ``scratch``, no
 per-grasp calibration, the same seed and split) with exactly one candidate cause changed
 from the package recipe (``recipe``): the no-slip reweighting, the augmentation, the Huber
 scale, the loss weights, early stopping. The plain CNN and the plain SVM of
@@ -99,7 +99,7 @@ def _train_config(cfg: MagnitudeConfig, variant: str, seed: int, neg_per_pos: fl
     """The variant's TrainConfig. A variant that draws more no-slip windows per epoch gets
     proportionally fewer epochs (and patience), so that every variant takes about the same
     number of optimiser steps: otherwise it would also be a longer training."""
-    from aslip_ros.learn.train import TrainConfig
+    from aslip_ros.learn.training.config import TrainConfig
     base = TrainConfig(stage="scratch", epochs=cfg.epochs, patience=cfg.patience,
                        time_budget_s=cfg.time_budget_s, threads=cfg.threads, seed=seed,
                        split_seed=SPLIT_SEED,
@@ -122,7 +122,7 @@ def _neg_per_pos(ds) -> float:
 
 
 def _weights(variant: str):
-    from aslip_ros.learn.losses import LossWeights
+    from aslip_ros.learn.training.losses import LossWeights
     return LossWeights(**{**REFERENCE_WEIGHTS, **VARIANTS[variant][2]})
 
 
@@ -149,7 +149,7 @@ def predict_variant(cfg: MagnitudeConfig, variant: str, seed: int, train_ds: Pat
     from aslip_ros.learn.checkpoint import load_checkpoint
     from aslip_ros.learn.data_io import open_dataset
     from aslip_ros.learn.evaluate import predict_split
-    from aslip_ros.learn.train import train_cnn
+    from aslip_ros.learn.training.train import train_cnn
     cache = cfg.cache / train_ds.name / f"seed{seed}"
     ckpt = cache / f"{variant}.pt"
     ds = open_dataset(train_ds)
@@ -186,7 +186,7 @@ def predict_baseline(cfg: MagnitudeConfig, kind: str, seed: int, train_ds: Path,
     and its predictions on all of ``test_ds`` (cached)."""
     from aslip_ros.learn import baselines
     from aslip_ros.learn.data_io import open_dataset, select_windows
-    from aslip_ros.learn.train import feature_cache
+    from aslip_ros.learn.training.data import feature_cache
     out = cfg.cache / train_ds.name / f"seed{seed}" / \
         f"{kind}-e{cfg.plain_epochs}.pred-{test_ds.name}.npz"
     pred = _predictions(out)
@@ -230,7 +230,7 @@ def score(cfg: MagnitudeConfig, p: dict[str, np.ndarray]) -> dict[str, Any]:
 def paired(cfg: MagnitudeConfig, a: dict[str, np.ndarray], b: dict[str, np.ndarray]
            ) -> dict[str, tuple[float, float, float]]:
     """``a - b`` per metric over the same trial resamples (both predict the same windows)."""
-    from aslip_ros.learn.evaluate import compute_metrics
+    from aslip_ros.learn.metrics import compute_metrics
     from aslip_ros.learn.stats import paired_difference
     if not (np.array_equal(a["trial"], b["trial"]) and np.array_equal(a["slip"], b["slip"])):
         raise ValueError("a paired difference needs predictions of the same windows")

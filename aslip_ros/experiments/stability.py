@@ -90,7 +90,7 @@ class Stability:
         return out
 
     def predictors(self):
-        from aslip_ros.learn.predictor import Predictor
+        from aslip_ros.learn.inference.predictor import Predictor
         return {k: Predictor.from_checkpoint(p) for k, p in self.models().items()}
 
     # --- test data ------------------------------------------------------------------------
@@ -104,7 +104,7 @@ class Stability:
     @staticmethod
     def score(pred, audio: np.ndarray, v: np.ndarray, slip: np.ndarray,
               window_s: float) -> dict[str, Any]:
-        from aslip_ros.learn.evaluate import compute_metrics
+        from aslip_ros.learn.metrics import compute_metrics
         b = pred.predict_batch(audio)
         return paper_units(compute_metrics(b.probability, b.raw_velocity, v, slip, window_s,
                                            pred.threshold))
@@ -224,7 +224,7 @@ class Stability:
         edges = SPEED_EDGES_MM_S
         levels, res = [], []
         outs = {m: p.predict_batch(data["audio"]) for m, p in preds.items()}
-        from aslip_ros.learn.evaluate import compute_metrics
+        from aslip_ros.learn.metrics import compute_metrics
         # Fast to slow: the harsh end of this stressor is the threshold region.
         for lo, hi in reversed(list(zip(edges[:-1], edges[1:]))):
             m = (speed_mm >= lo) & (speed_mm < hi)

@@ -165,9 +165,9 @@ def train_arguments(method: str) -> list[str]:
 
 def aslip_recipe() -> str:
     """What the ``aslip`` method runs: ``aslip train`` with its defaults."""
-    from aslip_ros.learn import train
+    from aslip_ros.learn.training import cli as train_cli
     p = argparse.ArgumentParser()
-    train.add_arguments(p)
+    train_cli.add_arguments(p)
     d = p.parse_args(["--dataset", "DATASET", "--out", "X"])
     return (f"`aslip train --dataset DATASET --out X` (defaults: --stage {d.stage}, --calibration "
             f"{d.calibration}, --seeds {d.seeds}, no --pretrain-dataset)")
@@ -181,7 +181,7 @@ def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
 
         from aslip_ros.learn import baselines
         from aslip_ros.learn.data_io import open_dataset, select_windows
-        from aslip_ros.learn.train import feature_cache
+        from aslip_ros.learn.training.data import feature_cache
         saved = cache / f"{method}-{cfg.epochs}ep.pkl"
         if saved.is_file():
             # Written by this protocol only, beside the checkpoints it trains.
@@ -200,7 +200,7 @@ def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
         return model
     ckpt = cache / f"{method}.pt"
     if not ckpt.is_file():
-        from aslip_ros.learn import train
+        from aslip_ros.learn.training import cli as train_cli
         cache.mkdir(parents=True, exist_ok=True)
         argv = ["--dataset", str(train_ds), "--out", str(ckpt), *train_arguments(method),
                 "--threads", str(cfg.threads), "--seed", str(cfg.seed),
@@ -210,9 +210,9 @@ def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
         if not cfg.progress:
             argv.append("--no-progress")
         p = argparse.ArgumentParser()
-        train.add_arguments(p)
+        train_cli.add_arguments(p)
         log("aslip train " + " ".join(argv))
-        if train.run(p.parse_args(argv)) != 0 or not ckpt.is_file():
+        if train_cli.run(p.parse_args(argv)) != 0 or not ckpt.is_file():
             raise RuntimeError(f"aslip train failed for {method} on {train_ds}")
     return ckpt
 
@@ -225,7 +225,7 @@ def predict(cfg: TransferConfig, method: str, model, test_ds: Path, split: str
         from aslip_ros.learn.evaluate import predict_split
         return predict_split(model, test_ds, split, split_seed=cfg.seed)
     from aslip_ros.learn import baselines
-    from aslip_ros.learn.train import feature_cache
+    from aslip_ros.learn.training.data import feature_cache
     ds = open_dataset(test_ds)
     # Every scene records at the same rate, so this is the training features' configuration.
     idx = select_windows(ds, split, seed=cfg.seed)

@@ -23,7 +23,7 @@ _LEVEL = 95.0
 
 
 def _metrics(p: dict[str, np.ndarray], idx: np.ndarray | None = None) -> dict[str, float]:
-    from aslip_ros.learn.evaluate import compute_metrics
+    from aslip_ros.learn.metrics import compute_metrics
     arrays = [p[k] if idx is None else p[k][idx]
               for k in ("prob", "raw_velocity", "true_velocity", "slip")]
     m = compute_metrics(*arrays, float(p["window_s"]))

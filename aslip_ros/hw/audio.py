@@ -1,8 +1,10 @@
-"""Multi-channel audio sources: live capture through sounddevice/PortAudio, WAV replay.
+"""Live multi-channel audio capture through sounddevice/PortAudio.
 
-Both sources (the WAV replay is in :mod:`aslip_ros.hw.wav`, re-exported here) yield
-:class:`AudioBlock` objects through the same pull API (``read`` / iteration), so the capture
-node does not care where the audio comes from.
+Like every audio source (the WAV replay is :mod:`aslip_ros.hw.wav`), the capture yields
+:class:`~aslip_ros.hw.audio_block.AudioBlock` objects through the same pull API (``read`` /
+iteration), so the capture node does not care where the audio comes from. The block, the
+source counters and :class:`AudioError` are defined in :mod:`aslip_ros.hw.audio_block` and
+importable from here too.
 
 Live capture follows the one rule of real-time audio: the PortAudio callback runs on the
 audio thread and must never block, so it only copies the block, its ADC timestamp and the
@@ -20,8 +22,8 @@ running sample counter into a bounded queue. Nothing is lost silently:
 - the time of the last delivery is kept (``seconds_since_data``), so a device that stops
   delivering can be told from a quiet one, and callback errors are counted in the stats.
 
-``sounddevice`` is imported lazily, so this module (and WAV replay) works on machines
-without ``libportaudio2``.
+``sounddevice`` is imported lazily, so this module works on machines without
+``libportaudio2``.
 """
 
 from __future__ import annotations
@@ -31,77 +33,15 @@ import math
 import queue
 import threading
 import time
-from dataclasses import dataclass
 from typing import Any, Iterator, List, Optional, Sequence, Union
 
 import numpy as np
 
-#: Default block length: 10 ms at 48 kHz.
-DEFAULT_BLOCK_FRAMES = 480
+from aslip_ros.hw.audio_block import (DEFAULT_BLOCK_FRAMES, AudioBlock, AudioError, BlockReader,
+                                      SourceStats, check_channel_names, check_positive_int)
 
-
-class AudioError(RuntimeError):
-    """A device could not be found or opened, or a file could not be read."""
-
-
-@dataclass(frozen=True)
-class AudioBlock:
-    """One block of multi-channel audio.
-
-    :ivar first_sample_index: index of the block's first frame in the stream (a running
-        counter over every frame the source produced, including dropped blocks and frames
-        lost to input overflow).
-    :ivar adc_time: acquisition time of the first frame on the source's clock [s]: PortAudio's
-        ``inputBufferAdcTime`` for capture, file time for replay.
-    :ivar host_time: estimated ``time.time()`` [s] of the first frame's acquisition, for
-        stamping messages (callback wall time minus the block's age in the driver).
-    :ivar data: ``(frames, channels)`` float32 samples, full scale +-1.
-    :ivar overflow: PortAudio reported an input overflow with this block.
-    :ivar frames_lost_before: frames missing between the previous block read and this one
-        (queue or input overflow); 0 when contiguous.
-    """
-
-    first_sample_index: int
-    adc_time: float
-    host_time: float
-    data: np.ndarray
-    overflow: bool = False
-    frames_lost_before: int = 0
-
-    @property
-    def frames(self) -> int:
-        """Number of frames in the block."""
-        return int(self.data.shape[0])
-
-
-@dataclass(frozen=True)
-class SourceStats:
-    """Counters of a source, for diagnostics.
-
-    ``blocks_produced`` counts every block the device/file produced; it equals
-    ``blocks_read + blocks_dropped + queue_depth``.
-    """
-
-    blocks_produced: int
-    frames_produced: int
-    blocks_read: int
-    blocks_dropped: int
-    frames_dropped: int
-    input_overflows: int
-    queue_depth: int
-    frames_overflowed: int = 0     # frames PortAudio lost before the callback saw them
-    callback_errors: int = 0       # callbacks that failed (their block is lost)
-
-
-def _channel_names(names: Optional[Sequence[str]], channels: int) -> List[str]:
-    if names is None:
-        return [f'ch{i}' for i in range(channels)]
-    names = [str(n) for n in names]
-    if len(names) != channels:
-        raise ValueError(f'{len(names)} channel names for {channels} channels')
-    if len(set(names)) != len(names) or any(not n for n in names):
-        raise ValueError(f'channel names must be unique and non-empty: {names}')
-    return names
+__all__ = ['DEFAULT_BLOCK_FRAMES', 'AudioBlock', 'AudioError', 'SourceStats',
+           'SoundDeviceCapture', 'check_latency']
 
 
 def check_latency(latency: Any) -> Union[str, float]:
@@ -120,32 +60,6 @@ def check_latency(latency: Any) -> Union[str, float]:
         raise ValueError(f"latency must be 'low', 'high' or seconds in (0, 10], "
                          f"got {latency!r}")
     return float(latency)
-
-
-def _check_positive_int(name: str, value: Any) -> int:
-    if isinstance(value, bool) or int(value) != value or int(value) < 1:
-        raise ValueError(f'{name} must be an integer >= 1, got {value!r}')
-    return int(value)
-
-
-class _BlockReader:
-    """Consumer-side bookkeeping shared by the sources: gap detection and read counting."""
-
-    def __init__(self) -> None:
-        self._next_index: Optional[int] = None
-        self.blocks_read = 0
-
-    def mark(self, block: AudioBlock) -> AudioBlock:
-        """Count a block handed to the consumer and annotate any gap before it."""
-        lost = 0
-        if self._next_index is not None:
-            lost = max(0, block.first_sample_index - self._next_index)
-        self._next_index = block.first_sample_index + block.frames
-        self.blocks_read += 1
-        if lost:
-            return AudioBlock(block.first_sample_index, block.adc_time, block.host_time,
-                              block.data, block.overflow, lost)
-        return block
 
 
 class SoundDeviceCapture:
@@ -168,14 +82,14 @@ class SoundDeviceCapture:
                  queue_blocks: int = 256, latency: Union[str, float] = 'low',
                  sd_module: Any = None) -> None:
         """Validate the configuration and resolve the device (the stream opens in start)."""
-        self._channels = _check_positive_int('channels', channels)
-        self._block_frames = _check_positive_int('block_frames', block_frames)
-        queue_blocks = _check_positive_int('queue_blocks', queue_blocks)
+        self._channels = check_positive_int('channels', channels)
+        self._block_frames = check_positive_int('block_frames', block_frames)
+        queue_blocks = check_positive_int('queue_blocks', queue_blocks)
         sample_rate = float(sample_rate)
         if not math.isfinite(sample_rate) or sample_rate <= 0.0:
             raise ValueError(f'sample_rate must be finite and > 0, got {sample_rate}')
         self._sample_rate = sample_rate
-        self._names = _channel_names(channel_names, self._channels)
+        self._names = check_channel_names(channel_names, self._channels)
         if isinstance(device, str) and not device.strip():
             device = None
         if isinstance(device, bool) or not (device is None or isinstance(device, (str, int))):
@@ -185,7 +99,7 @@ class SoundDeviceCapture:
         self._device_index, self._device_name = self._resolve(device)
         self._queue: 'queue.Queue[AudioBlock]' = queue.Queue(maxsize=queue_blocks)
         self._stream: Any = None
-        self._reader = _BlockReader()
+        self._reader = BlockReader()
         self._lock = threading.Lock()
         # Written only by the audio callback; read (racily but atomically) by the consumer.
         self._frames_produced = 0
@@ -419,12 +333,3 @@ class SoundDeviceCapture:
         if prev is not None and adc > 0.0:
             hole = max(0, int(round((adc - prev) * self._sample_rate)))
         return hole if hole > 0 else frames
-
-
-def __getattr__(name: str) -> Any:
-    # WAV replay lives in its own module (this one is the PortAudio path); still importable
-    # from here, resolved lazily because aslip_ros.hw.wav imports this module.
-    if name == 'WavReplay':
-        from aslip_ros.hw.wav import WavReplay
-        return WavReplay
-    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

@@ -1,9 +1,9 @@
 """The one interface every audio source satisfies, and the sources by name.
 
-A source delivers :class:`~aslip_ros.hw.audio.AudioBlock` objects through a pull API, so
-the capture node (``audio_capture``) never knows where the audio comes from: a sound card
-(``device``), a WAV file (``wav``), a bag (``bag``), the simulated scene (``sim``) or, in
-the ROS layer, another driver's topic (``topic``, :mod:`aslip_ros.nodes.topic_audio`).
+A source delivers :class:`~aslip_ros.hw.audio_block.AudioBlock` objects through a pull API,
+so the capture node (``audio_capture``) never knows where the audio comes from: a sound card
+(``device``), a WAV file (``wav``), a bag (``bag``), the simulated scene (``sim``) or, in the
+ROS layer, another driver's topic (``topic``, :mod:`aslip_ros.nodes.topic_audio`).
 
 A source is opened by a factory from the node's parameter values::
 
@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Mapping, Optional, Protocol, runtime_checkable
 
 from aslip_ros import plugin
-from aslip_ros.hw.audio import AudioBlock, SoundDeviceCapture
+from aslip_ros.hw.audio import SoundDeviceCapture
+from aslip_ros.hw.audio_block import AudioBlock
 from aslip_ros.hw.sources import BagAudio, SimAudio, build_world, world_metadata
 from aslip_ros.hw.wav import WavReplay
 
@@ -35,7 +36,7 @@ class AudioSource(Protocol):
     ``sample_rate`` [Hz] and ``channel_names`` (column order) are fixed once opened. A
     source may also have ``finished`` (True once a finite stream ended: ``read`` returning
     ``None`` is then the end, not a late block), ``stats()`` returning
-    :class:`~aslip_ros.hw.audio.SourceStats` and ``stream_latency`` [s]; the node reports
+    :class:`~aslip_ros.hw.audio_block.SourceStats` and ``stream_latency`` [s]; the node reports
     them when present.
     """
 

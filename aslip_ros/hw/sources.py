@@ -15,7 +15,7 @@ from typing import Optional
 
 import numpy as np
 
-from aslip_ros.hw.audio import AudioBlock
+from aslip_ros.hw.audio_block import AudioBlock
 
 #: Task names accepted by the ``scenario`` parameter -> scene scenario builders.
 SCENARIOS = ("external_induced", "robot_induced", "wall_push", "drag")

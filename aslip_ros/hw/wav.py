@@ -1,5 +1,5 @@
-"""Multi-channel WAV replay as :class:`~aslip_ros.hw.audio.AudioBlock` objects (same pull API
-as the live capture in :mod:`aslip_ros.hw.audio`)."""
+"""Multi-channel WAV replay as :class:`~aslip_ros.hw.audio_block.AudioBlock` objects (same pull
+API as the live capture in :mod:`aslip_ros.hw.audio`)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Any, Callable, Iterator, List, Optional, Sequence
 
 import numpy as np
 
-from aslip_ros.hw.audio import (DEFAULT_BLOCK_FRAMES, AudioBlock, AudioError, SourceStats,
-                                _BlockReader, _channel_names, _check_positive_int)
+from aslip_ros.hw.audio_block import (DEFAULT_BLOCK_FRAMES, AudioBlock, AudioError, BlockReader,
+                                      SourceStats, check_channel_names, check_positive_int)
 
 
 class WavReplay:
@@ -35,7 +35,7 @@ class WavReplay:
         """Read the file header and data (memory-mapped where scipy allows it)."""
         from scipy.io import wavfile
 
-        self._block_frames = _check_positive_int('block_frames', block_frames)
+        self._block_frames = check_positive_int('block_frames', block_frames)
         try:
             try:
                 rate, data = wavfile.read(path, mmap=True)
@@ -51,12 +51,12 @@ class WavReplay:
         self._raw = data
         self._scale, self._offset = self._scaling(data.dtype, path)
         self._sample_rate = float(rate)
-        self._names = _channel_names(channel_names, data.shape[1])
+        self._names = check_channel_names(channel_names, data.shape[1])
         self._paced = bool(paced)
         self._loop = bool(loop)
         self._clock = clock
         self._sleep = sleep
-        self._reader = _BlockReader()
+        self._reader = BlockReader()
         self._index = 0
         self._t0: Optional[float] = None
         self._wall0 = 0.0

@@ -42,8 +42,9 @@ def _check_positive(name: str, value: float) -> None:
 class XArmConfig:
     """xArm connection and safety limits (SI units, ``link_base``).
 
-    The workspace defaults are a conservative box in front of an xArm on a table; measure
-    your cell and set them (docs/hardware.md).
+    The limits default to :class:`~aslip_ros.control.limits.ArmLimits`' (every arm's); the
+    workspace default is a conservative box in front of an arm on a table: measure your
+    cell and set it (docs/hardware.md).
 
     :param ip: controller IP address.
     :param max_speed_m_s: TCP speed limit; faster commands are scaled down (direction kept).
@@ -63,12 +64,12 @@ class XArmConfig:
     """
 
     ip: str
-    max_speed_m_s: float = 0.1
-    max_acc_m_s2: float = 1.0
-    workspace_min_m: Sequence[float] = (0.15, -0.45, 0.02)
-    workspace_max_m: Sequence[float] = (0.70, 0.45, 0.60)
-    max_rate_hz: float = 200.0
-    max_duration_s: float = 0.5
+    max_speed_m_s: float = ArmLimits.max_speed_m_s
+    max_acc_m_s2: float = ArmLimits.max_acc_m_s2
+    workspace_min_m: Sequence[float] = ArmLimits.workspace_min_m
+    workspace_max_m: Sequence[float] = ArmLimits.workspace_max_m
+    max_rate_hz: float = ArmLimits.max_rate_hz
+    max_duration_s: float = ArmLimits.max_duration_s
     connect_timeout_s: float = 5.0
     mode_settle_s: float = 0.5
     report_max_age_s: float = 0.05

@@ -29,7 +29,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from .features import FeatureConfig
+from aslip_ros.learn.features import FeatureConfig
 
 
 def baseline_features(stream_rate: float) -> FeatureConfig:
@@ -195,9 +195,9 @@ def run_on_dataset(ds, kinds=("cnn", "svm"), *, split_seed: int = 0, test_split:
     """Train each baseline on an exported dataset's training trials and report the metrics
     (with trial-bootstrap intervals) on ``test_split``; the same split and feature cache as
     ``aslip train``. ``ds`` is a ``data_io.WindowSet``."""
-    from .data_io import select_windows
-    from .stats import bootstrap_metrics
-    from .train import feature_cache
+    from aslip_ros.learn.data_io import select_windows
+    from aslip_ros.learn.stats import bootstrap_metrics
+    from aslip_ros.learn.training.data import feature_cache
 
     feats = feature_cache(ds, baseline_features(ds.sample_rate), ds.channel_names,
                           cache_dir=cache_dir)

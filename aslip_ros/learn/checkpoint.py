@@ -7,12 +7,13 @@ On disk a checkpoint is one ``torch.save`` file holding a dict of plain types on
      "tensors": {name: torch.Tensor}}      # state dict (CNN) or SVM arrays
 
 The JSON document (``meta``, built by ``checkpoint_meta``) holds ``model_type`` (a key of
-``backends.MODELS``: "aslip_cnn", "svm", "aslip_stream" or a registered one), ``model_config``,
+``learn.models.registry``: "aslip_cnn", "svm", "aslip_stream" or a registered one),
+``model_config``,
 ``feature_config``, ``normalization`` (per-mel-bin mean/std, also inside the CNN's state
 dict as buffers), ``channel_names``, ``layout``, ``sample_rate`` (Hz, the stream's rate),
 ``window_s``, ``window_samples``, ``epsilon_m_s``, ``threshold``, optionally
 ``output_calibration`` (the threshold's fit and the direction-sigma model, from the
-validation windows: learn/output_calibration.py; older checkpoints have none and report no
+validation windows: learn/calibration/output.py; older checkpoints have none and report no
 sigma) and ``provenance``
 (dataset path, git revision, seed, stage, init checkpoint, metrics, versions). Keeping the
 metadata a JSON string means nothing in the file needs an unpickler beyond tensors.
@@ -31,7 +32,16 @@ from typing import Any, Sequence
 
 import torch
 
+from aslip_ros.learn.calibration.grasp import meta_problems as calibration_problems
+from aslip_ros.learn.calibration.output import meta_problems as output_problems
+from aslip_ros.learn.compat import CheckpointMismatch, check_compatible
+from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.models.registry import model_backend
+from aslip_ros.slip import DEFAULT_THRESHOLD
 from aslip_ros.util import atomic_path
+
+__all__ = ["Checkpoint", "CheckpointFacts", "CheckpointMismatch", "check_compatible",
+           "checkpoint_meta", "load_checkpoint", "save_checkpoint", "validate_meta"]
 
 FORMAT = "aslip-checkpoint"
 VERSION = 1
@@ -39,10 +49,6 @@ _REQUIRED = ("model_type", "model_config", "feature_config", "channel_names", "s
              "window_s", "window_samples", "epsilon_m_s")
 _TYPES = {"int": (int,), "float": (int, float), "str": (str,), "None": (type(None),),
           "bool": (bool,)}
-
-
-class CheckpointMismatch(ValueError):
-    """The checkpoint does not fit the stream or dataset it is applied to."""
 
 
 @dataclass
@@ -64,24 +70,6 @@ class Checkpoint:
 
     def check_compatible(self, sample_rate: float, channel_names: Sequence[str]) -> None:
         check_compatible(self.meta, sample_rate, channel_names)
-
-
-def check_compatible(meta: dict[str, Any], sample_rate: float,
-                     channel_names: Sequence[str]) -> None:
-    """Raise ``CheckpointMismatch`` unless rate, channel count and names (in order) match."""
-    problems = []
-    want_rate = float(meta["sample_rate"])
-    if abs(float(sample_rate) - want_rate) > 1e-6 * want_rate:
-        problems.append(f"sample rate {float(sample_rate):g} Hz != trained {want_rate:g} Hz")
-    want = list(meta["channel_names"])
-    got = list(channel_names)
-    if len(got) != len(want):
-        problems.append(f"{len(got)} channels != trained {len(want)} channels")
-    if got != want:
-        problems.append(f"channel names {got} != trained {want}")
-    if problems:
-        raise CheckpointMismatch("checkpoint does not match the input: " + "; ".join(problems)
-                                 + f" (layout {meta.get('layout')!r})")
 
 
 def _number(meta: dict, key: str, low: float, *, strict: bool = True,
@@ -123,11 +111,8 @@ def validate_meta(meta: Any) -> list[str]:
     Checks required keys, JSON types and ranges, that the model and feature configs build,
     and that the parts agree: ``window_samples == round(window_s * sample_rate)``, a window
     long enough for one feature frame, and the model type's own checks
-    (``backends.MODELS``: e.g. one CNN input per channel name, equal mel counts).
+    (``learn.models.registry``: e.g. one CNN input per channel name, equal mel counts).
     """
-    from .backends import model_backend
-    from .features import FeatureConfig
-
     if not isinstance(meta, dict):
         return [f"metadata must be a JSON object, got {type(meta).__name__}"]
     missing = [k for k in _REQUIRED if k not in meta]
@@ -170,12 +155,10 @@ def validate_meta(meta: Any) -> list[str]:
     if mcfg is not None:
         problems += backend.meta_problems(meta, mcfg, fcfg)
     if "calibration" in meta:
-        from .calibration import meta_problems
-        problems += meta_problems(meta["calibration"], names,
-                                  None if fcfg is None else fcfg.n_mels,
-                                  None if fcfg is None else fcfg.hop / fcfg.sample_rate)
+        problems += calibration_problems(meta["calibration"], names,
+                                         None if fcfg is None else fcfg.n_mels,
+                                         None if fcfg is None else fcfg.hop / fcfg.sample_rate)
     if meta.get("output_calibration") is not None:
-        from .output_calibration import meta_problems as output_problems
         problems += output_problems(meta["output_calibration"])
     return problems
 
@@ -189,7 +172,7 @@ def dataset_layout(ds: Any, channels: Sequence[str]) -> str | None:
 
 def checkpoint_meta(model_type: str, model_config: Any, feature_config: Any, ds: Any,
                     channels: Sequence[str], *, normalization: dict[str, Any] | None,
-                    provenance: dict[str, Any], threshold: float = 0.5,
+                    provenance: dict[str, Any], threshold: float = DEFAULT_THRESHOLD,
                     calibration: Any = None, window_s: float | None = None,
                     window_samples: int | None = None, **extra: Any) -> dict[str, Any]:
     """The checkpoint document of a model trained on dataset ``ds`` (a ``WindowSet``).

@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from aslip_ros.data.dataset import Dataset
+from aslip_ros.slip import VELOCITY_COMPONENTS
 
 
 @dataclass
@@ -83,9 +84,9 @@ class WindowSet:
         return per_trial[w]
 
     def velocity(self, idx: np.ndarray) -> np.ndarray:
-        """(n, 2) float32 (vx, vz) in m/s."""
+        """(n, N_VELOCITY) float32: the slip velocity label per component, in m/s."""
         w = self.windows[idx]
-        return np.stack([w["vx"], w["vz"]], axis=1).astype(np.float32)
+        return np.stack([w[c] for c in VELOCITY_COMPONENTS], axis=1).astype(np.float32)
 
     def slip(self, idx: np.ndarray) -> np.ndarray:
         return self.windows["slip"][idx].astype(bool)

@@ -14,7 +14,7 @@ Definitions (inputs in SI; the report converts to the paper's degrees and millim
   sqrt(mean(e^2)) and the population std of |e|. ``magnitude_rmse_gated_mm`` repeats it
   over all windows with the gated speed (zero below threshold), i.e. what a controller sees.
 
-Calibrated outputs (``output_calibration`` in the result; learn/output_calibration.py):
+Calibrated outputs (``output_calibration`` in the result; learn/calibration/output.py):
 ``ece``, the expected calibration error of p(slip) over ten equal-width bins, with the
 bins themselves (``reliability``), and, for a checkpoint with a direction-sigma model,
 ``sigma.coverage``: the fraction of scored slip windows (as for the direction error) whose
@@ -47,55 +47,15 @@ import numpy as np
 
 from aslip_ros.util import write_json
 
-from .backends import model_backend
-from .checkpoint import CheckpointMismatch, load_checkpoint
-from .data_io import open_dataset, select_windows
-from .output_calibration import calibration_check, plot_reliability
+from aslip_ros.learn.inference.live import load_predictor
+from aslip_ros.learn.models.registry import model_backend
+from aslip_ros.learn.checkpoint import CheckpointMismatch
+from aslip_ros.learn.data_io import open_dataset, select_windows
+from aslip_ros.learn.calibration.output import calibration_check, plot_reliability
+from aslip_ros.learn.metrics import compute_metrics, grouped_metrics
+from aslip_ros.learn.stats import resamples
 
-
-def compute_metrics(prob: np.ndarray, raw_velocity: np.ndarray, true_velocity: np.ndarray,
-                    slip: np.ndarray, window_s: float, threshold: float = 0.5) -> dict[str, Any]:
-    """The paper's metrics from arrays; see the module docstring for the definitions."""
-    prob = np.asarray(prob, dtype=np.float64).reshape(-1)
-    raw = np.asarray(raw_velocity, dtype=np.float64).reshape(-1, 2)
-    true = np.asarray(true_velocity, dtype=np.float64).reshape(-1, 2)
-    slip = np.asarray(slip, dtype=bool).reshape(-1)
-    n = prob.shape[0]
-    if not (raw.shape[0] == true.shape[0] == slip.shape[0] == n):
-        raise ValueError("prob, velocities and slip labels must have the same length")
-    out: dict[str, Any] = {"n_windows": int(n), "n_slip": int(slip.sum()),
-                           "threshold": float(threshold), "window_s": float(window_s)}
-    if n == 0:
-        return out
-    pred = prob >= threshold
-    tp = int((pred & slip).sum())
-    out.update(detection_accuracy=float((pred == slip).mean()),
-               precision=float(tp / max(pred.sum(), 1)), recall=float(tp / max(slip.sum(), 1)))
-    s_true = np.linalg.norm(true, axis=1)
-    s_raw = np.linalg.norm(raw, axis=1)
-    m = slip & (s_true > 0)
-    if m.any():
-        cos = (raw[m] * true[m]).sum(1) / (np.maximum(s_raw[m], 1e-12) * s_true[m])
-        ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-        ang[s_raw[m] == 0] = 90.0  # no direction at all: count as orthogonal, not as right
-        e_mm = np.abs(s_raw[m] - s_true[m]) * window_s * 1e3
-        out.update(direction_mae_deg=float(ang.mean()), direction_std_deg=float(ang.std()),
-                   magnitude_rmse_mm=float(np.sqrt((e_mm ** 2).mean())),
-                   magnitude_std_mm=float(e_mm.std()))
-    s_gated = np.where(pred, s_raw, 0.0)
-    e_all = np.abs(s_gated - s_true) * window_s * 1e3
-    out["magnitude_rmse_gated_mm"] = float(np.sqrt((e_all ** 2).mean()))
-    return out
-
-
-def grouped_metrics(groups: np.ndarray, prob, raw_velocity, true_velocity, slip, window_s,
-                    threshold=0.5) -> dict[str, dict[str, Any]]:
-    """``compute_metrics`` per distinct value of ``groups`` (e.g. object per window)."""
-    groups = np.asarray(groups)
-    return {str(g): compute_metrics(prob[groups == g], raw_velocity[groups == g],
-                                    true_velocity[groups == g], slip[groups == g], window_s,
-                                    threshold)
-            for g in sorted(set(groups.tolist()))}
+__all__ = ["compute_metrics", "evaluate_checkpoint", "grouped_metrics", "predict_split"]
 
 
 def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "test", *,
@@ -128,7 +88,7 @@ def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "tes
     offsets = None
     if pred.calibration is not None:
         # The checkpoint's causal per-grasp calibration, each trial a grasp from its start.
-        from .calibration_frames import dataset_offsets
+        from aslip_ros.learn.calibration.frames import dataset_offsets
         offsets = dataset_offsets(ds, pred.channel_names, pred.feature_config,
                                   pred.calibration, idx)
     probs, raws = [], []
@@ -145,13 +105,8 @@ def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "tes
 
 
 def _load(checkpoint: str | Path, threshold: float | None):
-    """A Predictor, or a StreamingPredictor for a streaming checkpoint."""
-    ckpt = load_checkpoint(checkpoint)
-    backend = model_backend(ckpt.model_type)
-    if backend.streaming:
-        return backend.from_checkpoint(ckpt, threshold=threshold)
-    from .predictor import Predictor
-    return Predictor.from_checkpoint(checkpoint, threshold=threshold)
+    """A Predictor, or a StreamingPredictor for a streaming checkpoint (the live one's)."""
+    return load_predictor(checkpoint, threshold)
 
 
 def _selected(ds, dataset, split, induced, objects, conditions, split_seed) -> np.ndarray:
@@ -220,9 +175,8 @@ def _output_calibration(p: dict[str, Any], model, n_boot: int = 1000) -> dict[st
     out = calibration_check(*arrays, model)
     if np.unique(p["trial"]).size < 2:
         return out
-    from .stats import _resamples
     ece, cover = [], []
-    for idx in _resamples(p["trial"], n_boot, 0):
+    for idx in resamples(p["trial"], n_boot, 0):
         c = calibration_check(*(a[idx] for a in arrays), model)
         ece.append(c["ece"])
         if c["sigma"] is not None and c["sigma"]["coverage"] is not None:

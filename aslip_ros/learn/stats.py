@@ -11,12 +11,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .evaluate import compute_metrics
+from aslip_ros.learn.metrics import compute_metrics
 
 KEYS = ("detection_accuracy", "direction_mae_deg", "magnitude_rmse_mm")
 
 
-def _resamples(trial: np.ndarray, n_boot: int, seed: int):
+def resamples(trial: np.ndarray, n_boot: int, seed: int):
     trial = np.asarray(trial)
     ids = np.unique(trial)
     if ids.size < 2:
@@ -35,7 +35,7 @@ def bootstrap_metrics(trial: np.ndarray, prob, raw_velocity, true_velocity, slip
     arrays = [np.asarray(a) for a in (prob, raw_velocity, true_velocity, slip)]
     out = compute_metrics(*arrays, window_s)
     samples = {k: [] for k in KEYS}
-    for idx in _resamples(trial, n_boot, seed):
+    for idx in resamples(trial, n_boot, seed):
         m = compute_metrics(*(a[idx] for a in arrays), window_s)
         for k in KEYS:
             if k in m:
@@ -57,6 +57,6 @@ def paired_difference(trial: np.ndarray, metric: Callable[[np.ndarray], float],
     """
     everything = np.arange(np.asarray(trial).shape[0])
     est = float(metric(everything) - other(everything))
-    diffs = [metric(idx) - other(idx) for idx in _resamples(trial, n_boot, seed)]
+    diffs = [metric(idx) - other(idx) for idx in resamples(trial, n_boot, seed)]
     lo, hi = np.percentile(diffs, [50.0 * (1.0 - level), 50.0 * (1.0 + level)])
     return est, float(lo), float(hi)

@@ -6,11 +6,11 @@ TCP pose comes from:
 - ``sim``: :class:`~aslip_ros.nodes.topic_arm.TopicArm`, commands on ``/aslip/arm/cmd_vel``
   for ``scene_sim``; the TCP arrives on ``/aslip/robot/tcp_pose`` and is handed to the arm
   (``pose_from_topic``). The scene limits its own arm.
-- ``xarm``: :class:`~aslip_ros.hw.xarm.XArmAdapter` at ``xarm_ip``, within the ``xarm_*``
+- ``xarm``: :class:`~aslip_ros.hw.xarm.XArmAdapter` at ``xarm_ip``, within the ``arm_*``
   limits; the arm measures its TCP and the node republishes it.
 - ``module.path:factory``: ``factory(node, params) -> Arm`` from any module on the Python
   path (:mod:`aslip_ros.plugin`), wrapped in :class:`~aslip_ros.control.limits.LimitedArm`
-  with the speed and workspace limits of the ``xarm_*`` parameters, so a new arm never
+  with the speed and workspace limits of the ``arm_*`` parameters, so a new arm never
   moves unlimited. A factory that needs more (its TCP from the topic) is an
   :class:`ArmKind` instead of a bare callable.
 """
@@ -23,6 +23,7 @@ from typing import Any, Callable, Dict, Mapping
 from aslip_ros import plugin
 from aslip_ros.control.limits import ArmLimits, LimitedArm
 from aslip_ros.hw.xarm import XArmAdapter, XArmConfig
+from aslip_ros.nodes.params import config_kwargs
 from aslip_ros.nodes.topic_arm import TopicArm
 
 ArmFactory = Callable[[Any, Mapping[str, Any]], Any]
@@ -45,11 +46,14 @@ class ArmKind:
     describe: Callable[[Mapping[str, Any]], dict] = lambda p: {}
 
 
-def limits(p: Mapping[str, Any]):
+#: The limit parameters are the fields of :class:`~aslip_ros.control.limits.ArmLimits`
+#: with this prefix, for any arm: ``arm_max_speed_m_s``, ``arm_workspace_min_m``, ...
+LIMIT_PREFIX = "arm_"
+
+
+def limits(p: Mapping[str, Any]) -> ArmLimits:
     """The :class:`~aslip_ros.control.limits.ArmLimits` of the limit parameters."""
-    return ArmLimits(max_speed_m_s=p["xarm_max_speed_m_s"],
-                     workspace_min_m=tuple(p["xarm_workspace_min_m"]),
-                     workspace_max_m=tuple(p["xarm_workspace_max_m"]))
+    return ArmLimits(**config_kwargs(ArmLimits, p, LIMIT_PREFIX))
 
 
 def _sim(node, p: Mapping[str, Any]):
@@ -57,10 +61,8 @@ def _sim(node, p: Mapping[str, Any]):
 
 
 def _xarm(node, p: Mapping[str, Any]):
-    cfg = XArmConfig(ip=p["xarm_ip"], max_speed_m_s=p["xarm_max_speed_m_s"],
-                     connect_timeout_s=p["xarm_connect_timeout_s"],
-                     workspace_min_m=tuple(p["xarm_workspace_min_m"]),
-                     workspace_max_m=tuple(p["xarm_workspace_max_m"]))
+    cfg = XArmConfig(ip=p["xarm_ip"], connect_timeout_s=p["xarm_connect_timeout_s"],
+                     **config_kwargs(ArmLimits, p, LIMIT_PREFIX))
     return XArmAdapter(cfg)
 
 

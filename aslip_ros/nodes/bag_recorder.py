@@ -34,6 +34,7 @@ before the match never reached the bag (``test_nodes_bag_recorder.py``).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import threading
 import time
@@ -47,9 +48,10 @@ from aslip_ros.data import bags
 from aslip_ros.data.bag_writer import BagWriter
 from aslip_ros.nodes import common as c
 
-#: What ``data_collection.launch.py`` records: the recording contract plus TF.
-DEFAULT_TOPICS = [c.AUDIO_TOPIC, c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC,
-                  c.METADATA_TOPIC, c.SLIP_TRUTH_TOPIC, topics.TF, topics.TF_STATIC]
+#: What ``data_collection.launch.py`` records: the recording contract (the topics of
+#: :data:`aslip_ros.data.bags.DEFAULT_TOPICS`, which export reads) plus TF.
+RECORDED_TOPICS = list(dataclasses.astuple(bags.DEFAULT_TOPICS)) + [topics.TF,
+                                                                    topics.TF_STATIC]
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
@@ -67,9 +69,9 @@ STREAMS = {topics.AUDIO: (bags.AUDIO_TYPE, False), topics.FINGER: (bags.POSE_TYP
 
 def record_topics(finger: str = topics.FINGER, object_: str = topics.OBJECT) -> list:
     """What ``data_collection.launch.py`` records when the poses come on ``finger`` and
-    ``object_`` (a motion-capture driver's own names): :data:`DEFAULT_TOPICS` with those."""
+    ``object_`` (a motion-capture driver's own names): :data:`RECORDED_TOPICS` with those."""
     swap = {topics.FINGER: finger, topics.OBJECT: object_}
-    return [swap.get(t, t) for t in DEFAULT_TOPICS]
+    return [swap.get(t, t) for t in RECORDED_TOPICS]
 
 
 #: Reader queue: a burst that arrives while the recorder is busy writing is kept.
@@ -105,7 +107,7 @@ class RawBagWriter(BagWriter):
         conn = self._conns.get(topic)
         if conn is None:
             conn = self._writer.add_connection(topic, msgtype, typestore=self._store,
-                                               offered_qos_profiles=bags._qos(qos))
+                                               offered_qos_profiles=bags.offered_qos(qos))
             self._conns[topic] = conn
         self._writer.write(conn, int(log_ns), bytes(data))
 
@@ -132,7 +134,7 @@ class Recorder(Node):
         specs = [
             c.Param("output", "aslip_bag", "bag directory to create (rosbag2, mcap)",
                     c.non_empty, read_only=True),
-            c.Param("topics", list(DEFAULT_TOPICS), "topics to record", _topic_list,
+            c.Param("topics", list(RECORDED_TOPICS), "topics to record", _topic_list,
                     read_only=True),
             c.Param("pose_topics", [""], "PoseStamped streams among topics, subscribed at "
                     "start like the contract's (a mocap driver's own names; '' = none)",

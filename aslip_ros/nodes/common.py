@@ -25,13 +25,14 @@ import rclpy
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from aslip_ros import topics
 # Parameter specs and validators live in params.py; the nodes use them as c.<name>.
-from aslip_ros.nodes.params import (Param, Rule, Validator, at_least, descriptor,  # noqa: F401
+from aslip_ros.nodes.params import (Param, Rule, Validator, at_least,  # noqa: F401
+                                    config_default, config_kwargs, descriptor, from_config,
                                     in_range, int_range, non_empty, non_negative, off_or,
                                     one_of, pose7, positive, vector3)
 

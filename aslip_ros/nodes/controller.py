@@ -34,16 +34,34 @@ from std_msgs.msg import String
 
 from aslip_ros import frames, poses
 from aslip_ros.control.arm import ArmError
-from aslip_ros.control.command import VelocityCommand
+from aslip_ros.control.command import DEFAULT_DURATION_S, VelocityCommand
+from aslip_ros.control.limits import ArmLimits
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, ArrivalStats
+from aslip_ros.hw.xarm_config import XArmConfig
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.arm_link import OPEN_ERRORS, close_arm, open_arm
-from aslip_ros.nodes.arms import ARMS, resolve_arm
+from aslip_ros.nodes.arms import ARMS, LIMIT_PREFIX, resolve_arm
 from aslip_ros.nodes.grasp_calibration import DEFAULT_SERVICE, GraspCalibration
 
 IDENTITY = [float(x) for x in poses.IDENTITY_POSE]
+
+
+def limit_params() -> list:
+    """The speed and workspace limits of every arm but ``sim`` (the scene limits its own),
+    their defaults :class:`~aslip_ros.control.limits.ArmLimits`'."""
+    return [
+        c.from_config(ArmLimits, "max_speed_m_s", "TCP speed limit of the xArm and of "
+                      "module.path arms [m/s]", c.in_range(1e-4, 1.0), read_only=True,
+                      prefix=LIMIT_PREFIX),
+        c.from_config(ArmLimits, "workspace_min_m", "workspace lower corner of the xArm and "
+                      "of module.path arms (link_base) [m]", c.vector3(allow_empty=True),
+                      read_only=True, prefix=LIMIT_PREFIX),
+        c.from_config(ArmLimits, "workspace_max_m", "workspace upper corner of the xArm and "
+                      "of module.path arms (link_base) [m]", c.vector3(allow_empty=True),
+                      read_only=True, prefix=LIMIT_PREFIX),
+    ]
 
 
 def arm_params() -> list:
@@ -52,23 +70,16 @@ def arm_params() -> list:
         c.Param("arm", "sim", "sim (scene_sim over topics), xarm, or module.path:factory",
                 c.Rule(_arm, _ARM_CHOICES), read_only=True),
         c.Param("xarm_ip", "192.168.1.222", "xArm controller IP", c.non_empty, read_only=True),
-        c.Param("xarm_max_speed_m_s", 0.1, "TCP speed limit of the xArm and of "
-                "module.path arms [m/s]", c.in_range(1e-4, 1.0), read_only=True),
-        c.Param("xarm_connect_timeout_s", 5.0, "xArm unreachable after this long [s]",
-                c.in_range(0.1, 60.0), read_only=True),
-        c.Param("xarm_workspace_min_m", [0.15, -0.45, 0.02],
-                "workspace lower corner of the xArm and of module.path arms [m]",
-                c.vector3(allow_empty=True), read_only=True),
-        c.Param("xarm_workspace_max_m", [0.70, 0.45, 0.60],
-                "workspace upper corner of the xArm and of module.path arms [m]",
-                c.vector3(allow_empty=True), read_only=True),
+        c.from_config(XArmConfig, "connect_timeout_s", "xArm unreachable after this long [s]",
+                      c.in_range(0.1, 60.0), read_only=True, prefix="xarm_"),
+    ] + limit_params() + [
         c.Param("control_rate_hz", 100.0, "control loop rate [Hz]", c.in_range(1.0, 250.0),
                 read_only=True),
         c.Param("slip_timeout_s", DEFAULT_TIMEOUT_S, "stop when no SlipVector for this long "
                 "[s] (raise only on a busy computer)", c.in_range(1e-3, 1.0)),
         c.Param("pose_timeout_s", DEFAULT_TIMEOUT_S, "stop when no TCP pose for this long [s]",
                 c.in_range(1e-3, 1.0)),
-        c.Param("command_duration_s", 0.1,
+        c.Param("command_duration_s", DEFAULT_DURATION_S,
                 "each velocity command expires on the arm after this long [s]",
                 c.in_range(0.005, 0.5)),
         c.Param("slip_topic", c.SLIP_TOPIC, "SlipVector input topic", c.non_empty,

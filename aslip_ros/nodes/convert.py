@@ -120,7 +120,7 @@ def slip_to_msg(vx: float, vz: float, probability: float, slipping: bool, thresh
 
 def prediction_to_slip(pred, stamp_ns: int, source: str,
                        frame_id: str = GRASP_FRAME) -> SlipVector:
-    """A :class:`aslip_ros.learn.predictor.Prediction` as a SlipVector (validated).
+    """A :class:`aslip_ros.learn.inference.predictor.Prediction` as a SlipVector (validated).
 
     The message's ``threshold`` is the one the prediction's ``slipping`` was decided at
     (``pred.threshold``), never a second value that could disagree with the decision; its

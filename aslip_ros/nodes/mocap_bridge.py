@@ -40,6 +40,7 @@ from aslip_ros import frames, poses
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
+from aslip_ros.slip import DEFAULT_THRESHOLD
 
 IDENTITY = [float(x) for x in poses.IDENTITY_POSE]
 
@@ -236,8 +237,9 @@ class MocapBridge(Node):
         vx, vz = float(lab.vx[0]), float(lab.vz[0])
         slipping = float(lab.speed[0]) > eps
         try:
-            msg = convert.slip_to_msg(vx, vz, 1.0 if slipping else 0.0, slipping, 0.5,
-                                      t_end_ns, window, "mocap_truth", self.p["frame_id"])
+            msg = convert.slip_to_msg(vx, vz, 1.0 if slipping else 0.0, slipping,
+                                      DEFAULT_THRESHOLD, t_end_ns, window, "mocap_truth",
+                                      self.p["frame_id"])
         except ValueError as exc:
             self.get_logger().warning(f"truth not published: {exc}", throttle_duration_sec=1.0)
             return

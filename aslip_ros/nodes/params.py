@@ -5,11 +5,18 @@ accepts, so :func:`descriptor` derives the ParameterDescriptor (``floating_point
 ``integer_range``, ``additional_constraints``) from the same object that checks the value:
 ``ros2 param describe`` and rqt show the rule the node enforces. The node modules use these
 through :mod:`aslip_ros.nodes.common` (``c.in_range(...)``).
+
+A parameter that sets a field of a core config dataclass (``SlipTrackConfig``,
+``ArmLimits``, ...) takes its default from that field (:func:`from_config`), and the node
+builds the config from its parameter values by field name (:func:`config_kwargs`): each
+default is written once, in the core (test/test_defaults_once.py).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
@@ -47,6 +54,46 @@ class Rule:
 
     def __call__(self, v) -> Optional[str]:
         return self.check(v)
+
+
+def config_default(config: type, field: str) -> Any:
+    """The default of dataclass ``config``'s ``field`` as a parameter value (a tuple or an
+    array becomes a list: ROS parameters have no tuples). ValueError without one."""
+    for f in dataclasses.fields(config):
+        if f.name != field:
+            continue
+        if f.default is not dataclasses.MISSING:
+            value = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            value = f.default_factory()
+        else:
+            raise ValueError(f"{config.__name__}.{field} has no default")
+        if isinstance(value, Sequence) and not isinstance(value, str) or \
+                hasattr(value, "tolist"):
+            return [x.item() if hasattr(x, "item") else x for x in value]
+        return value
+    raise ValueError(f"{config.__name__} has no field {field!r}")
+
+
+def from_config(config: type, field: str, description: str,
+                check: Optional[Validator] = None, read_only: bool = False,
+                prefix: str = "") -> Param:
+    """The :class:`Param` ``prefix + field`` whose default is the core config's
+    (:func:`config_default`)."""
+    return Param(prefix + field, config_default(config, field), description, check, read_only)
+
+
+def config_kwargs(config: type, values: Mapping[str, Any], prefix: str = "") -> dict:
+    """The keyword arguments of dataclass ``config`` that parameter ``values`` hold, each
+    under the name ``prefix + field`` (lists and arrays become tuples)."""
+    out = {}
+    for f in dataclasses.fields(config):
+        if prefix + f.name in values:
+            value = values[prefix + f.name]
+            if isinstance(value, Sequence) and not isinstance(value, str):
+                value = tuple(value)
+            out[f.name] = value
+    return out
 
 
 positive = Rule(lambda v: None if _finite(v) and v > 0 else f"must be finite and > 0, got {v!r}",

@@ -42,7 +42,7 @@ from aslip_ros.control.watchdog import ArrivalStats
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.arm_link import OPEN_ERRORS, close_arm, open_arm
-from aslip_ros.nodes.arms import resolve_arm
+from aslip_ros.nodes.arms import LIMIT_PREFIX, resolve_arm
 from aslip_ros.nodes.controller import arm_params
 
 #: The controllers' parameters that have nothing to act on here: no slip input, no model
@@ -75,35 +75,33 @@ def sweep_params() -> list:
                                     description="xarm or module.path:factory (not sim)",
                                     check=c.Rule(_arm, "xarm, or module.path:factory"))
         shared.append(p)
-    d = SweepConfig
     return shared + [
-        c.Param("seed", d.seed, "seeds the sweeps (same seed, same sweeps)",
-                c.int_range(0, 2 ** 31 - 1)),
-        c.Param("duration_s", d.duration_s, "sweeping time before the return to start [s]; "
-                "0 = until the node is stopped", c.in_range(0.0, 86400.0)),
-        c.Param("sweep_radius_m", d.sweep_radius_m,
-                "the TCP stays within this distance of the start position [m]",
-                c.in_range(0.001, 0.1)),
-        c.Param("return_speed_m_s", d.return_speed_m_s, "speed of the return to start [m/s]",
-                c.in_range(1e-4, 0.1)),
-        c.Param("return_tolerance_m", d.return_tolerance_m,
-                "the return ends this close to the start [m]", c.in_range(1e-4, 0.01)),
-        c.Param("return_timeout_s", d.return_timeout_s,
-                "a return still under way after this long stops where it is [s]",
-                c.in_range(0.1, 120.0)),
+        c.from_config(SweepConfig, "seed", "seeds the sweeps (same seed, same sweeps)",
+                      c.int_range(0, 2 ** 31 - 1)),
+        c.from_config(SweepConfig, "duration_s", "sweeping time before the return to start "
+                      "[s]; 0 = until the node is stopped", c.in_range(0.0, 86400.0)),
+        c.from_config(SweepConfig, "sweep_radius_m",
+                      "the TCP stays within this distance of the start position [m]",
+                      c.in_range(0.001, 0.1)),
+        c.from_config(SweepConfig, "return_speed_m_s", "speed of the return to start [m/s]",
+                      c.in_range(1e-4, 0.1)),
+        c.from_config(SweepConfig, "return_tolerance_m",
+                      "the return ends this close to the start [m]", c.in_range(1e-4, 0.01)),
+        c.from_config(SweepConfig, "return_timeout_s",
+                      "a return still under way after this long stops where it is [s]",
+                      c.in_range(0.1, 120.0)),
     ]
 
 
 def sweep_config(p: dict) -> SweepConfig:
-    """The core's config from the parameter values (raises ValueError)."""
-    lo, hi = list(p["xarm_workspace_min_m"]), list(p["xarm_workspace_max_m"])
-    return SweepConfig(
-        seed=int(p["seed"]), duration_s=p["duration_s"], sweep_radius_m=p["sweep_radius_m"],
-        max_speed_m_s=p["xarm_max_speed_m_s"], workspace_min_m=lo or None,
-        workspace_max_m=hi or None, grasp_plane_in_tcp=list(p["grasp_plane_in_tcp"]),
-        return_speed_m_s=p["return_speed_m_s"], return_tolerance_m=p["return_tolerance_m"],
-        return_timeout_s=p["return_timeout_s"], pose_timeout_s=p["pose_timeout_s"],
-        command_duration_s=p["command_duration_s"])
+    """The core's config from the parameter values (raises ValueError): those named like
+    its fields, and the arm's limits (``arm_*``; an empty workspace corner = no box)."""
+    kwargs = c.config_kwargs(SweepConfig, p)
+    kwargs.update(c.config_kwargs(SweepConfig, p, LIMIT_PREFIX))
+    for corner in ("workspace_min_m", "workspace_max_m"):
+        if corner in kwargs and not kwargs[corner]:
+            kwargs[corner] = None
+    return SweepConfig(**kwargs)
 
 
 def _cross_check(values: dict) -> Optional[str]:

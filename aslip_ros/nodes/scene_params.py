@@ -9,26 +9,30 @@ from aslip_ros.nodes import common as c
 
 
 def scene_params(prefix: str = "") -> list:
-    """Parameter specs describing a scene, each name preceded by ``prefix``."""
+    """Parameter specs describing a scene, each name preceded by ``prefix``; the defaults
+    are :class:`~aslip_ros.scene.scenarios.Scenario`'s (``wall_distance_m`` excepted: 0, the
+    object starts in contact with the wall)."""
     from aslip_ros.scene import LAYOUTS, OBJECTS, PADS
+    from aslip_ros.scene.scenario import Scenario
     return [
         c.Param(prefix + "scenario", "external_induced",
                 f"scene task: {', '.join(SCENARIOS)}", c.one_of(*SCENARIOS), read_only=True),
         c.Param(prefix + "seed", 0, "scenario seed (deterministic)",
                 c.at_least(0), read_only=True),
-        c.Param(prefix + "object", "chips_can", "grasped object",
-                c.one_of(*OBJECTS), read_only=True),
-        c.Param(prefix + "layout", "4mic", "microphone layout", c.one_of(*LAYOUTS),
-                read_only=True),
-        c.Param(prefix + "pad", "textured", "finger pad", c.one_of(*PADS), read_only=True),
-        c.Param(prefix + "condition", "robot_stationary",
-                "robot condition (external_induced only; the others imply robot_moving)",
-                c.one_of(*CONDITIONS), read_only=True),
-        c.Param(prefix + "sample_rate", 48000.0, "audio sample rate [Hz]",
-                c.in_range(8000.0, 192000.0), read_only=True),
+        c.from_config(Scenario, "object", "grasped object", c.one_of(*OBJECTS),
+                      read_only=True, prefix=prefix),
+        c.from_config(Scenario, "layout", "microphone layout", c.one_of(*LAYOUTS),
+                      read_only=True, prefix=prefix),
+        c.from_config(Scenario, "pad", "finger pad", c.one_of(*PADS), read_only=True,
+                      prefix=prefix),
+        c.from_config(Scenario, "condition", "robot condition (external_induced only; the "
+                      "others imply robot_moving)", c.one_of(*CONDITIONS), read_only=True,
+                      prefix=prefix),
+        c.from_config(Scenario, "sample_rate", "audio sample rate [Hz]",
+                      c.in_range(8000.0, 192000.0), read_only=True, prefix=prefix),
         c.Param(prefix + "wall_distance_m", 0.0,
                 "wall_push: wall distance ahead of the object [m] (0 = start in contact)",
                 c.non_negative, read_only=True),
-        c.Param(prefix + "drag_speed_m_s", 0.04, "drag: agent drag speed [m/s]", c.positive,
-                read_only=True),
+        c.from_config(Scenario, "drag_speed_m_s", "drag: agent drag speed [m/s]", c.positive,
+                      read_only=True, prefix=prefix),
     ]

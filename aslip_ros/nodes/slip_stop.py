@@ -21,6 +21,7 @@ import numpy as np
 from std_msgs.msg import String
 
 from aslip_ros import topics
+from aslip_ros.control.slip_stop import SlipStop, SlipStopConfig
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes.controller import ControllerNode
 
@@ -48,40 +49,39 @@ class SlipStopNode(ControllerNode):
         self._result_pub = self.create_publisher(String, RESULT_TOPIC, c.LATCHED_QOS)
 
     def task_params(self) -> list:
-        """Wall-push parameters (SI, ``link_base``)."""
+        """Wall-push parameters (SI, ``link_base``), their defaults the core's
+        :class:`SlipStopConfig` (``direction`` excepted: the node's 0 0 0 means "from the
+        scene", the core needs a direction)."""
         return [
             c.Param("direction", [0.0, 0.0, 0.0],
                     "approach direction towards the wall in link_base; 0 0 0 = from the "
                     "scene metadata", c.Rule(_direction_check, "3 finite numbers"),
                     read_only=True),
-            c.Param("approach_speed_m_s", 0.01, "re-approach speed [m/s]", c.positive),
-            c.Param("retract_distance_m", 0.10, "back-off distance [m] (paper: 0.1)",
-                    c.positive),
-            c.Param("retract_speed_m_s", 0.02, "back-off speed [m/s]", c.positive),
-            c.Param("settle_s", 0.5, "pause between retract and approach [s]",
-                    c.non_negative),
-            c.Param("max_approach_distance_m", 0.15, "approach travel limit [m]",
-                    c.positive),
-            c.Param("debounce_count", 3, "consecutive slip estimates needed to stop",
-                    c.int_range(1, 100)),
-            c.Param("time_margin", 2.0, "phase time limit factor (>= 1)",
-                    c.at_least(1.0)),
+            c.from_config(SlipStopConfig, "approach_speed_m_s", "re-approach speed [m/s]",
+                          c.positive),
+            c.from_config(SlipStopConfig, "retract_distance_m",
+                          "back-off distance [m] (paper: 0.1)", c.positive),
+            c.from_config(SlipStopConfig, "retract_speed_m_s", "back-off speed [m/s]",
+                          c.positive),
+            c.from_config(SlipStopConfig, "settle_s",
+                          "pause between retract and approach [s]", c.non_negative),
+            c.from_config(SlipStopConfig, "max_approach_distance_m",
+                          "approach travel limit [m]", c.positive),
+            c.from_config(SlipStopConfig, "debounce_count",
+                          "consecutive slip estimates needed to stop", c.int_range(1, 100)),
+            c.from_config(SlipStopConfig, "time_margin", "phase time limit factor (>= 1)",
+                          c.at_least(1.0)),
             c.Param("settle_result_s", 0.5, "final result this long after the stop [s]",
                     c.non_negative, read_only=True),
         ]
 
-    def task_config(self, values: dict, direction=None):
-        from aslip_ros.control.slip_stop import SlipStopConfig
-        return SlipStopConfig(
-            direction=tuple(direction if direction is not None else (1.0, 0.0, 0.0)),
-            approach_speed_m_s=values["approach_speed_m_s"],
-            retract_distance_m=values["retract_distance_m"],
-            retract_speed_m_s=values["retract_speed_m_s"], settle_s=values["settle_s"],
-            max_approach_distance_m=values["max_approach_distance_m"],
-            debounce_count=int(values["debounce_count"]),
-            slip_timeout_s=values["slip_timeout_s"], pose_timeout_s=values["pose_timeout_s"],
-            command_duration_s=values["command_duration_s"],
-            time_margin=values["time_margin"])
+    def task_config(self, values: dict, direction=None) -> SlipStopConfig:
+        """The core's config from the parameters named like its fields; ``direction`` the
+        push direction in use (None: the core's default, for the parameter checks)."""
+        kwargs = c.config_kwargs(SlipStopConfig, values)
+        kwargs["direction"] = tuple(direction) if direction is not None else \
+            SlipStopConfig.direction
+        return SlipStopConfig(**kwargs)
 
     def _direction(self):
         d = np.asarray(self.p["direction"], dtype=float)
@@ -94,7 +94,6 @@ class SlipStopNode(ControllerNode):
 
     def make_task(self):
         """The SlipStop core once the direction is known."""
-        from aslip_ros.control.slip_stop import SlipStop
         d = self._direction()
         if d is None:
             self.get_logger().info("waiting for the push direction on /aslip/metadata",

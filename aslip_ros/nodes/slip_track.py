@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from typing import Optional
 
+from aslip_ros.control.slip_track import SlipTrack, SlipTrackConfig, TrackState
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes.controller import ControllerNode
 
@@ -31,48 +32,43 @@ class SlipTrackNode(ControllerNode):
         super().__init__("slip_track", **kwargs)
 
     def task_params(self) -> list:
-        """Control-law parameters (SI)."""
+        """Control-law parameters (SI), their defaults the core's :class:`SlipTrackConfig`."""
         return [
-            c.Param("gain", 1.0, "fraction of the predicted slip corrected (0, 2)", c.positive),
-            c.Param("deadband_m_s", 0.002, "slip speeds below this are ignored [m/s]",
-                    c.non_negative),
-            c.Param("max_speed_m_s", 0.05, "commanded speed limit [m/s]", c.positive),
-            c.Param("lowpass_tau_s", 0.05, "command low-pass time constant [s]; 0 = off",
-                    c.non_negative),
-            c.Param("hold_s", 0.3, "keep the object velocity this long after slip ends [s]",
-                    c.non_negative),
-            c.Param("decay_s", 0.2, "then decay it to zero with this time constant [s]",
-                    c.non_negative),
-            c.Param("velocity_window_s", 0.2,
-                    "TCP velocity measured over this span (the model's window) [s]",
-                    c.positive),
-            c.Param("position_gain_1_s", 2.0, "integrated-slip position gain [1/s]; 0 = off",
-                    c.non_negative),
-            c.Param("position_leak_s", 3.0, "leak of the integrated slip [s]; 0 = none",
-                    c.non_negative),
-            c.Param("max_offset_m", 0.03, "clip of the integrated slip [m]", c.non_negative),
-            c.Param("stop_on_slip_end", False, "end the task when slip ends"),
+            c.from_config(SlipTrackConfig, "gain",
+                          "fraction of the predicted slip corrected (0, 2)", c.positive),
+            c.from_config(SlipTrackConfig, "deadband_m_s",
+                          "slip speeds below this are ignored [m/s]", c.non_negative),
+            c.from_config(SlipTrackConfig, "max_speed_m_s", "commanded speed limit [m/s]",
+                          c.positive),
+            c.from_config(SlipTrackConfig, "lowpass_tau_s",
+                          "command low-pass time constant [s]; 0 = off", c.non_negative),
+            c.from_config(SlipTrackConfig, "hold_s",
+                          "keep the object velocity this long after slip ends [s]",
+                          c.non_negative),
+            c.from_config(SlipTrackConfig, "decay_s",
+                          "then decay it to zero with this time constant [s]",
+                          c.non_negative),
+            c.from_config(SlipTrackConfig, "velocity_window_s",
+                          "TCP velocity measured over this span (the model's window) [s]",
+                          c.positive),
+            c.from_config(SlipTrackConfig, "position_gain_1_s",
+                          "integrated-slip position gain [1/s]; 0 = off", c.non_negative),
+            c.from_config(SlipTrackConfig, "position_leak_s",
+                          "leak of the integrated slip [s]; 0 = none", c.non_negative),
+            c.from_config(SlipTrackConfig, "max_offset_m", "clip of the integrated slip [m]",
+                          c.non_negative),
+            c.from_config(SlipTrackConfig, "stop_on_slip_end", "end the task when slip ends"),
             c.Param("duration_s", 0.0, "end the task after this long [s]; 0 = never",
                     c.non_negative, read_only=True),
         ]
 
-    def task_config(self, values: dict):
-        from aslip_ros.control.slip_track import SlipTrackConfig
-        return SlipTrackConfig(
-            gain=values["gain"], deadband_m_s=values["deadband_m_s"],
-            max_speed_m_s=values["max_speed_m_s"], lowpass_tau_s=values["lowpass_tau_s"],
-            hold_s=values["hold_s"], decay_s=values["decay_s"],
-            velocity_window_s=values["velocity_window_s"],
-            position_gain_1_s=values["position_gain_1_s"],
-            position_leak_s=values["position_leak_s"], max_offset_m=values["max_offset_m"],
-            stop_on_slip_end=bool(values["stop_on_slip_end"]),
-            grasp_plane_in_tcp=tuple(values["grasp_plane_in_tcp"]),
-            slip_timeout_s=values["slip_timeout_s"], pose_timeout_s=values["pose_timeout_s"],
-            command_duration_s=values["command_duration_s"])
+    def task_config(self, values: dict) -> SlipTrackConfig:
+        """The core's config: every parameter named like one of its fields (the law's and
+        the shared timeouts, command duration and grasp plane)."""
+        return SlipTrackConfig(**c.config_kwargs(SlipTrackConfig, values))
 
     def make_task(self):
         """A fresh SlipTrack controller."""
-        from aslip_ros.control.slip_track import SlipTrack
         self._t_start = None
         return SlipTrack(self.task_config(self.p))
 
@@ -93,7 +89,6 @@ class SlipTrackNode(ControllerNode):
 
     def after_step(self, now: float) -> None:
         """End the task after ``duration_s``; exit when asked to once stopped."""
-        from aslip_ros.control.slip_track import TrackState
         if self._t_start is None:
             return
         limit = self.p["duration_s"]

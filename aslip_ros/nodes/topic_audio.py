@@ -14,7 +14,8 @@ import queue
 import threading
 from typing import Any, Mapping, Optional
 
-from aslip_ros.hw.audio import AudioBlock, SourceStats, _BlockReader
+from aslip_ros.hw.audio_block import AudioBlock, SourceStats
+from aslip_ros.hw.audio_block import BlockReader as _BlockReader
 from aslip_ros.hw.audio_source import METADATA_BASE, OpenedSource
 from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes import common as c

@@ -12,7 +12,7 @@ Usage (docs/design.md, "Scene streaming API")::
 from . import layouts, physics, scenarios
 from .layouts import LAYOUTS, OBJECTS, PADS, get_layout, get_object, get_pad
 from .physics import SCENE_VERSION, UNCOUPLED, Acoustics
-from .scenarios import Scenario
+from .scenario import Scenario
 from .world import Chunk, MocapSample, SimArm, World
 
 __all__ = ["SCENE_VERSION", "UNCOUPLED", "layouts", "physics", "scenarios", "LAYOUTS",

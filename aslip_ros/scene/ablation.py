@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .layouts import get_layout, get_object, get_pad
+from .layouts import DEFAULT_LAYOUT, get_layout, get_object, get_pad
 from .physics import UNCOUPLED, Acoustics, Synth
 
 #: Edges of the proxy's frequency bands [Hz]: fine below 600 Hz where ridge lines live,
@@ -33,7 +33,7 @@ _COARSE = np.geomspace(620.0, 11000.0, 10)
 class ProxyConfig:
     """One proxy experiment: what to render and how much."""
 
-    layout: str = "4mic"
+    layout: str = DEFAULT_LAYOUT
     pad: str = "textured"
     object: str = "chips_can"
     condition: str = "robot_off"       # robot_moving adds arm motion during every window

@@ -14,10 +14,11 @@ import time
 import tracemalloc
 
 from . import scenarios
+from .layouts import DEFAULT_LAYOUT
 from .world import World
 
 
-def measure(duration_s: float = 60.0, layout: str = "4mic", block_frames: int = 480,
+def measure(duration_s: float = 60.0, layout: str = DEFAULT_LAYOUT, block_frames: int = 480,
             kind: str = "external_induced", condition: str = "robot_moving",
             seed: int = 0, trace_memory: bool = True) -> dict[str, float]:
     """Stream one trial and return ``x_real_time``, ``cpu_s``, ``wall_s``, ``peak_mib``.
@@ -52,7 +53,7 @@ def main(argv: list[str] | None = None) -> None:
     """Print speed (x real time) and peak traced memory for each scenario kind."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0)
-    parser.add_argument("--layout", default="4mic")
+    parser.add_argument("--layout", default=DEFAULT_LAYOUT)
     args = parser.parse_args(argv)
     for kind, cond in (("external_induced", "robot_moving"),
                        ("external_induced", "robot_off"), ("robot_induced", "robot_moving")):

@@ -89,6 +89,8 @@ LAYOUTS: dict[str, Layout] = {
 
 #: The layout of the paper, the scene's default and that of the shipped models.
 DEFAULT_LAYOUT = "4mic"
+#: The layouts of the paper's Table I, in its order (every layout above).
+PAPER_LAYOUTS = ("4mic", "2mic_centered", "2mic_corners", "2mic_same_finger", "1mic")
 
 
 @dataclass(frozen=True)

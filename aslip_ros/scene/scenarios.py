@@ -17,15 +17,14 @@ any length needs bounded memory and the same seed always gives the same motion.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-
 import numpy as np
 
-from .layouts import get_layout, get_object, get_pad
-from .physics import Acoustics
+from .scenario import CONDITIONS, KINDS, Scenario  # noqa: F401 - KINDS, CONDITIONS: re-exported
+# The variants live in their own module; re-exported here, where the scenarios are.
+from .variants import (COUPLING_DB, HANDLING_PATH_DB, LAB_MOCAP, VARIANTS,  # noqa: F401
+                       confounders_variant, contact_variant, coupling_variant,
+                       mocap_variant, one_sided_variant)
 
-KINDS = ("robot_induced", "external_induced", "wall_push", "external_drag", "scripted")
-CONDITIONS = ("robot_off", "robot_stationary", "robot_moving")
 #: Planned object excursion from the grasp centre beyond which pushes turn back [m].
 _EXCURSION_M = 0.02
 #: Pause between an agent's touches [s] (uniform range) and the longest slide of one push [m].
@@ -33,123 +32,6 @@ _TOUCH_GAP_S = (0.1, 0.8)
 _PUSH_TRAVEL_M = 0.04
 #: Share of an agent's slipping pushes that are impulsive (the rest are sustained).
 _IMPULSIVE_SHARE = 0.4375
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """Everything that defines one simulated trial. Build with the functions below."""
-
-    kind: str
-    seed: int
-    object: str = "chips_can"
-    layout: str = "4mic"
-    pad: str = "textured"
-    condition: str = "robot_stationary"
-    duration_s: float | None = 30.0
-    sample_rate: float = 48000.0
-    mocap_rate_hz: float = 120.0
-    mocap_latency_s: float = 0.0083
-    mocap_noise_m: float = 1.5e-4
-    mocap_drop_prob: float = 0.005
-    tcp_rate_hz: float = 100.0
-    arm_lag_s: float = 0.02
-    max_slip_speed_m_s: float = 0.1
-    slow_fraction: float = 0.3
-    push_dir_xz: tuple[float, float] = (1.0, 0.0)
-    wall_distance_m: float = 0.1
-    grip_force_n: float = 15.0
-    wall_stiffness_n_m: float = 3000.0
-    drag_speed_m_s: float = 0.04
-    one_sided_fraction: float = 0.0
-    one_sided_spread_rad: float = np.pi / 6.0
-    no_slip_touch_fraction: float = 0.2
-    script: tuple[tuple[float, float, float, float], ...] = ()
-    #: robot_induced: the arm follows velocity commands (a driver such as robot_sweeps on
-    #: a cell) instead of the scene's own sweeps; the probe still stands in the world.
-    commanded_arm: bool = False
-    trial_id: str = ""
-    acoustics: Acoustics = field(default_factory=Acoustics)
-
-    def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"unknown scenario kind {self.kind!r}; choose one of {KINDS}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) \
-                or self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
-        get_object(self.object)
-        get_layout(self.layout)
-        get_pad(self.pad)
-        if self.condition not in CONDITIONS:
-            raise ValueError(f"unknown condition {self.condition!r}; choose one of "
-                             f"{CONDITIONS}")
-        if self.kind == "robot_induced" and self.condition != "robot_moving":
-            raise ValueError("robot_induced slip needs condition 'robot_moving': the arm's "
-                             "motion is what makes the probe slip")
-        if self.kind in ("wall_push", "external_drag") and self.condition != "robot_moving":
-            raise ValueError(f"{self.kind} is closed loop: condition must be 'robot_moving'")
-        if self.duration_s is not None and not (np.isfinite(self.duration_s)
-                                                and self.duration_s > 0):
-            raise ValueError(f"duration_s must be positive (or None), got {self.duration_s!r}")
-        for name in ("sample_rate", "mocap_rate_hz", "tcp_rate_hz", "max_slip_speed_m_s",
-                     "grip_force_n", "wall_stiffness_n_m", "drag_speed_m_s", "arm_lag_s"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive, got {value!r}")
-        if self.sample_rate < 8000.0:
-            raise ValueError(f"sample_rate must be at least 8000 Hz, got {self.sample_rate}")
-        if self.mocap_rate_hz > self.sample_rate or self.tcp_rate_hz > self.sample_rate:
-            raise ValueError("mocap_rate_hz and tcp_rate_hz must not exceed sample_rate")
-        for name in ("mocap_latency_s", "mocap_noise_m", "wall_distance_m"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be >= 0, got {value!r}")
-        if not 0.0 <= self.mocap_drop_prob < 1.0:
-            raise ValueError(f"mocap_drop_prob must lie in [0, 1), got {self.mocap_drop_prob}")
-        if not 0.0 <= self.slow_fraction <= 1.0:
-            raise ValueError(f"slow_fraction must lie in [0, 1], got {self.slow_fraction}")
-        if not 0.0 <= self.one_sided_fraction <= 1.0:
-            raise ValueError(f"one_sided_fraction must lie in [0, 1], got "
-                             f"{self.one_sided_fraction}")
-        if not 0.0 <= self.no_slip_touch_fraction < 1.0:
-            raise ValueError(f"no_slip_touch_fraction must lie in [0, 1), got "
-                             f"{self.no_slip_touch_fraction}")
-        if not 0.0 <= self.one_sided_spread_rad <= np.pi:
-            raise ValueError(f"one_sided_spread_rad must lie in [0, pi], got "
-                             f"{self.one_sided_spread_rad}")
-        d = np.asarray(self.push_dir_xz, dtype=float)
-        if d.shape != (2,) or not np.all(np.isfinite(d)) or np.hypot(*d) < 1e-9:
-            raise ValueError(f"push_dir_xz must be a nonzero 2-vector, got {self.push_dir_xz}")
-        for seg in self.script:
-            if len(seg) != 4 or not all(np.isfinite(seg)) or not 0.0 <= seg[0] < seg[1]:
-                raise ValueError(f"script segments are (t_start, t_end, vx, vz) with "
-                                 f"0 <= t_start < t_end, got {seg!r}")
-        if not isinstance(self.acoustics, Acoustics):
-            raise ValueError("acoustics must be an Acoustics instance")
-        self.acoustics.validate()
-
-    @property
-    def induced(self) -> str:
-        """``"robot"`` when labels come from robot state, else ``"external"``."""
-        return "robot" if self.kind == "robot_induced" else "external"
-
-    @property
-    def closed_loop(self) -> bool:
-        """True for the tasks driven by arm commands."""
-        return self.kind in ("wall_push", "external_drag")
-
-    @property
-    def one_sided_direction_rad(self) -> float:
-        """Grasp-plane angle of the preferred slip direction of this trial (one-sided variant)."""
-        return float(np.random.default_rng([self.seed, 0x051D]).uniform(-np.pi, np.pi))
-
-    @property
-    def yaw_rad(self) -> float:
-        """Heading of the level gripper about world z, drawn from the seed."""
-        return float(np.random.default_rng([self.seed, 0x9A3]).uniform(-np.pi, np.pi))
-
-    def with_(self, **changes) -> "Scenario":
-        """A copy with some fields changed (validated again)."""
-        return replace(self, **changes)
 
 
 def _trial_id(prefix: str, obj: str, seed: int) -> str:
@@ -409,9 +291,3 @@ def script_train(scn: Scenario) -> PulseTrain:
     def gen(t: float):
         return pulses, np.inf
     return PulseTrain(2, gen)
-
-
-# The variants live in their own module; re-exported here, where the scenarios are.
-from .variants import (COUPLING_DB, HANDLING_PATH_DB, LAB_MOCAP, VARIANTS,  # noqa: E402,F401
-                       confounders_variant, contact_variant, coupling_variant,
-                       mocap_variant, one_sided_variant)

@@ -1,6 +1,6 @@
 """Held-out scene variants: what a lab's recordings may differ in (docs/scene.md, "Variants").
 
-Each variant maps a :class:`~aslip_ros.scene.scenarios.Scenario` to a copy drawn from a wider
+Each variant maps a :class:`~aslip_ros.scene.scenario.Scenario` to a copy drawn from a wider
 but physically sourced range than the default scene's; no model is trained or tuned on them
 (``make transfer``). None adds a mechanism: each moves parameters the scene already has.
 
@@ -19,12 +19,11 @@ but physically sourced range than the default scene's; no model is trained or tu
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .scenarios import Scenario
+from .scenario import Scenario
 
 #: Per-grasp coupling range of the coupling variant [+-dB per microphone]: twice the default
 #: scene's (``physics.Acoustics.gain_mismatch_db``); sources in docs/scene.md.

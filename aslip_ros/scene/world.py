@@ -14,8 +14,8 @@ from typing import Iterator
 
 import numpy as np
 
+import aslip_ros.scene.scenarios as sc
 from ..control.arm import ArmError
-from . import scenarios as sc
 from .layouts import get_layout, get_object, get_pad, yaw_quaternion, yaw_rotation
 from .physics import SCENE_VERSION, Synth
 

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from aslip_ros.hw.audio import AudioBlock
+from aslip_ros.hw.audio_block import AudioBlock
 from aslip_ros.hw.audio_source import OpenedSource
 
 RATE = 8000.0

@@ -2,7 +2,7 @@
 level differences between microphones (docs/design.md, "Extending").
 
 It shows everything a new model needs: a config dataclass (the checkpoint's
-``model_config``), a backend class with the ``learn.backends.ModelBackend`` members, and
+``model_config``), a backend class with the ``learn.models.registry.ModelBackend`` members, and
 ``register_model`` before a checkpoint of its type is saved or loaded. ``write_checkpoint``
 writes one with the package's one metadata builder, ``checkpoint.checkpoint_meta``.
 """
@@ -55,6 +55,22 @@ class LevelModel:
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"test_level checkpoint tensors: {exc}") from exc
         return cls(cfg, level, angles)
+
+    @classmethod
+    def fit(cls, ds, train_idx: np.ndarray, *, channels, feature_config, config
+            ) -> tuple[LevelConfig, dict[str, torch.Tensor]]:
+        """The training stage: the level halfway (in dB) between the median loudest-channel
+        RMS of the training trials' slip and no-slip windows."""
+        cols = ds.channel_indices(channels)
+        rms = np.concatenate([
+            np.sqrt((ds.window_audio(train_idx[s:s + 256], cols).astype(np.float64) ** 2)
+                    .mean(axis=1)).max(axis=1) for s in range(0, train_idx.size, 256)])
+        slip = ds.slip(train_idx)
+        level = float(np.sqrt(np.median(rms[slip]) * np.median(rms[~slip])))
+        n = len(channels)
+        angles = 2 * np.pi * np.arange(n) / n + np.pi / 4     # learn/synthetic.py's mics
+        return LevelConfig(n_channels=n), {"level": torch.tensor(level),
+                                           "mic_angles": torch.from_numpy(angles)}
 
     def predict(self, windows: np.ndarray, offsets: np.ndarray | None
                 ) -> tuple[np.ndarray, np.ndarray]:

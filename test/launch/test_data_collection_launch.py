@@ -52,14 +52,14 @@ class TestBag(unittest.TestCase):
 
     def test_bag_holds_every_stream(self):
         from aslip_ros.data.bags import BagReader
-        from aslip_ros.nodes.bag_recorder import DEFAULT_TOPICS
+        from aslip_ros.nodes.bag_recorder import RECORDED_TOPICS
         try:
             self.assertTrue(os.path.isdir(BAG), f"no bag at {BAG}")
             with BagReader(BAG) as reader:
                 counts = dict(reader.info.counts)
                 meta = reader.metadata
             print(f"bag topics: {counts}", flush=True)
-            for topic in DEFAULT_TOPICS:
+            for topic in RECORDED_TOPICS:
                 if topic == "/tf":       # dynamic TF: published only where something moves
                     continue
                 self.assertGreater(counts.get(topic, 0), 0, topic)

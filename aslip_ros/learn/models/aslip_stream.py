@@ -21,11 +21,15 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 from torch import nn
+
+from aslip_ros.learn.checkpoint import Checkpoint
+from aslip_ros.learn.incremental_features import stream_meta_problems
+from aslip_ros.learn.models.registry import register_model
 
 
 @dataclass(frozen=True)
@@ -122,3 +126,39 @@ def offline_outputs(model: StreamNet, frames: np.ndarray) -> tuple[np.ndarray, n
     with torch.inference_mode():
         logit, v, _ = model(torch.from_numpy(np.ascontiguousarray(frames, np.float32))[None])
     return torch.sigmoid(logit[0]).numpy(), v[0].numpy()
+
+
+@register_model
+class StreamBackend:
+    """The causal streaming estimator, run per audio block by
+    ``learn.inference.stream_predictor.StreamingPredictor``."""
+
+    model_type: ClassVar[str] = "aslip_stream"
+    config: ClassVar[type] = StreamConfig
+    streaming: ClassVar[bool] = True
+
+    def __init__(self, cfg: StreamConfig, net: StreamNet) -> None:
+        self.cfg = cfg
+        self.net = net.eval()
+
+    @classmethod
+    def meta_problems(cls, meta, model_config, feature_config) -> list[str]:
+        return stream_meta_problems(meta, model_config, feature_config)
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: Checkpoint) -> "StreamBackend":
+        cfg = StreamConfig.from_dict(ckpt.meta["model_config"])
+        net = StreamNet(cfg)
+        try:
+            net.load_state_dict(ckpt.tensors)
+        except RuntimeError as exc:
+            raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
+        return cls(cfg, net)
+
+    def stepper(self) -> GruStepper:
+        """A fresh per-hop stepper (numpy) over this network's weights."""
+        return GruStepper(self.cfg, self.net.state_dict())
+
+    def offline(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Batched forward over ``(T, C, M)`` frames from a zero state: p, raw v."""
+        return offline_outputs(self.net, frames)

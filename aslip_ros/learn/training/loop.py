@@ -12,20 +12,18 @@ import copy
 import math
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 import torch
 
-from .losses import LossWeights, slip_loss
-from .network import SlipNet
-from .train_data import Batches
+from aslip_ros.learn.training.losses import LossWeights, slip_loss
+from aslip_ros.learn.models.aslip_cnn import SlipNet
+from aslip_ros.learn.training.config import DEVICES, TrainConfig
+from aslip_ros.learn.training.data import Batches
 
-if TYPE_CHECKING:
-    from .train import TrainConfig
 
 _DB_TO_LOG_POWER = math.log(10.0) / 10.0  # +1 dB amplitude-power gain in natural-log power
-DEVICES = ("auto", "cpu", "cuda")
 
 
 def resolve_device(name: str) -> torch.device:
@@ -45,7 +43,7 @@ def _device_of(model: SlipNet) -> torch.device:
 
 
 def augment(x: np.ndarray, mean: np.ndarray, rng: np.random.Generator,
-            cfg: "TrainConfig") -> np.ndarray:
+            cfg: TrainConfig) -> np.ndarray:
     """Random gain (log-domain offset) and SpecAugment masks filled with the bin means."""
     b, c, m, t = x.shape
     gain = rng.uniform(-cfg.gain_db, cfg.gain_db, (b, 1)) + rng.uniform(
@@ -127,7 +125,7 @@ class Fit:
 
 
 def _train_epoch(model: SlipNet, data: Batches, order: np.ndarray, opt: torch.optim.Optimizer,
-                 feat_mean: np.ndarray, rng: np.random.Generator, cfg: "TrainConfig",
+                 feat_mean: np.ndarray, rng: np.random.Generator, cfg: TrainConfig,
                  weights: LossWeights, label: str) -> float:
     """One pass over ``order``; the mean training loss."""
     model.train()
@@ -152,7 +150,7 @@ def _train_epoch(model: SlipNet, data: Batches, order: np.ndarray, opt: torch.op
 
 
 def run_epochs(model: SlipNet, data: Batches, tr: np.ndarray, va: np.ndarray,
-               cfg: "TrainConfig", weights: LossWeights, rng: np.random.Generator,
+               cfg: TrainConfig, weights: LossWeights, rng: np.random.Generator,
                log: Callable[[str], None]) -> Fit:
     """Adam on the trainable weights until ``cfg.epochs``, ``cfg.patience`` epochs without a
     better validation loss, or ``cfg.time_budget_s``; the best epoch's weights are loaded."""

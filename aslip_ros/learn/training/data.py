@@ -11,18 +11,16 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
 
 from aslip_ros.util import atomic_path
 
-from .data_io import WindowSet, select_windows
-from .features import FeatureConfig, LogMel
-
-if TYPE_CHECKING:
-    from .train import TrainConfig
+from aslip_ros.learn.data_io import WindowSet, select_windows
+from aslip_ros.learn.features import FeatureConfig, LogMel
+from aslip_ros.learn.training.config import TrainConfig
 
 
 def _cache_key(ds: WindowSet, fcfg: FeatureConfig, channels: Sequence[str]) -> str:
@@ -66,7 +64,7 @@ def feature_cache(ds: WindowSet, fcfg: FeatureConfig, channels: Sequence[str],
     return np.load(path, mmap_mode="r")
 
 
-def split_windows(ds: WindowSet, cfg: "TrainConfig") -> tuple[np.ndarray, np.ndarray]:
+def split_windows(ds: WindowSet, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """Training and validation window indices (by trial, with the config's filters)."""
     kw = dict(induced=cfg.induced, objects=cfg.objects, conditions=cfg.conditions,
               seed=cfg.split_seed)

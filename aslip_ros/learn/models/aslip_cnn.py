@@ -16,11 +16,17 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, NamedTuple, Sequence
+from typing import Any, ClassVar, NamedTuple, Sequence
+
+import numpy as np
 
 import torch
 from torch import nn
 from torch.nn import functional as F
+
+from aslip_ros.learn.checkpoint import Checkpoint
+from aslip_ros.learn.features import FeatureConfig, LogMel
+from aslip_ros.learn.models.registry import register_model
 
 
 @dataclass(frozen=True)
@@ -261,3 +267,61 @@ def fuse_for_inference(model: SlipNet) -> SlipNet:
     for p in fused.parameters():
         p.requires_grad_(False)
     return fused
+
+
+def _mel_problems(meta: dict[str, Any], mcfg: Any, fcfg: FeatureConfig | None) -> list[str]:
+    problems = []
+    if mcfg.n_channels != len(meta["channel_names"]):
+        problems.append(f"model_config.n_channels {mcfg.n_channels} != "
+                        f"{len(meta['channel_names'])} channel_names")
+    if fcfg is not None and mcfg.n_mels != fcfg.n_mels:
+        problems.append(f"model_config.n_mels {mcfg.n_mels} != feature_config.n_mels "
+                        f"{fcfg.n_mels}")
+    return problems
+
+
+@register_model
+class CnnBackend:
+    """The A-SLIP CNN on log-mel features: the backend of ``aslip_cnn`` checkpoints."""
+
+    model_type: ClassVar[str] = "aslip_cnn"
+    config: ClassVar[type] = ModelConfig
+    streaming: ClassVar[bool] = False
+
+    def __init__(self, cfg: ModelConfig, model: SlipNet, logmel: LogMel) -> None:
+        self.cfg = cfg
+        self.model = model
+        self.logmel = logmel
+
+    @classmethod
+    def meta_problems(cls, meta, model_config, feature_config) -> list[str]:
+        return _mel_problems(meta, model_config, feature_config)
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: Checkpoint) -> "CnnBackend":
+        cfg = ModelConfig.from_dict(ckpt.meta["model_config"])
+        if cfg.n_channels != len(ckpt.channel_names):
+            raise ValueError("checkpoint model channel count disagrees with channel_names")
+        model = SlipNet(cfg)
+        try:
+            model.load_state_dict(ckpt.tensors)
+        except RuntimeError as exc:
+            raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
+        logmel = LogMel(FeatureConfig.from_dict(ckpt.meta["feature_config"]), ckpt.sample_rate)
+        return cls(cfg, fuse_for_inference(model), logmel)
+
+    def predict(self, windows: np.ndarray,
+                offsets: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        feats = self.logmel(windows)
+        if offsets is not None:
+            feats = feats - offsets[:, :, None, None]
+        return self.infer_features(feats)
+
+    def infer_features(self, feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The model alone on log-mel features ``(B, C, M, T)`` (e.g. a training cache)."""
+        with torch.inference_mode():
+            out = self.model(torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)))
+            prob = torch.sigmoid(out.logit)
+            d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
+            v = d * out.magnitude[:, None]
+        return prob.numpy(), v.numpy()

@@ -22,18 +22,20 @@ from dataclasses import asdict, dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
+
+from aslip_ros.slip import DEFAULT_THRESHOLD
 import torch
 from torch.nn import functional as F
 
-from .backends import StreamBackend
-from .checkpoint import checkpoint_meta, git_revision, save_checkpoint
-from .data_io import WindowSet, open_dataset, trial_splits
-from .features import FeatureConfig
-from .output_calibration import sequence_fields
-from .streaming import StreamingLogMel, stream_logmel
+from aslip_ros.learn.models.aslip_stream import StreamBackend
+from aslip_ros.learn.checkpoint import checkpoint_meta, git_revision, save_checkpoint
+from aslip_ros.learn.data_io import WindowSet, open_dataset, trial_splits
+from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.calibration.output import sequence_fields
+from aslip_ros.learn.incremental_features import StreamingLogMel, stream_logmel
 from aslip_ros.data.stream_labels import DEFAULT_SMOOTHER, Smoother, frame_labels, load_track
-from .streaming_model import StreamConfig, StreamNet, offline_outputs
-from .train_loop import resolve_device
+from aslip_ros.learn.models.aslip_stream import StreamConfig, StreamNet, offline_outputs
+from aslip_ros.learn.training.loop import resolve_device
 
 MODEL_TYPE = StreamBackend.model_type
 _DB = math.log(10.0) / 10.0      # +1 dB of power in natural-log mel units
@@ -100,7 +102,7 @@ def split_trial_indices(ds: WindowSet, split: str, seed: int = 0) -> list[int]:
 
 
 def frame_metrics(p: np.ndarray, v: np.ndarray, v_true: np.ndarray, slip: np.ndarray,
-                  valid: np.ndarray, threshold: float = 0.5) -> dict[str, float]:
+                  valid: np.ndarray, threshold: float = DEFAULT_THRESHOLD) -> dict[str, float]:
     """Per-frame detection and, on true slip frames, direction MAE (deg) and speed RMSE."""
     p, v, v_true, slip = p[valid], v[valid], v_true[valid], slip[valid]
     pred = p >= threshold

@@ -26,9 +26,10 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .calibration import CalibrationConstants, CalibrationState, fit_constants, offsets_at
-from .checkpoint import CheckpointMismatch
-from .features import FeatureConfig, LogMel
+from aslip_ros.learn.calibration.grasp import (CalibrationConstants, CalibrationState,
+                                               fit_constants, offsets_at)
+from aslip_ros.learn.compat import CheckpointMismatch
+from aslip_ros.learn.features import FeatureConfig, LogMel
 
 _CHUNK = 1024          # segments per LogMel call offline: bounds memory on long trials
 

@@ -36,7 +36,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .checkpoint import CheckpointMismatch
+from aslip_ros.slip import DEFAULT_THRESHOLD
+
+from aslip_ros.learn.compat import CheckpointMismatch
 
 METHODS = ("background", "slip", "all")
 _DB_PER_NEPER_POWER = 10.0 / np.log(10.0)
@@ -162,7 +164,7 @@ def frame_weights(p: np.ndarray, active: np.ndarray, k: CalibrationConstants) ->
     if k.method == "background":
         keep = p < k.gate_threshold
     elif k.method == "slip":
-        keep = p >= 0.5
+        keep = p >= DEFAULT_THRESHOLD
     else:
         keep = np.ones_like(p, dtype=bool)
     return (keep & active).astype(np.float64)

@@ -38,20 +38,19 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
 from aslip_ros.util import write_json, write_text
 
-from .data_io import WindowSet, open_dataset
-from .features import FeatureConfig
-from .network import ENCODER_PARTS
-from .svm import SvmConfig
-from .train_data import split_windows
-
-if TYPE_CHECKING:
-    from .train import TrainConfig, TrainResult
+from aslip_ros.learn.data_io import WindowSet, open_dataset
+from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.models.aslip_cnn import ENCODER_PARTS
+from aslip_ros.learn.models.svm import SvmConfig
+from aslip_ros.learn.training.config import TrainConfig, TrainResult
+from aslip_ros.learn.training.data import split_windows
+from aslip_ros.learn.training.train import train_cnn, train_svm
 
 RECIPES = ("frozen", "partial", "unfrozen", "scratch", "svm")
 # ``partial`` by name only: at the default budget on two cores its time is better spent on
@@ -71,7 +70,7 @@ CRITERION = ("sum over direction MAE, magnitude RMSE and detection error (1 - ac
              "candidate's; lowest wins (3.0: best at all three)")
 _TRAINABLE = {"frozen": (), "partial": ("conv1d", "pool"), "unfrozen": ENCODER_PARTS}
 
-Trainer = Callable[["TrainConfig"], "TrainResult"]
+Trainer = Callable[[TrainConfig], TrainResult]
 
 
 @dataclass(frozen=True)
@@ -115,7 +114,7 @@ def plan(recipes: Iterable[str | Candidate] = DEFAULT_RECIPES,
     return out, skipped
 
 
-def validation_split(ds: WindowSet, cfg: "TrainConfig") -> tuple[np.ndarray, np.ndarray]:
+def validation_split(ds: WindowSet, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """Training and validation windows by trial; ValueError saying what is missing when the
     validation trials are too few (or have no slip) to choose on."""
     tr, va = split_windows(ds, cfg)
@@ -186,7 +185,7 @@ def _share(left_s: float, jobs: Sequence[str | Candidate]) -> float:
     return max(1.0, left_s * w(jobs[0]) / total) if total > 0 else max(1.0, left_s)
 
 
-def _job_config(cfg: "TrainConfig", cand: Candidate, budget_s: float) -> "TrainConfig":
+def _job_config(cfg: TrainConfig, cand: Candidate, budget_s: float) -> TrainConfig:
     kw: dict[str, Any] = dict(seed=cand.seed, time_budget_s=budget_s)
     if cand.recipe in NEEDS_PRETRAIN:
         kw.update(stage="finetune", finetune_trainable=_TRAINABLE[cand.recipe],
@@ -216,7 +215,7 @@ def _trial_names(ds: WindowSet, idx: np.ndarray) -> list[str]:
 class _Jobs:
     """The candidates' training, one job after another, within the whole call's budget."""
 
-    def __init__(self, ds: WindowSet, cfg: "TrainConfig", pretrain_ds: WindowSet | None,
+    def __init__(self, ds: WindowSet, cfg: TrainConfig, pretrain_ds: WindowSet | None,
                  budget_s: float, cnn_kw: dict[str, Any], svm_config: SvmConfig) -> None:
         self.ds, self.cfg, self.pretrain_ds = ds, cfg, pretrain_ds
         self.budget_s, self.cnn_kw, self.svm_config = budget_s, cnn_kw, svm_config
@@ -225,7 +224,7 @@ class _Jobs:
         self.pretrained: Any = None
         self.pre_info: dict[str, Any] = {}
         self.rows: list[dict[str, Any]] = []
-        self.results: dict[str, "TrainResult"] = {}
+        self.results: dict[str, TrainResult] = {}
 
     def run(self, jobs: list[str | Candidate]) -> None:
         for i, job in enumerate(jobs):
@@ -241,7 +240,6 @@ class _Jobs:
     def pretrain(self, share: float) -> None:
         """The pretraining the pretrained candidates share (on the whole robot-induced set's
         own training trials; the filters are for the user's dataset)."""
-        from .train import train_cnn
         assert self.pretrain_ds is not None
         t = time.perf_counter()
         self.log(f"pretraining on {self.pretrain_ds.root} ({share:.0f} s budget)")
@@ -258,7 +256,6 @@ class _Jobs:
                              val=self.pretrained.meta["provenance"]["metrics"]["val"])
 
     def candidate(self, cand: Candidate, share: float) -> None:
-        from .train import train_cnn, train_svm
         t = time.perf_counter()
         c = _job_config(self.cfg, cand, share)
         kw = self.cnn_kw
@@ -286,7 +283,7 @@ class _Jobs:
                               wall_s=round(time.perf_counter() - t, 1)))
 
 
-def train_selected(ds: WindowSet, cfg: "TrainConfig", *, pretrain_ds: WindowSet | None = None,
+def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | None = None,
                    recipes: Iterable[str | Candidate] = DEFAULT_RECIPES,
                    seeds: Sequence[int] = DEFAULT_SEEDS, budget_s: float = DEFAULT_BUDGET_S,
                    feature_config: FeatureConfig | None = None,
@@ -294,7 +291,7 @@ def train_selected(ds: WindowSet, cfg: "TrainConfig", *, pretrain_ds: WindowSet 
                    channels: Sequence[str] | None = None,
                    svm_config: SvmConfig = SvmConfig(),
                    cache_dir: str | os.PathLike | None = None,
-                   log: Callable[[str], None] = print) -> "TrainResult":
+                   log: Callable[[str], None] = print) -> TrainResult:
     """Train the candidates within ``budget_s`` and return the one best on the validation
     trials; its ``meta["provenance"]["selection"]`` holds the comparison and the reason.
     ``cfg`` carries the shared settings (split seed, filters, calibration, device...); its
@@ -364,7 +361,7 @@ def write_comparison(out: str | os.PathLike, sel: dict[str, Any]) -> tuple[Path,
     return js, md
 
 
-def run_selected(args: argparse.Namespace, ds: WindowSet, cfg: "TrainConfig",
+def run_selected(args: argparse.Namespace, ds: WindowSet, cfg: TrainConfig,
                  fcfg: FeatureConfig, model_options: dict[str, Any],
                  svm_config: SvmConfig) -> int:
     """``aslip train --stage auto``: train, choose, write the checkpoint and comparison."""

@@ -12,7 +12,7 @@ published decision and its reported threshold cannot disagree.
 
 Every estimate also carries ``direction_sigma`` [rad]: the one-sigma direction error the
 checkpoint's ``output_calibration`` gives for the estimate's ungated predicted speed
-(learn/output_calibration.py; about 68 % of validation and held-out slip windows fall
+(learn/calibration/output.py; about 68 % of validation and held-out slip windows fall
 within it), or -1 (unknown) for a checkpoint without one.
 
 A checkpoint with a per-grasp ``calibration`` (docs/model.md, "Per-grasp calibration") gets
@@ -20,12 +20,12 @@ window offsets from the caller: offline ``calibration_frames.dataset_offsets``; 
 every accepted audio block to ``push_audio`` and pass ``calibration_offsets()`` with the
 window that ends with it (``reset_calibration()`` when a new grasp starts).
 
-The model itself is the checkpoint's backend (learn/backends.py: the CNN, the SVM
+The model itself is the checkpoint's backend (learn/models/registry.py: the CNN, the SVM
 baseline or a registered one); this class holds what every model shares: input checks,
 per-grasp calibration, the threshold and the gating.
 
 A model fed a window with a dead or disconnected microphone under-reports slip: live users
-check each window first with ``aslip_ros.learn.channel_check.dead_channels``.
+check each window first with ``aslip_ros.learn.inference.channel_check.dead_channels``.
 """
 
 from __future__ import annotations
@@ -37,13 +37,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .backends import model_backend
-from .calibration import CalibrationConstants
-from .calibration_frames import FrameCutter, StreamCalibration
-from .checkpoint import (Checkpoint, CheckpointFacts, CheckpointMismatch, check_compatible,
-                         load_checkpoint)
-from .features import FeatureConfig, LogMel
-from .output_calibration import sigma_model
+from aslip_ros.slip import DEFAULT_THRESHOLD, N_VELOCITY
+from aslip_ros.learn.models.registry import model_backend
+from aslip_ros.learn.calibration.grasp import CalibrationConstants
+from aslip_ros.learn.calibration.frames import FrameCutter, StreamCalibration
+from aslip_ros.learn.checkpoint import (Checkpoint, CheckpointFacts, CheckpointMismatch,
+                                        check_compatible, load_checkpoint)
+from aslip_ros.learn.features import FeatureConfig, LogMel
+from aslip_ros.learn.calibration.output import sigma_model
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,7 @@ class Prediction:
     speed: float
     direction: tuple[float, float]   # unit (x, z) when slipping, else (0, 0)
     window_length: float
-    threshold: float = 0.5           # the decision threshold ``slipping`` was decided at
+    threshold: float = DEFAULT_THRESHOLD   # the decision threshold ``slipping`` was decided at
     direction_sigma: float = -1.0    # one-sigma direction error [rad]; -1: unknown
 
 
@@ -68,7 +69,7 @@ class BatchPrediction:
     velocity: np.ndarray       # (B, 2) gated: zero where not slipping
     raw_velocity: np.ndarray   # (B, 2) ungated estimate
     window_length: float
-    threshold: float = 0.5     # the decision threshold ``slipping`` was decided at
+    threshold: float = DEFAULT_THRESHOLD   # the decision threshold ``slipping`` was decided at
     direction_sigma: np.ndarray | None = None   # (B,) [rad] from the raw speed; None: unknown
 
     def __len__(self) -> int:
@@ -90,14 +91,14 @@ class Predictor(CheckpointFacts):
         self.checkpoint = ckpt
         meta = ckpt.meta
         self.feature_config = FeatureConfig.from_dict(meta["feature_config"])
-        self._threshold = 0.5
+        self._threshold = DEFAULT_THRESHOLD
         self.set_threshold(threshold)
         self.window_samples = int(meta["window_samples"])
         self.window_s = float(meta["window_s"])
         backend = model_backend(ckpt.model_type)
         if backend.streaming:
             raise ValueError(f"a {ckpt.model_type!r} checkpoint runs per audio block: "
-                             "learn.streaming_predictor.StreamingPredictor")
+                             "learn.inference.stream_predictor.StreamingPredictor")
         self.backend = backend.from_checkpoint(ckpt)
         self.sigma_model = sigma_model(meta)
         self.calibration: CalibrationConstants | None = None
@@ -122,8 +123,9 @@ class Predictor(CheckpointFacts):
     # --- what the checkpoint expects ------------------------------------------------------
     @property
     def checkpoint_threshold(self) -> float:
-        """The decision threshold the checkpoint was selected with (0.5 when it names none)."""
-        return float(self.meta.get("threshold", 0.5))
+        """The decision threshold the checkpoint was selected with (the paper's 0.5 when it
+        names none)."""
+        return float(self.meta.get("threshold", DEFAULT_THRESHOLD))
 
     @property
     def threshold(self) -> float:
@@ -226,14 +228,14 @@ class Predictor(CheckpointFacts):
             probs.append(p)
             vels.append(v)
         prob = np.concatenate(probs) if probs else np.zeros(0, np.float32)
-        raw = np.concatenate(vels) if vels else np.zeros((0, 2), np.float32)
+        raw = np.concatenate(vels) if vels else np.zeros((0, N_VELOCITY), np.float32)
         return self._gate(prob, raw)
 
     def _checked(self, p: Any, v: Any, n: int) -> tuple[np.ndarray, np.ndarray]:
         p, v = np.asarray(p), np.asarray(v)
-        if p.shape != (n,) or v.shape != (n, 2):
+        if p.shape != (n,) or v.shape != (n, N_VELOCITY):
             raise ValueError(f"model {self.model_type!r} returned p {p.shape} and v {v.shape} "
-                             f"for {n} windows; expected ({n},) and ({n}, 2)")
+                             f"for {n} windows; expected ({n},) and ({n}, {N_VELOCITY})")
         if not (np.isfinite(p).all() and np.isfinite(v).all()):
             raise ValueError(f"model {self.model_type!r} returned NaN or Inf")
         return p, v

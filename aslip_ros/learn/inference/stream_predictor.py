@@ -21,7 +21,7 @@ estimate describes the instant of its frame's last sample: ``stamp_ns`` is that 
 time on the block clock, and ``Prediction.window_length`` is the frame length (the audio
 the estimate reads directly; the state summarises what came before). Its
 ``direction_sigma`` comes from the checkpoint's ``output_calibration`` at the hop's ungated
-speed (-1 without one), as for ``learn.predictor``.
+speed (-1 without one), as for ``learn.inference.predictor``.
 """
 
 from __future__ import annotations
@@ -32,12 +32,15 @@ from typing import Sequence
 
 import numpy as np
 
-from .checkpoint import Checkpoint, CheckpointFacts, check_compatible, load_checkpoint
-from .features import FeatureConfig
-from .output_calibration import sigma_model
-from .predictor import Prediction
-from .streaming import StreamingLogMel
-from .streaming_model import GruStepper, StreamConfig, StreamNet
+from aslip_ros.slip import DEFAULT_THRESHOLD
+from aslip_ros.learn.checkpoint import (Checkpoint, CheckpointFacts, check_compatible,
+                                        load_checkpoint)
+from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.calibration.output import sigma_model
+from aslip_ros.learn.inference.predictor import Prediction
+from aslip_ros.learn.incremental_features import StreamingLogMel, stream_logmel
+from aslip_ros.learn.inference.audio_window import StreamGate
+from aslip_ros.learn.models.registry import model_backend
 
 DEFAULT_MAX_TIME_JUMP_S = 0.05
 
@@ -57,27 +60,22 @@ class StreamingPredictor(CheckpointFacts):
 
     def __init__(self, ckpt: Checkpoint, threshold: float | None = None,
                  max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S) -> None:
-        from .backends import model_backend
-        if not model_backend(ckpt.model_type).streaming:
-            raise ValueError(f"StreamingPredictor needs an aslip_stream checkpoint, got "
-                             f"{ckpt.model_type!r} (window models use learn.predictor)")
-        from .stream import StreamGate
+        backend = model_backend(ckpt.model_type)
+        if not backend.streaming:
+            raise ValueError(f"StreamingPredictor needs a streaming checkpoint (aslip_stream), "
+                             f"got {ckpt.model_type!r} (window models use learn.inference."
+                             "predictor)")
         self.checkpoint = ckpt
         self.feature_config = FeatureConfig.from_dict(ckpt.meta["feature_config"])
-        self.model_config = StreamConfig.from_dict(ckpt.meta["model_config"])
-        net = StreamNet(self.model_config)
-        try:
-            net.load_state_dict(ckpt.tensors)
-        except RuntimeError as exc:
-            raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
-        self.model = net.eval()
-        self.stepper = GruStepper(self.model_config, net.state_dict())
+        self.backend = backend.from_checkpoint(ckpt)
+        self.model_config = self.backend.cfg
+        self.stepper = self.backend.stepper()
         self.features = StreamingLogMel(self.feature_config, ckpt.sample_rate,
                                         len(ckpt.channel_names))
         self.gate = StreamGate(max_time_jump_s)
         self.window_s = float(ckpt.meta["window_s"])
         self.hop_s = float(ckpt.meta["hop_s"])
-        self._threshold = 0.5
+        self._threshold = DEFAULT_THRESHOLD
         self.set_threshold(threshold)
         self.sigma_model = sigma_model(ckpt.meta)     # None: direction_sigma -1 (unknown)
         self._origin: int | None = None        # stream index of the first sample since reset
@@ -117,7 +115,8 @@ class StreamingPredictor(CheckpointFacts):
     def set_threshold(self, threshold: float | None) -> float:
         """Gate following estimates at ``threshold`` (None: the checkpoint's); ValueError
         outside [0, 1]."""
-        t = float(self.meta.get("threshold", 0.5)) if threshold is None else float(threshold)
+        t = float(self.meta.get("threshold", DEFAULT_THRESHOLD)) if threshold is None \
+            else float(threshold)
         if not 0.0 <= t <= 1.0:
             raise ValueError(f"threshold must be in [0, 1], got {t}")
         self._threshold = t
@@ -209,7 +208,6 @@ class StreamingPredictor(CheckpointFacts):
         """A whole ``(n, C)`` recording from a zero state (offline, batched; equal to pushing
         it block by block): frame end sample indices (exclusive, from the recording's first
         sample), p and the raw (ungated) velocity per frame."""
-        from .streaming import stream_logmel
         frames = stream_logmel(np.asarray(audio, np.float32), self.feature_config,
                                self.sample_rate)
         p, v = self.offline(frames)
@@ -218,5 +216,4 @@ class StreamingPredictor(CheckpointFacts):
 
     def offline(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Batched torch forward over ``(T, C, M)`` frames from a zero state: p, raw v."""
-        from .streaming_model import offline_outputs
-        return offline_outputs(self.model, frames)
+        return self.backend.offline(frames)

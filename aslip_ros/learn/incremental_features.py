@@ -25,7 +25,7 @@ import math
 import numpy as np
 from scipy import signal as sps
 
-from .features import FeatureConfig, mel_filterbank, resample_ratio
+from aslip_ros.learn.features import FeatureConfig, mel_filterbank, resample_ratio
 
 
 def decimation_factor(input_rate: float, feature_rate: float) -> int:

@@ -14,12 +14,16 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
-from .features import FeatureConfig, LogMel
+from aslip_ros.slip import N_VELOCITY, VELOCITY_COMPONENTS
+from aslip_ros.learn.calibration.frames import remove_from_audio
+from aslip_ros.learn.checkpoint import Checkpoint
+from aslip_ros.learn.features import FeatureConfig, LogMel
+from aslip_ros.learn.models.registry import register_model
 
 _FLOOR = 1e-12
 
@@ -128,7 +132,8 @@ class KernelMachine:
 
 @dataclass
 class SvmArrays:
-    """The fitted baseline as arrays: standardisation, slip classifier, vx/vz regressors.
+    """The fitted baseline as arrays: standardisation, slip classifier, one regressor per
+    slip velocity component (``aslip_ros.slip.VELOCITY_COMPONENTS``, in order).
 
     ``probability`` is sigmoid(decision value): not Platt-calibrated, but p >= 0.5 exactly
     where the SVC predicts slip, which is all the threshold needs.
@@ -137,23 +142,24 @@ class SvmArrays:
     mean: np.ndarray
     std: np.ndarray
     slip: KernelMachine
-    vx: KernelMachine
-    vz: KernelMachine
+    velocity: dict[str, KernelMachine]     # component name -> regressor
     target_scale: float   # m/s; regressors predict velocity / target_scale
 
     def predict(self, feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(probability (B,), ungated velocity (B, 2) m/s) from handcrafted features."""
         z = (np.asarray(feats, dtype=np.float64) - self.mean) / self.std
         prob = 1.0 / (1.0 + np.exp(-np.clip(self.slip(z), -50, 50)))
-        v = np.stack([self.vx(z), self.vz(z)], axis=1) * self.target_scale
+        v = np.stack([self.velocity[c](z) for c in VELOCITY_COMPONENTS],
+                     axis=1) * self.target_scale
         return prob.astype(np.float32), v.astype(np.float32)
 
     def to_tensors(self) -> dict[str, torch.Tensor]:
         out = {"scaler.mean": torch.from_numpy(np.asarray(self.mean, dtype=np.float64)),
                "scaler.std": torch.from_numpy(np.asarray(self.std, dtype=np.float64)),
                "target_scale": torch.tensor([self.target_scale], dtype=torch.float64)}
-        for name in ("slip", "vx", "vz"):
-            out.update(getattr(self, name).to_tensors(name))
+        out.update(self.slip.to_tensors("slip"))
+        for name in VELOCITY_COMPONENTS:
+            out.update(self.velocity[name].to_tensors(name))
         return out
 
     @classmethod
@@ -164,7 +170,7 @@ class SvmArrays:
         except KeyError as exc:
             raise ValueError(f"SVM checkpoint lacks {exc}") from exc
         return cls(mean=mean, std=std, slip=KernelMachine.from_tensors(t, "slip"),
-                   vx=KernelMachine.from_tensors(t, "vx"), vz=KernelMachine.from_tensors(t, "vz"),
+                   velocity={c: KernelMachine.from_tensors(t, c) for c in VELOCITY_COMPONENTS},
                    target_scale=scale)
 
 
@@ -179,8 +185,9 @@ def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
 
     feats = np.asarray(feats, dtype=np.float64)
     slip = np.asarray(slip, dtype=bool)
-    if feats.ndim != 2 or feats.shape[0] != slip.shape[0] or velocity.shape != (len(slip), 2):
-        raise ValueError("feats (n, F), slip (n,) and velocity (n, 2) must agree")
+    if feats.ndim != 2 or feats.shape[0] != slip.shape[0] or \
+            velocity.shape != (len(slip), N_VELOCITY):
+        raise ValueError(f"feats (n, F), slip (n,) and velocity (n, {N_VELOCITY}) must agree")
     if slip.all() or not slip.any():
         raise ValueError("the SVM needs both slip and no-slip training windows")
     mean = feats.mean(axis=0)
@@ -190,12 +197,44 @@ def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
     v = np.asarray(velocity, dtype=np.float64)[slip]
     scale = float(max(np.median(np.linalg.norm(v, axis=1)), 1e-4))
     svr = {}
-    for j, name in enumerate(("vx", "vz")):
+    for j, name in enumerate(VELOCITY_COMPONENTS):
         svr[name] = SVR(kernel="rbf", C=cfg.svr_C, gamma=cfg.gamma,
                         epsilon=cfg.svr_epsilon).fit(z[slip], v[:, j] / scale)
     arrays = SvmArrays(mean=mean, std=std, slip=KernelMachine.from_sklearn(svc),
-                       vx=KernelMachine.from_sklearn(svr["vx"]),
-                       vz=KernelMachine.from_sklearn(svr["vz"]), target_scale=scale)
+                       velocity={c: KernelMachine.from_sklearn(svr[c]) for c in svr},
+                       target_scale=scale)
     if list(svc.classes_) != [0, 1]:
         raise ValueError(f"unexpected SVC classes {svc.classes_}")
-    return arrays, {"svc": svc, "svr_vx": svr["vx"], "svr_vz": svr["vz"]}
+    return arrays, {"svc": svc, **{f"svr_{c}": m for c, m in svr.items()}}
+
+
+@register_model
+class SvmBackend:
+    """The paper's SVM baseline on handcrafted band features (learn/models/svm.py)."""
+
+    model_type: ClassVar[str] = "svm"
+    config: ClassVar[type] = SvmConfig
+    streaming: ClassVar[bool] = False
+
+    def __init__(self, arrays: SvmArrays, featurizer: SvmFeaturizer) -> None:
+        self.arrays = arrays
+        self.featurizer = featurizer
+
+    @classmethod
+    def meta_problems(cls, meta, model_config, feature_config) -> list[str]:
+        if model_config.n_bands < 1:
+            return [f"model_config.n_bands must be >= 1, got {model_config.n_bands}"]
+        return []
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: Checkpoint) -> "SvmBackend":
+        fcfg = FeatureConfig.from_dict(ckpt.meta["feature_config"])
+        n_bands = int(ckpt.meta["model_config"]["n_bands"])
+        return cls(SvmArrays.from_tensors(ckpt.tensors),
+                   SvmFeaturizer(fcfg, ckpt.sample_rate, n_bands))
+
+    def predict(self, windows: np.ndarray,
+                offsets: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        if offsets is not None:
+            windows = remove_from_audio(windows, offsets)
+        return self.arrays.predict(self.featurizer(windows))

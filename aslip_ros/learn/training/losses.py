@@ -17,7 +17,7 @@ from typing import Any
 import torch
 from torch.nn import functional as F
 
-from .network import SlipOutput
+from aslip_ros.learn.models.aslip_cnn import SlipOutput
 
 # Below this norm a vector has no direction; used both for targets and predictions.
 _DIR_EPS = 1e-8

@@ -31,10 +31,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from aslip_ros.slip import DEFAULT_THRESHOLD, N_VELOCITY
 from aslip_ros.util import atomic_path
 
 ONE_SIGMA = 0.6827                 # P(|x| <= sigma) of a normal distribution
-DEFAULT_THRESHOLD = 0.5
 THRESHOLD_GRID = np.round(np.arange(0.05, 0.9501, 0.01), 2)
 MIN_THRESHOLD_WINDOWS = 50
 MIN_CLASS_WINDOWS = 10
@@ -47,8 +47,8 @@ RELIABILITY_BINS = 10
 
 def _arrays(prob, v_pred, v_true, slip) -> tuple[np.ndarray, ...]:
     prob = np.asarray(prob, np.float64).reshape(-1)
-    v_pred = np.asarray(v_pred, np.float64).reshape(-1, 2)
-    v_true = np.asarray(v_true, np.float64).reshape(-1, 2)
+    v_pred = np.asarray(v_pred, np.float64).reshape(-1, N_VELOCITY)
+    v_true = np.asarray(v_true, np.float64).reshape(-1, N_VELOCITY)
     slip = np.asarray(slip, bool).reshape(-1)
     if not (prob.shape[0] == v_pred.shape[0] == v_true.shape[0] == slip.shape[0]):
         raise ValueError("prob, velocities and slip labels must have the same length")
@@ -61,8 +61,8 @@ def _arrays(prob, v_pred, v_true, slip) -> tuple[np.ndarray, ...]:
 def angle_errors(v_pred, v_true) -> np.ndarray:
     """|angle| between predicted and true velocity [rad], in [0, pi]; a zero prediction
     has no direction and counts as pi/2 (neither right nor opposite)."""
-    v_pred = np.asarray(v_pred, np.float64).reshape(-1, 2)
-    v_true = np.asarray(v_true, np.float64).reshape(-1, 2)
+    v_pred = np.asarray(v_pred, np.float64).reshape(-1, N_VELOCITY)
+    v_true = np.asarray(v_true, np.float64).reshape(-1, N_VELOCITY)
     sp, st = np.linalg.norm(v_pred, axis=1), np.linalg.norm(v_true, axis=1)
     cos = (v_pred * v_true).sum(1) / np.maximum(sp * st, 1e-300)
     err = np.arccos(np.clip(cos, -1.0, 1.0))
@@ -72,7 +72,7 @@ def angle_errors(v_pred, v_true) -> np.ndarray:
 
 def direction_rows(v_true, slip) -> np.ndarray:
     """The windows whose direction is scored: labelled slip with a non-zero true velocity."""
-    return np.asarray(slip, bool) & (np.linalg.norm(np.asarray(v_true).reshape(-1, 2),
+    return np.asarray(slip, bool) & (np.linalg.norm(np.asarray(v_true).reshape(-1, N_VELOCITY),
                                                     axis=1) > 0)
 
 
@@ -134,8 +134,9 @@ def fit_sigma_model(v_pred, v_true, slip) -> dict[str, Any]:
     """The direction-uncertainty model of the module docstring, as a JSON-able dict;
     ``{"model": None, "note": ...}`` when there are too few slip windows."""
     m = direction_rows(v_true, slip)
-    err = angle_errors(np.asarray(v_pred).reshape(-1, 2)[m], np.asarray(v_true).reshape(-1, 2)[m])
-    speed = np.linalg.norm(np.asarray(v_pred, np.float64).reshape(-1, 2)[m], axis=1)
+    err = angle_errors(np.asarray(v_pred).reshape(-1, N_VELOCITY)[m],
+                       np.asarray(v_true).reshape(-1, N_VELOCITY)[m])
+    speed = np.linalg.norm(np.asarray(v_pred, np.float64).reshape(-1, N_VELOCITY)[m], axis=1)
     n = int(err.size)
     if n < MIN_SIGMA_WINDOWS:
         return {"model": None, "n_slip_windows": n,
@@ -209,8 +210,8 @@ def sigma_coverage(model: SigmaModel, v_pred, v_true, slip) -> dict[str, Any]:
     """Fraction of scored slip windows whose direction error is <= their sigma, overall and
     per speed bin (None where there are no windows)."""
     m = direction_rows(v_true, slip)
-    vp = np.asarray(v_pred, np.float64).reshape(-1, 2)[m]
-    err = angle_errors(vp, np.asarray(v_true).reshape(-1, 2)[m])
+    vp = np.asarray(v_pred, np.float64).reshape(-1, N_VELOCITY)[m]
+    err = angle_errors(vp, np.asarray(v_true).reshape(-1, N_VELOCITY)[m])
     speed = np.linalg.norm(vp, axis=1)
     inside = err <= model(speed)
     b = model.bins(speed)

@@ -1,0 +1,367 @@
+"""The live slip estimator: audio blocks in, slip estimates out, for every checkpoint.
+
+    est = LiveEstimator(load_predictor("model.pt"), LiveConfig(hop_s=0.01))
+    for e in est.feed(block):          # block: ``audio_frame.AudioData`` (or alike)
+        publish(e.stamp_ns, e.prediction, e.direction_sigma)
+
+One object owns everything between an audio block and an estimate, for window models (CNN,
+SVM, registered ones) and streaming ones (``aslip_stream``) alike:
+
+- the stream's fit to the checkpoint (channel names, rate: refused, counted, not crashed);
+- the continuity gate (``audio_window.StreamGate``): repeated or out-of-order blocks are
+  dropped; a gap, a time jump or a new stream restarts the window, the per-grasp
+  calibration and the recurrent state;
+- window models: the ring buffer of the newest ``window_samples``, the hop, the per-grasp
+  calibration state (fed every accepted block; each window is normalised with the state
+  as of its last block) and ``UNCONVERGED_DIRECTION_SIGMA`` until it converges;
+- the dead-microphone check (``channel_check``): no estimate for such audio;
+- the decision threshold (the predictor's, ``set_threshold``);
+- counters of all of it (``stats``) and the events a user should hear of (``events``).
+
+``slip_inference`` only decodes messages into blocks, hands ``accept``'s window job to its
+model thread (``run``) and publishes; evaluation and the closed-loop demo call ``feed``,
+which runs the job at once, so what is measured offline is what runs live.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import os
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+
+from aslip_ros.learn.checkpoint import Checkpoint, load_checkpoint
+from aslip_ros.learn.inference.audio_window import RingBuffer, StreamGate
+from aslip_ros.learn.inference.channel_check import DEAD_MARGIN_DB, dead_channels
+from aslip_ros.learn.inference.predictor import Prediction, Predictor
+from aslip_ros.learn.inference.stream_predictor import DEFAULT_MAX_TIME_JUMP_S, StreamingPredictor
+from aslip_ros.learn.models.registry import model_backend
+
+#: direction_sigma [rad] while the per-grasp calibration has not converged: uninformative.
+UNCONVERGED_DIRECTION_SIGMA = float(np.pi)
+
+
+def load_predictor(checkpoint: str | os.PathLike | Checkpoint, threshold: float | None = None,
+                   max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S):
+    """The predictor of a checkpoint (a path or one loaded): a ``StreamingPredictor`` when
+    the registry says its model streams, else a window ``Predictor``. OSError / ValueError
+    when unusable."""
+    ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
+    if model_backend(ckpt.model_type).streaming:
+        return StreamingPredictor(ckpt, threshold, max_time_jump_s)
+    return Predictor(ckpt, threshold)
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """How the live estimator runs a checkpoint (``slip_inference``'s parameters)."""
+
+    #: window models: run the model every ``hop_s`` of new audio [s] (streaming: the
+    #: checkpoint's hop)
+    hop_s: float = 0.01
+    #: a stamp this far off its sample index is a time jump [s]
+    max_time_jump_s: float = DEFAULT_MAX_TIME_JUMP_S
+    #: withhold the estimate when a channel is this far below the median of the others or
+    #: digitally silent [dB]; 0: no check
+    dead_channel_margin_db: float = DEAD_MARGIN_DB
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One estimate as it goes out: the instant it describes and what it says."""
+
+    stamp_ns: int
+    prediction: Prediction
+    direction_sigma: float      # [rad]: pi until the per-grasp calibration converged
+    raw_velocity: tuple[float, float] = (0.0, 0.0)      # ungated, for evaluation
+
+
+@dataclass(frozen=True)
+class Job:
+    """A window due for a window model: run it with ``LiveEstimator.run``."""
+
+    window: np.ndarray            # (window_samples, C) float32, owned by the job
+    stamp_ns: int                 # end of the window
+    offsets: Optional[np.ndarray]  # per-grasp calibration as of the window's end
+    converged: bool
+
+
+@dataclass
+class Stats:
+    """What the estimator counts about its input and output."""
+
+    drops: collections.Counter = field(default_factory=collections.Counter)  # per reason
+    blocks_ok: int = 0
+    frames_lost: int = 0
+    gaps: int = 0
+    stream_restarts: int = 0
+    estimates: int = 0
+    dead_windows: int = 0                 # windows (blocks, streaming) withheld: dead channel
+    hops_superseded: int = 0              # jobs replaced before they ran (the node counts)
+    refusal: str = ""                     # why the current stream is refused ("" when not)
+    dead_recent: set = field(default_factory=set)   # dead channels since last collected
+
+
+#: Kinds of ``events``: ``drop`` (a block dropped, ``reason`` says why), ``refuse`` (the
+#: stream does not fit the checkpoint), ``restart`` (window, calibration and state start
+#: again: gap, time jump, new stream, request), ``converged`` (the per-grasp calibration),
+#: ``dead`` (channels named in ``detail``; no estimate) and ``bad_estimate``.
+EVENT_KINDS = ("drop", "refuse", "restart", "converged", "dead", "bad_estimate")
+
+
+@dataclass(frozen=True)
+class Event:
+    kind: str
+    reason: str
+    detail: str = ""
+
+
+class LiveEstimator:
+    """Slip estimates from a live stream of audio blocks (see the module docstring)."""
+
+    def __init__(self, predictor: Any, config: LiveConfig = LiveConfig()) -> None:
+        self.predictor = predictor
+        self.config = config
+        self.streaming = bool(model_backend(predictor.model_type).streaming)
+        self.gate = StreamGate(config.max_time_jump_s)
+        self.ring = None if self.streaming else RingBuffer(predictor.window_samples,
+                                                           predictor.n_channels)
+        self.hop_frames = 1
+        self.set_hop(config.hop_s)
+        self.dead_margin_db = float(config.dead_channel_margin_db)
+        self.stats = Stats()
+        self.events: list[Event] = []      # since the caller last took them (``take_events``)
+        # ``accept`` (the audio thread) and ``run`` (a model thread) share the bookkeeping.
+        self._lock = threading.RLock()
+        self._since_hop = 0
+        self._announced_converged = False
+        if self.streaming:
+            predictor.warm_up()
+        else:
+            for _ in range(3):     # the first torch calls are slow: keep them out of the stream
+                predictor.predict(np.zeros((predictor.window_samples, predictor.n_channels),
+                                           np.float32))
+
+    @classmethod
+    def from_checkpoint(cls, checkpoint: str | os.PathLike | Checkpoint,
+                        config: LiveConfig = LiveConfig(),
+                        threshold: float | None = None) -> "LiveEstimator":
+        return cls(load_predictor(checkpoint, threshold, config.max_time_jump_s), config)
+
+    # --- settings -------------------------------------------------------------------------
+    def set_hop(self, hop_s: float) -> None:
+        self.hop_frames = max(1, int(round(hop_s * self.predictor.sample_rate)))
+
+    def set_max_time_jump(self, seconds: float) -> None:
+        self.gate.max_time_jump_ns = int(seconds * 1e9)
+
+    def set_threshold(self, threshold: float | None) -> float:
+        """The decision threshold (None: the checkpoint's); ValueError outside [0, 1]."""
+        return self.predictor.set_threshold(threshold)
+
+    @property
+    def threshold(self) -> float:
+        return self.predictor.threshold
+
+    # --- what the caller hears of ---------------------------------------------------------
+    def take_events(self) -> list[Event]:
+        with self._lock:
+            out, self.events = self.events, []
+        return out
+
+    def _event(self, kind: str, reason: str, detail: str = "") -> None:
+        self.events.append(Event(kind, reason, detail))
+
+    @property
+    def calibrated(self) -> bool:
+        return bool(self.predictor.calibrated)
+
+    @property
+    def calibration_converged(self) -> bool:
+        return self.calibrated and bool(self.predictor.calibration_converged)
+
+    # --- input ----------------------------------------------------------------------------
+    def drop(self, reason: str, detail: str) -> None:
+        """Count a block the caller could not decode, or that ``accept`` refused; a streaming
+        state forgets its audio (the next block follows a hole)."""
+        with self._lock:
+            self._drop(reason, detail)
+
+    def _drop(self, reason: str, detail: str) -> None:
+        if self.streaming and reason not in ("repeated", "out_of_order", "time_jump"):
+            self._reset_stream(f"dropped block ({reason})")
+        self.stats.drops[reason] += 1
+        self._event("drop", reason, detail)
+
+    def restart(self, reason: str) -> None:
+        """The stream is not continuous here: a new window, a new per-grasp calibration, a
+        fresh recurrent state."""
+        with self._lock:
+            self._restart(reason)
+
+    def new_grasp(self, reason: str) -> bool:
+        """A new grasp (``slip_inference``'s ``~/recalibrate``): the per-grasp calibration
+        starts again from zero gain, the window runs on. False without a calibration."""
+        with self._lock:
+            if not self.calibrated:
+                return False
+            self.predictor.reset_calibration()
+            self._announced_converged = False
+            self._event("restart", reason)
+            return True
+
+    def _restart(self, reason: str) -> None:
+        if self.streaming:
+            self._reset_stream(reason)
+            return
+        self.ring.reset()
+        self.predictor.reset_calibration()
+        self._since_hop = 0
+        self._announced_converged = False
+        self._event("restart", reason)
+
+    def _reset_stream(self, reason: str) -> None:
+        if not self.predictor.fresh:          # a reset with nothing fed since is no reset
+            self.predictor.reset(reason)
+
+    def _refuse(self, reason: str, detail: str) -> None:
+        self.stats.refusal = detail
+        if self.streaming:
+            self._reset_stream(f"refused stream ({reason})")
+        self.stats.drops[reason] += 1
+        self._event("refuse", reason, detail)
+
+    def accept(self, a) -> tuple[list[Estimate], Optional[Job]]:
+        """Take one decoded block: the estimates it completes (streaming) and the window
+        due for the model (window models; None when no hop is due). What else happened is
+        in ``events`` and ``stats``."""
+        pr = self.predictor
+        if list(a.channel_names) != list(pr.channel_names):
+            self._refuse("channels", f"stream channels {list(a.channel_names)} do not match "
+                                     f"the checkpoint's {pr.channel_names}")
+            return [], None
+        try:
+            pr.check_stream(a.sample_rate, a.channel_names)
+        except ValueError as exc:
+            self._refuse("sample_rate", str(exc))
+            return [], None
+        block = np.asarray(a.block)
+        if block.shape != (a.frames, pr.n_channels) or not np.isfinite(block).all():
+            self._drop("non_finite" if block.shape == (a.frames, pr.n_channels) else "ragged",
+                       f"block shaped {block.shape}, {a.frames} frames expected, or not finite")
+            return [], None
+        verdict, detail = self.gate.check(a)
+        if verdict in ("repeated", "out_of_order"):
+            self._drop(verdict, detail)
+            return [], None
+        if verdict == "time_jump":
+            # Re-anchor on this block so a real clock step costs one window, not the stream.
+            self._drop(verdict, detail)
+            self.gate.accept(a)
+            self._restart(f"time jump: {detail}")
+            return [], None
+        if verdict == "new_stream":
+            self.stats.stream_restarts += 1
+            self._restart(f"new stream: {detail}")
+        elif verdict == "gap":
+            self.stats.gaps += 1
+            self.stats.frames_lost += a.first_sample_index - self.gate.next_index
+            self._restart(f"gap: {detail}")
+        self.gate.accept(a)
+        self.stats.blocks_ok += 1
+        self.stats.refusal = ""
+        if self.streaming:
+            return self._stream_block(a), None
+        return [], self._window_block(a)
+
+    def _window_block(self, a) -> Optional[Job]:
+        pr = self.predictor
+        self.ring.push(a.block)
+        pr.push_audio(a.block)
+        if self.calibration_converged and not self._announced_converged:
+            self._announced_converged = True
+            self._event("converged", "converged")
+        self._since_hop += a.frames
+        if self.ring.filled < self.ring.length or self._since_hop < self.hop_frames:
+            return None
+        # Several hops inside one block: one estimate on the newest window is what matters.
+        self._since_hop %= self.hop_frames
+        return Job(self.ring.window().copy(), int(a.end_stamp_ns), pr.calibration_offsets(),
+                   self.calibration_converged)
+
+    def _dead(self, audio: np.ndarray) -> list[str]:
+        margin = self.dead_margin_db
+        dead = dead_channels(audio, self.predictor.channel_names, margin) if margin > 0 else []
+        if dead:
+            self._count_dead(dead)
+        return dead
+
+    def _count_dead(self, dead: list[str]) -> None:
+        self.stats.dead_windows += 1
+        self.stats.dead_recent.update(dead)
+        self._event("dead", "dead", ", ".join(dead))
+
+    def _stream_block(self, a) -> list[Estimate]:
+        """Every hop the block completes. A block with a dead channel gives none and resets
+        the state: a state that has read a dead microphone would under-report slip for an
+        unknown time after the microphone came back."""
+        if self._dead(np.asarray(a.block)):
+            self._reset_stream("dead channel(s)")
+            return []
+        out = []
+        for est in self.predictor.feed(a):
+            e = est.prediction
+            if not _finite(e):
+                self._reset_stream("non-finite estimate")
+                self.stats.drops["bad_estimate"] += 1
+                self._event("bad_estimate", "bad_estimate", f"non-finite estimate {e}")
+                return out
+            out.append(Estimate(est.stamp_ns, e, e.direction_sigma, est.raw_velocity))
+        self.stats.estimates += len(out)
+        return out
+
+    # --- the model ------------------------------------------------------------------------
+    def run(self, job: Job) -> Optional[Estimate]:
+        """A window through the model (a thread of the caller's may do this): the estimate,
+        or None when withheld (dead channel, non-finite output: see ``events``)."""
+        margin = self.dead_margin_db
+        dead = dead_channels(job.window, self.predictor.channel_names, margin) \
+            if margin > 0 else []
+        problem, pred = "", None
+        if not dead:
+            try:
+                pred = self.predictor.predict(job.window, job.offsets)
+            except ValueError as exc:
+                problem = str(exc)
+            if pred is not None and not _finite(pred):
+                problem = f"non-finite estimate {pred}"
+        with self._lock:
+            if dead:
+                self._count_dead(dead)
+                return None
+            if problem:
+                self.stats.drops["bad_estimate"] += 1
+                self._event("bad_estimate", "bad_estimate", problem)
+                return None
+            self.stats.estimates += 1
+        sigma = UNCONVERGED_DIRECTION_SIGMA if job.offsets is not None and not job.converged \
+            else pred.direction_sigma
+        return Estimate(job.stamp_ns, pred, sigma)
+
+    def feed(self, a) -> list[Estimate]:
+        """``accept`` and, for a window model, ``run`` at once: every estimate of the block."""
+        out, job = self.accept(a)
+        if job is not None:
+            est = self.run(job)
+            if est is not None:
+                out.append(est)
+        return out
+
+
+def _finite(p: Prediction) -> bool:
+    return all(math.isfinite(v) for v in (p.probability, p.vx, p.vz, p.threshold,
+                                          p.direction_sigma))

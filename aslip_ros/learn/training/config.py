@@ -1,0 +1,110 @@
+"""What a training run is asked to do (``TrainConfig``) and what it gives (``TrainResult``).
+
+The bottom of ``learn.training``: the stages, the batching, the epoch loop, the recipes and
+the command line all import these and nothing here imports them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from aslip_ros.learn.calibration.grasp import METHODS
+from aslip_ros.learn.checkpoint import Checkpoint, save_checkpoint
+from aslip_ros.learn.models.registry import model_backend
+
+
+def fit_stage(stage: str) -> type | None:
+    """The backend whose ``fit`` trains model type ``stage`` (None: not such a stage)."""
+    if stage in STAGES:
+        return None
+    try:
+        backend = model_backend(stage)
+    except ValueError:
+        return None
+    return backend if callable(getattr(backend, "fit", None)) else None
+
+
+#: The built-in stages of ``aslip train``; a model type whose backend defines ``fit`` is a
+#: stage too (``learn.training.train.train_backend``, docs/design.md "Extending").
+STAGES = ("auto", "pretrain", "finetune", "scratch", "svm", "stream")
+DEVICES = ("auto", "cpu", "cuda")
+CALIBRATIONS = ("off",) + METHODS
+
+
+@dataclass
+class TrainConfig:
+    """Recipe hyper-parameters (paper: Adam 1e-3, wd 1e-4, SpecAugment, random gain)."""
+
+    stage: str = "scratch"
+    epochs: int = 300
+    batch_size: int = 128
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    patience: int = 30             # epochs; one epoch is only a few dozen batches
+    seed: int = 0
+    split_seed: int = 0
+    noslip_ratio: float = 1.0      # no-slip windows drawn per slip window, each epoch
+    gain_db: float = 6.0           # random gain, whole window, +/- dB
+    channel_gain_db: float = 1.0   # extra per-microphone gain, +/- dB
+    freq_mask: int = -1            # max SpecAugment frequency-mask width; -1: n_mels // 8
+    time_mask: int = 3             # max SpecAugment time-mask width (frames)
+    time_budget_s: float = 1140.0  # stop (keeping the best epoch) after this much training
+    threads: int = 2
+    progress: bool = True
+    # Library default off (the experiment tables were measured so); ``aslip train``
+    # defaults to background.
+    calibration: str = "off"
+    induced: str | None = None
+    objects: tuple[str, ...] | None = None
+    conditions: tuple[str, ...] | None = None
+    device: str = "cpu"            # auto | cpu | cuda (training.loop.resolve_device)
+    encoder_lr_scale: float = 1.0  # learning rate of trainable encoder weights, times lr
+    # Encoder parts a finetune trains (network.ENCODER_PARTS); () is the paper's frozen one.
+    finetune_trainable: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.stage not in STAGES and fit_stage(self.stage) is None:
+            raise ValueError(f"stage must be one of {STAGES} or a model type with a "
+                             f"training stage (fit), got {self.stage!r}")
+        if self.device not in DEVICES:
+            raise ValueError(f"device must be one of {DEVICES}, got {self.device!r}")
+        if not self.encoder_lr_scale > 0:
+            raise ValueError("encoder_lr_scale must be positive")
+        if self.epochs < 1 or self.batch_size < 2 or self.patience < 1:
+            raise ValueError("epochs >= 1, batch_size >= 2 and patience >= 1 are required")
+        if self.calibration not in CALIBRATIONS:
+            raise ValueError(f"calibration must be one of {CALIBRATIONS}, "
+                             f"got {self.calibration!r}")
+        if self.noslip_ratio <= 0:
+            raise ValueError("noslip_ratio must be positive")
+        if not (self.gain_db >= 0 and self.channel_gain_db >= 0):
+            raise ValueError("gain_db and channel_gain_db must be >= 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        for k in ("objects", "conditions"):
+            d[k] = list(d[k]) if d[k] else None
+        d["finetune_trainable"] = list(self.finetune_trainable)
+        return d
+
+
+@dataclass
+class TrainResult:
+    meta: dict[str, Any]
+    tensors: dict[str, torch.Tensor]
+    history: list[dict[str, float]]
+    model: Any = None
+    # --stage auto: every candidate that finished, by name (the winner among them).
+    candidates: dict[str, "TrainResult"] | None = None
+
+    def save(self, path: str | os.PathLike) -> Path:
+        return save_checkpoint(path, self.meta, self.tensors)
+
+    def checkpoint(self) -> Checkpoint:
+        return Checkpoint(meta=self.meta, tensors=self.tensors)

@@ -1,0 +1,258 @@
+"""The training stages of ``aslip train`` (the command line is learn/training/cli.py).
+
+- ``train_cnn``: pretrain (all weights, robot-induced data), finetune (from an init: encoder
+  frozen or partly trainable, heads), scratch (all weights, no initialisation);
+- ``train_svm``: the handcrafted-feature SVM baseline;
+- ``train_backend``: any model type whose backend defines ``fit`` (docs/design.md).
+
+``--device`` (default cpu; auto: a CUDA GPU where torch sees one) moves the network and its
+batches; checkpoints always hold CPU tensors.
+
+Per-grasp calibration (``--calibration``, default ``background`` on the command line): the
+constants are fitted on the training trials and every window is read with its own trial's
+causal calibration removed (``calibration.frames``); the constants go into the checkpoint
+under ``calibration``. ``off`` trains on raw features as before.
+
+Log-mel features of every dataset window are cached once beside the dataset
+(learn/training/data.py); the CNN's epoch loop is learn/training/loop.py; every trainer writes
+its checkpoint document with ``checkpoint.checkpoint_meta``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+
+from aslip_ros.learn.models.registry import CNN
+from aslip_ros.learn.models.svm import SvmBackend
+from aslip_ros.learn.calibration.frames import remove_from_audio, training_calibration
+from aslip_ros.learn.checkpoint import Checkpoint, checkpoint_meta, git_revision, load_checkpoint
+from aslip_ros.learn.data_io import WindowSet
+from aslip_ros.learn.metrics import compute_metrics
+from aslip_ros.learn.features import FeatureConfig, normalization_stats
+from aslip_ros.learn.training.losses import LossWeights
+from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
+from aslip_ros.learn.calibration.output import checkpoint_fields
+from aslip_ros.learn.models.svm import SvmConfig, SvmFeaturizer, fit_svm
+from aslip_ros.learn.training.data import Batches, feature_cache, split_windows
+from aslip_ros.learn.inference.predictor import Predictor
+from aslip_ros.learn.training.config import TrainConfig, TrainResult
+from aslip_ros.learn.training.loop import evaluate_loss, resolve_device, run_epochs
+
+
+# --- steps -------------------------------------------------------------------------------
+
+def _seed_everything(seed: int) -> None:
+    torch.manual_seed(seed)
+    np.random.seed(seed % (2 ** 32))
+
+
+def _provenance(ds: WindowSet, cfg: TrainConfig, init: str | None) -> dict[str, Any]:
+    return {"dataset": str(Path(ds.root).resolve()), "dataset_fingerprint": ds.fingerprint(),
+            "git_revision": git_revision(), "seed": cfg.seed, "split_seed": cfg.split_seed,
+            "stage": cfg.stage, "init": init, "torch_version": torch.__version__,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "filters": {"induced": cfg.induced, "objects": cfg.to_dict()["objects"],
+                        "conditions": cfg.to_dict()["conditions"]}}
+
+
+# --- CNN ----------------------------------------------------------------------------------
+
+def _init_name(init: str | os.PathLike | Checkpoint | None) -> str | None:
+    if isinstance(init, Checkpoint):
+        return "in memory, pretrained on " + str(init.meta.get("provenance", {}).get("dataset"))
+    return str(init) if init else None
+
+
+def _open_init(ds: WindowSet, cfg: TrainConfig, init: str | os.PathLike | Checkpoint | None
+               ) -> Checkpoint | None:
+    """The checkpoint to finetune from, checked against the dataset (None without one)."""
+    init_ckpt = init if isinstance(init, Checkpoint) else load_checkpoint(init) if init else None
+    if cfg.stage == "finetune" and init_ckpt is None:
+        raise ValueError("--stage finetune needs --init <checkpoint>")
+    if init_ckpt is None:
+        return None
+    if init_ckpt.model_type != CNN:
+        raise ValueError("--init must be a CNN checkpoint")
+    init_ckpt.check_compatible(ds.sample_rate, [ds.channel_names[c] for c in
+                                                ds.channel_indices(init_ckpt.channel_names)])
+    if int(init_ckpt.meta["window_samples"]) != ds.window_samples:
+        raise ValueError("the --init checkpoint was trained on another window length")
+    return init_ckpt
+
+
+def _build_model(ds: WindowSet, init_ckpt: Checkpoint | None, feats: np.ndarray,
+                 tr: np.ndarray, channels: list[str], fcfg: FeatureConfig,
+                 model_options: dict[str, Any] | None, rng: np.random.Generator) -> SlipNet:
+    """The init checkpoint's network, or a new one normalised on the training windows with
+    the median training slip speed as its speed scale."""
+    if init_ckpt is not None:
+        model = SlipNet(ModelConfig.from_dict(init_ckpt.meta["model_config"]))
+        model.load_state_dict(init_ckpt.tensors)
+        return model
+    mean, std = normalization_stats(feats[np.sort(tr)] if tr.size <= 20000 else
+                                    feats[np.sort(rng.choice(tr, 20000, replace=False))])
+    slip_speed = ds.speed(tr)[ds.slip(tr)]
+    scale = float(np.median(slip_speed)) if slip_speed.size else 0.02
+    mcfg = ModelConfig(n_channels=len(channels), n_mels=fcfg.n_mels,
+                       speed_scale=max(scale, 1e-4), **dict(model_options or {}))
+    model = SlipNet(mcfg)
+    model.set_normalization(mean, std)
+    return model
+
+
+def _cnn_meta(ds: WindowSet, cfg: TrainConfig, model: SlipNet, fcfg: FeatureConfig,
+              channels: list[str], weights: LossWeights, cal: Any, prov: dict[str, Any]
+              ) -> dict[str, Any]:
+    return checkpoint_meta(
+        CNN, model.cfg, fcfg, ds, channels, provenance=prov, calibration=cal,
+        normalization={"mean": model.feat_mean.tolist(), "std": model.feat_std.tolist(),
+                       "scope": "per mel bin over training windows, channels and frames"},
+        loss_weights=weights.to_dict(), train_config=cfg.to_dict())
+
+
+def train_cnn(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig | None = None,
+              model_options: dict[str, Any] | None = None,
+              channels: Sequence[str] | None = None,
+              init: str | os.PathLike | Checkpoint | None = None,
+              weights: LossWeights = LossWeights(), cache_dir: str | os.PathLike | None = None,
+              log: Callable[[str], None] = print) -> TrainResult:
+    """Train (pretrain / scratch) or finetune (``init`` given, a path or a loaded checkpoint;
+    encoder frozen but for ``cfg.finetune_trainable``) the CNN on ``cfg.device``."""
+    torch.set_num_threads(max(1, cfg.threads))
+    device = resolve_device(cfg.device)
+    _seed_everything(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    init_ckpt = _open_init(ds, cfg, init)
+    if init_ckpt is not None:     # the init's channels and features: its weights read those
+        channels = init_ckpt.channel_names
+        feature_config = FeatureConfig.from_dict(init_ckpt.meta["feature_config"])
+    channels = list(channels or ds.channel_names)
+    fcfg = feature_config or FeatureConfig()
+
+    t0 = time.perf_counter()
+    feats = feature_cache(ds, fcfg, channels, cache_dir, progress=cfg.progress)
+    tr, va = split_windows(ds, cfg)
+    reuse = None if init_ckpt is None else init_ckpt.meta.get("calibration")
+    cal, offsets = training_calibration(ds, cfg.calibration, channels, fcfg, tr, va, reuse,
+                                        log)
+    t_feat = time.perf_counter() - t0
+    data = Batches(feats, ds, offsets)
+
+    model = _build_model(ds, init_ckpt, feats, tr, channels, fcfg, model_options, rng)
+    if cfg.stage == "finetune":
+        model.freeze_encoder(cfg.finetune_trainable)
+    model.to(device)
+    fit = run_epochs(model, data, tr, va, cfg, weights, rng, log)
+
+    _, pred = evaluate_loss(model, data, va, weights)
+    model.to("cpu")
+    val_metrics = compute_metrics(pred["prob"], pred["v"], data.v[va], data.slip[va],
+                                  ds.window_s)
+    prov = _provenance(ds, cfg, _init_name(init))
+    prov["device"] = str(device)
+    if init_ckpt is not None:
+        prov["init_provenance"] = {k: init_ckpt.meta.get("provenance", {}).get(k)
+                                   for k in ("dataset", "stage", "seed", "git_revision")}
+    prov.update(metrics={"val": val_metrics, "best_val_loss": fit.best_loss},
+                training={"best_epoch": fit.best_epoch, "epochs_run": len(fit.history),
+                          "stop_reason": fit.stop_reason, "train_time_s": fit.train_time_s,
+                          "feature_time_s": t_feat, "n_train_windows": int(tr.size),
+                          "n_val_windows": int(va.size)})
+    meta = _cnn_meta(ds, cfg, model, fcfg, channels, weights, cal, prov)
+    meta.update(checkpoint_fields(pred["prob"], pred["v"], data.v[va], data.slip[va]))
+    model.eval()
+    tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    return TrainResult(meta=meta, tensors=tensors, history=fit.history, model=model)
+
+
+# --- SVM ----------------------------------------------------------------------------------
+
+def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig | None = None,
+              svm_config: SvmConfig = SvmConfig(), channels: Sequence[str] | None = None,
+              log: Callable[[str], None] = print) -> TrainResult:
+    """Fit the SVM baseline on (at most ``svm_config.max_train``) training windows."""
+    rng = np.random.default_rng(cfg.seed)
+    channels = list(channels or ds.channel_names)
+    cols = ds.channel_indices(channels)
+    fcfg = feature_config or FeatureConfig()
+    tr, va = split_windows(ds, cfg)
+    cal, offsets = training_calibration(ds, cfg.calibration, channels, fcfg, tr, va, None,
+                                        log)
+    slip_all = ds.slip(np.arange(len(ds)))
+    if tr.size > svm_config.max_train:
+        # Balanced subsample: SVC cost grows quadratically with the training set.
+        pos, neg = tr[slip_all[tr]], tr[~slip_all[tr]]
+        n_pos = min(pos.size, svm_config.max_train // 2)
+        n_neg = min(neg.size, svm_config.max_train - n_pos)
+        tr = np.sort(np.concatenate([rng.choice(pos, n_pos, replace=False),
+                                     rng.choice(neg, n_neg, replace=False)]))
+    featurizer = SvmFeaturizer(fcfg, ds.sample_rate, svm_config.n_bands)
+
+    def audio(idx: np.ndarray) -> np.ndarray:
+        a = ds.window_audio(idx, cols)
+        return a if offsets is None else remove_from_audio(a, offsets[idx])
+
+    def feats(idx: np.ndarray) -> np.ndarray:
+        return np.concatenate([featurizer(audio(idx[s:s + 512]))
+                               for s in range(0, idx.size, 512)])
+
+    t0 = time.perf_counter()
+    arrays, _ = fit_svm(feats(tr), ds.slip(tr), ds.velocity(tr), svm_config)
+    prob, v = arrays.predict(feats(va))
+    val_metrics = compute_metrics(prob, v, ds.velocity(va), ds.slip(va), ds.window_s)
+    prov = _provenance(ds, cfg, None)
+    prov.update(metrics={"val": val_metrics},
+                training={"train_time_s": time.perf_counter() - t0,
+                          "n_train_windows": int(tr.size), "n_val_windows": int(va.size)})
+    meta = checkpoint_meta(
+        SvmBackend.model_type, svm_config, fcfg, ds, channels, provenance=prov,
+        calibration=cal, train_config=cfg.to_dict(),
+        normalization={"mean": arrays.mean.tolist(), "std": arrays.std.tolist(),
+                       "scope": "per handcrafted feature over training windows"})
+    meta.update(checkpoint_fields(prob, v, ds.velocity(va), ds.slip(va)))
+    return TrainResult(meta=meta, tensors=arrays.to_tensors(), history=[], model=arrays)
+
+
+# --- a model type's own stage --------------------------------------------------------------
+
+def train_backend(backend: type, ds: WindowSet, cfg: TrainConfig, *,
+                  feature_config: FeatureConfig | None = None,
+                  channels: Sequence[str] | None = None,
+                  log: Callable[[str], None] = print) -> TrainResult:
+    """Train a model type through its backend's ``fit`` (``aslip train --stage <type>``).
+
+    ``backend.fit(ds, train_idx, channels=..., feature_config=..., config=cfg)`` returns
+    ``(model_config, tensors)``; the rest is the pipeline's, as for the built-in models:
+    the by-trial split, the checkpoint document, the validation metrics and the output
+    calibration (threshold and direction sigma), all from the model's own predictions on the
+    validation trials through ``learn.inference.predictor.Predictor``.
+    """
+    channels = list(channels or ds.channel_names)
+    cols = ds.channel_indices(channels)
+    fcfg = feature_config or FeatureConfig()
+    tr, va = split_windows(ds, cfg)
+    t0 = time.perf_counter()
+    model_config, tensors = backend.fit(ds, tr, channels=channels, feature_config=fcfg,
+                                        config=cfg)
+    prov = _provenance(ds, cfg, None)
+    meta = checkpoint_meta(backend.model_type, model_config, fcfg, ds, channels,
+                           normalization=None, provenance=prov, train_config=cfg.to_dict())
+    pred = Predictor(Checkpoint(meta=meta, tensors=dict(tensors)))
+    parts = [pred.predict_batch(ds.window_audio(va[s:s + 512], cols))
+             for s in range(0, va.size, 512)]
+    prob = np.concatenate([b.probability for b in parts])
+    raw = np.concatenate([b.raw_velocity for b in parts])
+    prov.update(metrics={"val": compute_metrics(prob, raw, ds.velocity(va), ds.slip(va),
+                                                ds.window_s)},
+                training={"train_time_s": time.perf_counter() - t0,
+                          "n_train_windows": int(tr.size), "n_val_windows": int(va.size)})
+    meta.update(checkpoint_fields(prob, raw, ds.velocity(va), ds.slip(va)))
+    log(f"{backend.model_type}: trained on {tr.size} windows")
+    return TrainResult(meta=meta, tensors=dict(tensors), history=[])

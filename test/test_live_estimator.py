@@ -1,0 +1,197 @@
+"""The one live estimator (learn/inference/live.py): what it does with a stream, and that the
+``slip_inference`` node publishes exactly what it estimates over the same recorded stream,
+for a window checkpoint and a streaming one."""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+import pytest
+
+from aslip_ros.audio_frame import AudioData
+from aslip_ros.learn.inference.live import (UNCONVERGED_DIRECTION_SIGMA, LiveConfig,
+                                            LiveEstimator, load_predictor)
+from node_support import SCENE_NAMES, make_checkpoint
+
+RATE = 48000.0
+BLOCK = 480
+STREAM_NAMES = ["m0", "m1"]          # test_learn_streaming_model's checkpoint
+
+
+def recorded_stream(names, seconds: float = 0.6, seed: int = 0, gap_at: int | None = None):
+    """Blocks of a stream whose level and balance between microphones change (bursts of
+    band-limited noise over a floor), optionally with blocks lost at ``gap_at``."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * RATE)
+    t = np.arange(n) / RATE
+    audio = 0.003 * rng.standard_normal((n, len(names)))
+    for k in range(len(names)):
+        env = 0.5 + 0.5 * np.sin(2 * np.pi * (1.5 + k) * t + k)
+        audio[:, k] += 0.05 * env * rng.standard_normal(n)
+    blocks, index, stamp = [], 0, 1_000_000_000_000
+    for i in range(n // BLOCK):
+        if gap_at is not None and i in (gap_at, gap_at + 1):
+            index += BLOCK
+            stamp += 10_000_000
+            continue
+        blocks.append(AudioData(index, stamp, RATE, list(names), "4mic", "aslip_sensor",
+                                audio[index:index + BLOCK].astype(np.float32)))
+        index += BLOCK
+        stamp += 10_000_000
+    return blocks
+
+
+@pytest.fixture(scope="module")
+def window_ckpt(tmp_path_factory):
+    return make_checkpoint(tmp_path_factory.mktemp("live") / "cnn.pt")
+
+
+@pytest.fixture(scope="module")
+def stream_ckpt(tmp_path_factory):
+    from test_learn_streaming_model import make_checkpoint as make_stream
+    return make_stream(tmp_path_factory.mktemp("live") / "stream.pt", threshold=0.5)
+
+
+def _core(ckpt, blocks, **config):
+    est = LiveEstimator(load_predictor(ckpt), LiveConfig(**config))
+    return est, [est.feed(b) for b in blocks]
+
+
+def test_a_window_model_estimates_every_hop_and_restarts_its_window_on_a_gap(window_ckpt):
+    blocks = recorded_stream(SCENE_NAMES, gap_at=20)
+    est, per_block = _core(window_ckpt, blocks)
+    window_blocks = 5                                  # 50 ms window of 10 ms blocks
+    counts = [len(e) for e in per_block]
+    assert counts[:window_blocks - 1] == [0] * (window_blocks - 1)
+    assert all(c == 1 for c in counts[window_blocks - 1:20])
+    # The gap: the window fills again before the next estimate.
+    assert counts[20:20 + window_blocks - 1] == [0] * (window_blocks - 1)
+    assert est.stats.gaps == 1 and est.stats.frames_lost == 2 * BLOCK
+    assert [e.kind for e in est.take_events()] == ["restart"]
+    first = per_block[window_blocks - 1][0]
+    assert first.stamp_ns == blocks[window_blocks - 1].end_stamp_ns
+    assert all(math.isfinite(e.prediction.probability) for b in per_block for e in b)
+
+
+def test_a_stream_that_does_not_fit_is_refused_and_counted_not_raised(window_ckpt):
+    est = LiveEstimator(load_predictor(window_ckpt))
+    other = recorded_stream(["a", "b", "c", "d"], seconds=0.05)
+    assert est.feed(other[0]) == []
+    assert est.stats.drops["channels"] == 1 and "do not match" in est.stats.refusal
+    kinds = [e.kind for e in est.take_events()]
+    assert kinds == ["refuse"]
+    good = recorded_stream(SCENE_NAMES, seconds=0.1)
+    for b in good:
+        est.feed(b)
+    assert est.stats.refusal == "" and est.stats.blocks_ok == len(good)
+
+
+def test_a_dead_microphone_withholds_the_estimate(window_ckpt):
+    blocks = recorded_stream(SCENE_NAMES, seconds=0.1)
+    for b in blocks:
+        b.block[:, 2] = 0.0
+    est, per_block = _core(window_ckpt, blocks)
+    assert sum(len(e) for e in per_block) == 0 and est.stats.dead_windows > 0
+    assert est.stats.dead_recent == {SCENE_NAMES[2]}
+    off, per_block = _core(window_ckpt, blocks, dead_channel_margin_db=0.0)
+    assert sum(len(e) for e in per_block) > 0
+
+
+def test_the_threshold_decides_and_is_reported(window_ckpt):
+    blocks = recorded_stream(SCENE_NAMES, seconds=0.1)
+    est = LiveEstimator(load_predictor(window_ckpt))
+    est.set_threshold(0.0)
+    got = [e for b in blocks for e in est.feed(b)]
+    assert got and all(e.prediction.slipping and e.prediction.threshold == 0.0 for e in got)
+    with pytest.raises(ValueError):
+        est.set_threshold(1.5)
+
+
+def test_the_unconverged_direction_sigma_is_pi():
+    assert UNCONVERGED_DIRECTION_SIGMA == pytest.approx(math.pi)
+
+
+def test_a_streaming_model_gives_one_estimate_per_hop(stream_ckpt):
+    blocks = recorded_stream(STREAM_NAMES, seconds=0.3)
+    est, per_block = _core(stream_ckpt, blocks)
+    assert est.streaming
+    assert sum(len(e) for e in per_block) >= len(blocks) - 3      # a 32 ms frame to fill
+
+
+# --- the node against the core ---------------------------------------------------------------
+
+def _node_estimates(context, ckpt, blocks, expected_counts):
+    """Publish ``blocks`` to an in-process slip_inference one at a time, each once the node
+    has published what the core estimated up to it; the SlipVectors it published."""
+    from rclpy.executors import MultiThreadedExecutor
+
+    from aslip_ros.msg import AudioFrame, SlipVector
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes import convert
+    from aslip_ros.nodes.slip_inference import SlipInference
+    from node_support import Bus, deep
+
+    bus = Bus(context)
+    got, cond = [], threading.Condition()
+
+    def on_slip(msg):
+        with cond:
+            got.append(msg)
+            cond.notify_all()
+
+    bus.node.create_subscription(SlipVector, c.SLIP_TOPIC, on_slip, deep(c.RELIABLE_QOS))
+    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+    from rclpy.parameter import Parameter
+    node = SlipInference(context=context, parameter_overrides=[
+        Parameter("checkpoint", value=str(ckpt))])
+    ex = MultiThreadedExecutor(context=context)
+    ex.add_node(node)
+    spin = threading.Thread(target=ex.spin, daemon=True)
+    spin.start()
+    try:
+        assert bus.wait(lambda: pub.get_subscription_count() > 0, 30)
+        want = 0
+        for b, n in zip(blocks, expected_counts):
+            ok0 = node.est.stats.blocks_ok
+            want += n
+            # Best effort: a block lost before the reader matched is sent again.
+            for _ in range(50):
+                pub.publish(convert.audio_to_msg(b.first_sample_index, b.stamp_ns, RATE,
+                                                 b.channel_names, b.block, "4mic"))
+                with cond:
+                    if cond.wait_for(lambda: node.est.stats.blocks_ok > ok0
+                                     and len(got) >= want, timeout=1.0):
+                        break
+            else:
+                raise AssertionError(f"block {b.first_sample_index} never taken")
+        return list(got)
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        bus.close()
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("kind", ["window", "stream"])
+def test_the_node_publishes_exactly_what_the_core_estimates(kind, window_ckpt, stream_ckpt,
+                                                            rclpy_context):
+    import torch
+    torch.set_num_threads(1)                     # the node's torch_threads
+    ckpt = window_ckpt if kind == "window" else stream_ckpt
+    blocks = recorded_stream(SCENE_NAMES if kind == "window" else STREAM_NAMES, seconds=0.4,
+                             gap_at=18)
+    _, per_block = _core(ckpt, blocks)
+    core = [e for b in per_block for e in b]
+    assert len(core) > 10
+    got = _node_estimates(rclpy_context, ckpt, blocks, [len(e) for e in per_block])
+    assert len(got) == len(core)
+    for m, e in zip(got, core):
+        p = e.prediction
+        assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == e.stamp_ns
+        assert m.probability == pytest.approx(p.probability, abs=1e-6)
+        assert m.slipping == p.slipping
+        assert (m.velocity.x, m.velocity.z) == pytest.approx((p.vx, p.vz), abs=1e-7)
+        assert m.direction_sigma == pytest.approx(e.direction_sigma, abs=1e-6)
+        assert m.threshold == pytest.approx(p.threshold)
