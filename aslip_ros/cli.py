@@ -14,6 +14,10 @@ Exit codes, the same for every subcommand:
 - 130: interrupted (Ctrl-C).
 
 Set ``ASLIP_DEBUG=1`` to get the traceback of a refused input instead of its one line.
+
+The benchmarks of the paper (ablation, bench, stability, demo...) are not subcommands: they
+live in the checkout's top-level ``benchmarks/`` and run from it (``make demo``, ``make
+ablation``...; ``python -m benchmarks.<name>``) through :func:`run_module` below.
 """
 
 from __future__ import annotations
@@ -34,10 +38,6 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "train": ("aslip_ros.learn.training.cli",
               "train a slip model (chosen on your data, or by name)"),
     "evaluate": ("aslip_ros.learn.evaluate", "evaluate a checkpoint on a dataset (JSON metrics)"),
-    "ablation": ("aslip_ros.experiments.ablation", "the paper's Table I and II on the scene"),
-    "bench": ("aslip_ros.experiments.bench", "latency against accuracy (Pareto chart)"),
-    "stability": ("aslip_ros.experiments.stability", "accuracy under stressors"),
-    "demo": ("aslip_ros.experiments.demo", "closed-loop slip-stop and slip-track (Table III)"),
     "check": ("aslip_ros.bringup.check",
               "bring-up checks of a new cell: audio, taps, mocap, grasp plane, arm"),
 }
@@ -79,28 +79,34 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     name = argv[0]
     if name not in SUBCOMMANDS:
-        args = parser.parse_args(argv)  # prints --help / --version / the usage error
+        parser.parse_args(argv)  # prints --help / --version / the usage error
         return 0
     module = _load(SUBCOMMANDS[name][0])
     if module is None:
         print(f"aslip {name}: not available in this version yet", file=sys.stderr)
         return EXIT_USAGE
+    return run_module(module, argv[1:], prog=f"aslip {name}", description=SUBCOMMANDS[name][1])
+
+
+def run_module(module, argv: list[str], prog: str, description: str) -> int:
+    """Parse ``argv`` with ``module.add_arguments`` and call ``module.run``, with the exit
+    codes above (the benchmarks of the checkout run through this too: benchmarks/cli.py)."""
     # Every option's default shows in --help (a help text that states it keeps its own).
-    p = argparse.ArgumentParser(prog=f"aslip {name}", description=SUBCOMMANDS[name][1],
+    p = argparse.ArgumentParser(prog=prog, description=description,
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     module.add_arguments(p)
-    args = p.parse_args(argv[1:])
+    args = p.parse_args(argv)
     try:
         return int(module.run(args) or 0)
     except KeyboardInterrupt:
-        print(f"aslip {name}: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except (ValueError, OSError) as exc:
         # Subcommands report what they expect; this catches what reaches the top anyway
         # (an unwritable --out, a refused file found late) as the same one line.
         if os.environ.get("ASLIP_DEBUG"):
             raise
-        print(f"aslip {name}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_FAILED
 
 

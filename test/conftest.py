@@ -18,6 +18,12 @@ ROOT = Path(__file__).resolve().parents[1]
 HERE = Path(__file__).resolve().parent
 HELPERS = HERE / "helpers"
 
+# The benchmarks (benchmarks/, not installed) import from the checkout: its root goes LAST on
+# sys.path, so `aslip_ros` still resolves to the colcon install (with the generated messages)
+# and never to the source tree at the root.
+if str(ROOT) not in sys.path:
+    sys.path.append(str(ROOT))
+
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

@@ -13,15 +13,15 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "aslip_ros"
 #: The floors of docs/design.md, "Layers", by first name below aslip_ros.
-FLOOR = {"cli": 4, "nodes": 3, "experiments": 3, "bringup": 3, "learn": 2, "hw": 2, "scene": 1,
+FLOOR = {"cli": 4, "nodes": 3, "bringup": 3, "learn": 2, "hw": 2, "scene": 1,
          "cell": 0,
          "data": 1, "control": 1, "util": 0, "frames": 0, "poses": 0, "topics": 0,
          "audio_frame": 0, "plugin": 0, "slip": 0, "msg": 0, "__init__": 0, "__main__": 4}
 ROS_FLOOR = 3
 
 
-def _modules():
-    for p in sorted(PKG.rglob("*.py")):
+def _modules(*roots: Path):
+    for p in sorted(q for r in (roots or (PKG,)) for q in r.rglob("*.py")):
         rel = p.relative_to(ROOT).with_suffix("").parts
         yield p, ".".join(rel[:-1] if rel[-1] == "__init__" else rel)
 
@@ -56,6 +56,22 @@ def test_every_import_points_down():
             if target.startswith("aslip_ros.") and _floor(target) > _floor(mod):
                 up.append(f"{path.relative_to(ROOT)}:{line} imports {target}")
     assert not up, "\n".join(up)
+
+
+def test_the_package_never_depends_on_the_benchmarks():
+    """benchmarks/ (top level, docs/design.md) imports the package, never the reverse, and is
+    not inside it: what a user-facing command needs moves into the package."""
+    found = [f"{path.relative_to(ROOT)}:{line} imports {target}"
+             for path, mod in _modules() for target, line in _imports(path, mod)
+             if target.split(".")[0] == "benchmarks"]
+    # ... nor by name (importlib, a subcommand table).
+    found += [f"{path.relative_to(ROOT)}:{n.lineno} names {n.value!r}"
+              for path, _ in _modules() for n in ast.walk(ast.parse(path.read_text()))
+              if isinstance(n, ast.Constant) and isinstance(n.value, str)
+              and re.match(r"benchmarks(\.|$)", n.value)]
+    assert not found, found
+    assert (ROOT / "benchmarks" / "__init__.py").is_file()
+    assert not [p for p in PKG.rglob("*") if p.name in ("benchmarks", "experiments")]
 
 
 def test_rclpy_only_on_the_ros_floor():
@@ -114,12 +130,13 @@ def test_the_check_sees_an_upward_import(tmp_path):
     assert _floor(targets[0]) > _floor("aslip_ros.data.x")
 
 
-def _module_graph() -> dict:
-    """Module -> the package modules it imports (lazy imports too); ``from pkg import x``
-    counts as importing ``pkg.x`` where that is a module, else ``pkg``."""
-    names = {mod for _, mod in _modules()}
+def _module_graph(*roots: Path) -> dict:
+    """Module -> the modules it imports (lazy imports too) among those under ``roots`` (the
+    package by default); ``from pkg import x`` counts as importing ``pkg.x`` where that is a
+    module, else ``pkg``."""
+    names = {mod for _, mod in _modules(*roots)}
     graph = {}
-    for path, mod in _modules():
+    for path, mod in _modules(*roots):
         edges = set()
         tree = ast.parse(path.read_text())
         for n in ast.walk(tree):
@@ -176,8 +193,8 @@ def _circles(graph: dict) -> list:
 def test_no_two_modules_import_each_other_even_through_others():
     """No import circle anywhere in the package, lazy imports included: a circle is two
     files that cannot be read, tested or replaced apart. Files are split by what belongs
-    together; long files are fine, circles are not."""
-    assert _circles(_module_graph()) == []
+    together; long files are fine, circles are not. The benchmarks are held to it too."""
+    assert _circles(_module_graph(PKG, ROOT / "benchmarks")) == []
 
 
 def test_the_circle_check_sees_a_circle_through_a_third_module():

@@ -1,5 +1,6 @@
 """The `aslip` console command: installed into the venv, --help works."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -7,13 +8,64 @@ from pathlib import Path
 import pytest
 
 from aslip_ros import cli
+from conftest import ROOT, _ros_available
 
 
 def test_help_lists_subcommands():
     parser = cli.build_parser()
     text = parser.format_help()
-    for name in ("simulate", "export", "train", "evaluate", "demo"):
+    for name in ("simulate", "export", "train", "evaluate", "check"):
         assert name in text
+
+
+BENCHMARKS = ("ablation", "bench", "stability", "demo")
+
+
+def test_the_benchmarks_are_no_subcommands_but_run_from_the_checkout(capsys):
+    """ablation, bench, stability and demo left the installed package (benchmarks/ at the
+    repository root): `make <name>`, that is `python -m benchmarks.<name>`."""
+    from benchmarks import cli as bench_cli
+    for name in BENCHMARKS:
+        assert name not in cli.SUBCOMMANDS
+        with pytest.raises(SystemExit) as exc:
+            bench_cli.main(name, ["--help"])
+        assert exc.value.code == 0
+        assert f"usage: python -m benchmarks.{name}" in capsys.readouterr().out
+
+
+def test_a_benchmark_refusing_its_input_is_one_line_as_a_subcommand(monkeypatch, capsys):
+    import types
+    from benchmarks import cli as bench_cli
+    fake = types.SimpleNamespace(__doc__="A fake.", add_arguments=lambda p: None,
+                                 run=lambda a: open("/nonexistent/dir/file", "w"))
+    monkeypatch.setitem(sys.modules, "benchmarks.fake", fake)
+    assert bench_cli.main("fake", []) == 1
+    err = _lines(capsys.readouterr().err)
+    assert len(err) == 1 and err[0].startswith("python -m benchmarks.fake: error:"), err
+    with pytest.raises(SystemExit) as exc:
+        bench_cli.main("fake", ["--no-such-option"])
+    assert exc.value.code == 2
+
+
+def test_a_benchmark_runs_as_the_makefile_runs_it(tmp_path):
+    """`python -P -m benchmarks.<name>` with the root after the install on PYTHONPATH (the
+    Makefile's BENCHMARK): `benchmarks` from the checkout, `aslip_ros` not from the source
+    tree at the root (the install, with its generated messages, when one is sourced)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p] + [str(ROOT)]))
+    out = subprocess.run([sys.executable, "-P", "-m", "benchmarks.demo", "--trials", "0"],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and "benchmarks.demo:" in out.stderr, out.stderr
+    code = "import aslip_ros, benchmarks; print(aslip_ros.__file__); print(benchmarks.__file__)"
+    out = subprocess.run([sys.executable, "-P", "-c", code], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    pkg, bench = out.stdout.split()
+    assert Path(bench) == ROOT / "benchmarks" / "__init__.py"
+    import aslip_ros
+    assert pkg == aslip_ros.__file__, "the benchmarks see the aslip_ros the tests see"
+    if _ros_available() is None:
+        assert Path(pkg) != ROOT / "aslip_ros" / "__init__.py"
 
 
 def test_console_script_runs():

@@ -158,7 +158,7 @@ def test_the_arm_section_of_a_cell_is_every_arm_nodes_parameters():
 
 def test_the_demo_runs_the_nodes_slip_track_law():
     from aslip_ros.control.slip_track import SlipTrackConfig
-    from aslip_ros.experiments.demo_episode import TrackSettings
+    from benchmarks.demo_episode import TrackSettings
     law = TrackSettings().law()
     assert law and all(law[k] == getattr(SlipTrackConfig, k) for k in law), law
 

@@ -6,7 +6,7 @@
   its own context and domain), scored from the scene's trajectory.
 
 Bounds are looser than the demo's targets: one episode on a shared 2-core machine is
-subject to scheduling noise that the 50-trial means average out. As in ``aslip demo``
+subject to scheduling noise that the 50-trial means average out. As in ``make demo``
 (``demo.MAX_RERUNS``), an episode that a watchdog ended on stale input, or whose scene fell
 behind real time, measured the machine rather than the loop and is repeated; the
 watchdog's own behaviour under load is tested in test_stale_input.py.
@@ -43,7 +43,7 @@ def _skip_if_far_beyond_real_time(why: str) -> None:
 
 
 def _checkpoint() -> str:
-    assert CNN.is_file(), f"shipped checkpoint missing: {CNN} (aslip demo --train-models)"
+    assert CNN.is_file(), f"shipped checkpoint missing: {CNN} (make demo ARGS=--train-models)"
     return str(CNN)
 
 
@@ -61,7 +61,7 @@ def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_pa
 def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_log=None):
     from std_msgs.msg import String
 
-    from aslip_ros.experiments.demo_episode import StopSettings
+    from benchmarks.demo_episode import StopSettings
     from aslip_ros.nodes import common as c
     from aslip_ros.nodes.slip_stop import RESULT_TOPIC
     from aslip_ros.scene.layouts import get_object
@@ -108,7 +108,7 @@ def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_l
 
 
 def _check_slip_stop(result, traj):
-    from aslip_ros.experiments import demo_metrics as dm
+    from benchmarks import demo_metrics as dm
     from aslip_ros.scene.layouts import get_object
     length = get_object("chips_can").length_m
     assert result["reason"] == "slip", result
@@ -141,8 +141,8 @@ def test_slip_stop_episode_with_the_streaming_model(rclpy_context, ros_env, tmp_
 def _track_episode(checkpoint: str) -> dict:
     """One 4 s slip-track episode (cracker box, seed 2401) through the composed demo path,
     repeated as the demo repeats it after a stale-input stop or skipped scene blocks."""
-    from aslip_ros.experiments.demo import MAX_RERUNS
-    from aslip_ros.experiments.demo_episode import Episode, TrackSettings, run_episode
+    from benchmarks.demo import MAX_RERUNS
+    from benchmarks.demo_episode import Episode, TrackSettings, run_episode
 
     ep = Episode("slip_track", "aslip", checkpoint, "cracker_box", 0, 2401,
                  track=TrackSettings(duration_s=4.0))
@@ -203,11 +203,12 @@ def test_a_demo_worker_logs_to_its_file_not_to_the_progress_bar(tmp_path):
     import subprocess
     import sys
     code = ("import ctypes, os, sys\n"
-            "from aslip_ros.experiments import demo\n"
+            f"sys.path.append({str(ROOT)!r})\n"     # benchmarks/ is not installed
+            "from benchmarks import demo\n"
             f"demo.redirect_output(demo.worker_log({str(tmp_path)!r}))\n"
             "print('python line'); print('stderr line', file=sys.stderr)\n"
             "libc = ctypes.CDLL(None); libc.dprintf(2, b'C line\\n')\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-P", "-c", code], capture_output=True, text=True,
                          timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout == "" and out.stderr == ""

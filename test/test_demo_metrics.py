@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from aslip_ros.experiments import demo_metrics as dm
+from benchmarks import demo_metrics as dm
 
 N = np.array([1.0, 0.0, 0.0])
 
@@ -99,7 +99,7 @@ def test_summary_and_table():
 
 
 def test_summary_counts_reruns_per_cell():
-    from aslip_ros.experiments import demo_metrics as dm
+    from benchmarks import demo_metrics as dm
     rows = [dict(task="slip_stop", method="aslip", object="chips_can", success=True,
                  stopping_error_m=0.006, reruns=["stale slip"], controller_reason="slip"),
             dict(task="slip_stop", method="aslip", object="chips_can", success=False,
@@ -154,7 +154,7 @@ class _World:
 
 
 def test_calibration_outcome_against_the_scene_gains():
-    from aslip_ros.experiments.demo_episode import calibration_outcome
+    from benchmarks.demo_episode import calibration_outcome
     out = calibration_outcome(_Predictor(), _World())
     assert out["converged"] is False and out["accepted_frames"] == 120
     assert out["gain_error_db"] == pytest.approx(0.0, abs=1e-9)

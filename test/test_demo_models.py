@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from aslip_ros.experiments import demo, demo_models
+from benchmarks import demo, demo_models
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -112,7 +112,7 @@ def test_the_shipped_models_belong_to_this_scene_with_their_calibration():
     per-grasp calibration (background method) and the uncalibrated CNN none."""
     from aslip_ros.learn.checkpoint import load_checkpoint
     man = demo_models.shipped_models(ROOT / "models")
-    assert man is not None, "models/ is stale or partial: aslip demo --train-models"
+    assert man is not None, "models/ is stale or partial: make demo ARGS=--train-models"
     for method, (name, _, calibration) in demo_models.MODELS.items():
         meta = load_checkpoint(ROOT / "models" / man["files"][method]).meta
         if calibration == "off":

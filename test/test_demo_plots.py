@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aslip_ros.experiments import demo_plots
+from benchmarks import demo_plots
 
 OBJECTS = ("chips_can", "pla_rod")
 METHODS = ("aslip", "svm")

@@ -3,7 +3,9 @@
 Every ``ros2 launch aslip_ros <file> name:=value`` in the README, docs/ and the launch files'
 own docstrings may only give arguments the launch file declares (an undeclared one is
 silently ignored by ``ros2 launch``: a documented ``arm:=`` that is none ran the default
-arm), and every ``aslip <command> --option`` only options that command has.
+arm), every ``aslip <command> --option`` only options that command has, and every benchmark
+command (``python -m benchmarks.<name> --option``, ``make <target> ARGS="--option"``) only
+options that benchmark has.
 """
 
 from __future__ import annotations
@@ -34,12 +36,20 @@ def _commands(pattern: str):
 
 
 LAUNCHES = _commands(r"ros2 launch aslip_ros \S+\.launch\.py[^`|#]*")
-ASLIPS = _commands(r"(?<![\w/.-])aslip (simulate|export|train|evaluate|ablation|bench|"
-                   r"stability|demo|check)\b[^`|#;]*")
+ASLIPS = _commands(r"(?<![\w/.-])aslip (simulate|export|train|evaluate|check)\b[^`|#;]*")
+#: make target -> the benchmark it runs (the Makefile's `$(BENCHMARK) benchmarks.<name>`).
+TARGETS = dict(re.findall(r"^([\w-]+): setup\n\t\$\(BENCHMARK\) benchmarks\.(\w+)",
+                          (ROOT / "Makefile").read_text(), re.M))
+BENCHMARKS = _commands(r"python (?:-P )?-m benchmarks\.\w+[^`|#;]*")
+MAKE_ARGS = _commands(r"make [\w-]+ ARGS=(?:\"[^\"]*\"|[^\s`]+)")
 
 
 def test_the_documentation_names_commands():
     assert len(LAUNCHES) >= 10 and len(ASLIPS) >= 10
+    assert len(BENCHMARKS) >= 10 and len(MAKE_ARGS) >= 5
+    assert {"demo", "ablation", "bench", "stability", "transfer", "magnitude"} <= set(TARGETS)
+    # The benchmarks left the `aslip` command (make targets, benchmarks/).
+    assert not _commands(r"(?<![\w/.-])aslip (ablation|bench|stability|demo)\b[^`|#;]*")
 
 
 def _declared(launch_file: str) -> set:
@@ -92,6 +102,35 @@ def test_every_documented_aslip_option_exists():
         name = re.match(r"aslip (\w+)", cmd).group(1)
         unknown = _options(_parser(name), cmd.split()[2:])
         problems += [f"{doc}: aslip {name} has no option {u}: {cmd}" for u in unknown]
+    assert not problems, "\n".join(problems)
+
+
+def _benchmark_parser(name: str) -> argparse.ArgumentParser | None:
+    """The parser of ``benchmarks.<name>``; None for one that builds its parser in ``main``."""
+    module = importlib.import_module(f"benchmarks.{name}")
+    if not hasattr(module, "add_arguments"):
+        return None
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks.{name}")
+    module.add_arguments(parser)
+    return parser
+
+
+def test_every_documented_benchmark_option_exists():
+    problems = []
+    documented = [(doc, re.search(r"benchmarks\.(\w+)", cmd).group(1),
+                   cmd.split("benchmarks.", 1)[1].split()[1:]) for doc, cmd in BENCHMARKS]
+    for doc, cmd in MAKE_ARGS:
+        target, args = re.match(r"make ([\w-]+) ARGS=(.*)", cmd).groups()
+        if target not in TARGETS:
+            continue                       # flake-hunt takes ARGS too (pytest's)
+        documented.append((doc, TARGETS[target], args.strip('"').split()))
+    for doc, name, tokens in documented:
+        if not (ROOT / "benchmarks" / f"{name}.py").is_file():
+            problems.append(f"{doc}: no benchmark {name}")
+            continue
+        parser = _benchmark_parser(name)
+        unknown = _options(parser, tokens) if parser else []
+        problems += [f"{doc}: benchmarks.{name} has no option {u}" for u in unknown]
     assert not problems, "\n".join(problems)
 
 

@@ -6,7 +6,7 @@ not this test's verdict (a loaded machine decides it): that the stop leaves at t
 not at the next control tick, is tested in one process with the controller's own timers
 (``test_nodes_control_xarm.py``), and the latency figures (p50/p99 over many episodes,
 at-rest time, false stops beside CPU hogs) come from the benchmark
-``python -P -m aslip_ros.experiments.stale_input``. The load case that was here (no stale
+``python -P -m benchmarks.stale_input``. The load case that was here (no stale
 stop beside two CPU hogs) is a measurement of the machine, and lives there too.
 """
 
@@ -31,7 +31,7 @@ TIMEOUT_S = 1.0
 
 
 def test_killed_inference_stops_the_arm_and_for_good():
-    from aslip_ros.experiments.stale_input import run_episode
+    from benchmarks.stale_input import run_episode
     e = run_episode("fault", str(CNN), 1201, random.Random(0), timeout_s=TIMEOUT_S)
     assert "error" not in e, e
     assert e["reason"] == "stale_slip", e

@@ -15,7 +15,7 @@ from typing import Callable, Optional
 
 #: Stale after 50 ms: the stop then leaves about 52 ms after the last valid input (the
 #: deadline is exact, see nodes/controller.py) and the scene's arm, with its 20 ms lag, is
-#: below 1 mm/s about 110 ms after it; measured with aslip_ros.experiments.stale_input
+#: below 1 mm/s about 110 ms after it; measured with benchmarks.stale_input
 #: against the targets of 60 ms (p99) and 150 ms. Five missed 10 ms hops before a stop.
 DEFAULT_TIMEOUT_S = 0.05
 

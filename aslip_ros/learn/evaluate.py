@@ -30,7 +30,7 @@ ending at or before it, up to one 10 ms hop earlier), i.e. what ``slip_inference
 published when the window closed. The window's label is its mean velocity while the
 estimate is the velocity *now*, so on changing slip the two differ by the model's whole
 advantage in lag; in exchange the numbers compare with the window models' over identical
-rows (the lag against the true velocity is ``experiments.lag``'s measure). Displacement
+rows (the lag against the true velocity is ``benchmarks.lag``'s measure). Displacement
 errors use the dataset's window length; trials with audio gaps are left out (live, the gap
 would reset the state; their files join the segments).
 """

@@ -401,7 +401,7 @@ def _raise_priority(name: str) -> None:
     """Run the node above ordinary CPU-bound work (``util.raise_cpu_priority``), before
     rclpy, DDS or torch start threads (they inherit it). Beside two CPU-busy processes on 2
     cores, the stale-input watchdogs stopped 2 of 16 closed-loop trials at normal priority
-    and 0 of 20 at nice -10 (``python -P -m aslip_ros.experiments.stale_input``)."""
+    and 0 of 20 at nice -10 (``python -P -m benchmarks.stale_input``)."""
     from aslip_ros.util import raise_cpu_priority
     why = raise_cpu_priority()
     if why:

@@ -26,7 +26,7 @@ from torch.nn import functional as F
 
 from aslip_ros.learn.checkpoint import Checkpoint
 from aslip_ros.learn.features import FeatureConfig, LogMel
-from aslip_ros.learn.models.registry import register_model
+from aslip_ros.learn.models.registry import load_weights, register_model
 
 
 @dataclass(frozen=True)
@@ -302,11 +302,7 @@ class CnnBackend:
         cfg = ModelConfig.from_dict(ckpt.meta["model_config"])
         if cfg.n_channels != len(ckpt.channel_names):
             raise ValueError("checkpoint model channel count disagrees with channel_names")
-        model = SlipNet(cfg)
-        try:
-            model.load_state_dict(ckpt.tensors)
-        except RuntimeError as exc:
-            raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
+        model = load_weights(SlipNet(cfg), ckpt.tensors)
         logmel = LogMel(FeatureConfig.from_dict(ckpt.meta["feature_config"]), ckpt.sample_rate)
         return cls(cfg, fuse_for_inference(model), logmel)
 

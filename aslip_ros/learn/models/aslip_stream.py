@@ -29,7 +29,7 @@ from torch import nn
 
 from aslip_ros.learn.checkpoint import Checkpoint
 from aslip_ros.learn.incremental_features import stream_meta_problems
-from aslip_ros.learn.models.registry import register_model
+from aslip_ros.learn.models.registry import load_weights, register_model
 
 
 @dataclass(frozen=True)
@@ -148,11 +148,7 @@ class StreamBackend:
     @classmethod
     def from_checkpoint(cls, ckpt: Checkpoint) -> "StreamBackend":
         cfg = StreamConfig.from_dict(ckpt.meta["model_config"])
-        net = StreamNet(cfg)
-        try:
-            net.load_state_dict(ckpt.tensors)
-        except RuntimeError as exc:
-            raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
+        net = load_weights(StreamNet(cfg), ckpt.tensors)
         return cls(cfg, net)
 
     def stepper(self) -> GruStepper:

@@ -70,6 +70,15 @@ class ModelBackend(Protocol):
         """p(slip) ``(B,)`` and the ungated velocity ``(B, 2)`` for ``(B, N, C)`` windows."""
 
 
+def load_weights(net: Any, tensors: dict) -> Any:
+    """``net`` with a checkpoint's state dict loaded; ValueError when they do not fit."""
+    try:
+        net.load_state_dict(tensors)
+    except RuntimeError as exc:
+        raise ValueError(f"checkpoint weights do not fit its model config: {exc}") from exc
+    return net
+
+
 def register_model(backend: type) -> type:
     """Make ``backend.model_type`` a known model (usable as a class decorator).
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from aslip_ros.experiments import lag
+from benchmarks import lag
 
 
 def test_onset_delay_finds_the_first_firing_hop_and_counts_misses():

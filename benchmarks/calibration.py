@@ -1,6 +1,6 @@
 """Per-grasp microphone calibration on the scene's coupling variants (docs/model.md).
 
-``python -m aslip_ros.experiments.calibration --out data/calib_exp`` renders externally
+``python -m benchmarks.calibration --out data/calib_exp`` renders externally
 induced trials (one trial = one grasp) of two variants, both with per-grasp coupling of
 +-``scenarios.COUPLING_DB`` per microphone:
 

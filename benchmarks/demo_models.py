@@ -1,11 +1,11 @@
 """The demo's window checkpoints (A-SLIP CNN with and without per-grasp calibration, and the
 SVM baseline), trained on the scene.
 
-``aslip demo --train-models`` runs this: simulate externally induced slip on the five
-objects with the scene's microphones (4mic, 200 ms windows), mostly with the arm moving,
-export it, train the CNN from scratch twice (``--calibration background``, the default, and
-``off``) and the SVM (calibrated) on the same trials, evaluate them on the held-out test
-trials and write ``models/aslip_cnn.pt``, ``models/aslip_cnn_uncalibrated.pt``,
+``python -m benchmarks.demo --train-models`` runs this: simulate externally induced slip on
+the five objects with the scene's microphones (4mic, 200 ms windows), mostly with the arm
+moving, export it, train the CNN from scratch twice (``--calibration background``, the
+default, and ``off``) and the SVM (calibrated) on the same trials, evaluate them on the
+held-out test trials and write ``models/aslip_cnn.pt``, ``models/aslip_cnn_uncalibrated.pt``,
 ``models/svm.pt`` and ``models/manifest.json`` (scene version, command, metrics).
 
 The scene couples every microphone differently in every grasp (scene version 3), so the
@@ -34,7 +34,7 @@ CNN_NAME = "aslip_cnn.pt"
 UNCALIBRATED_NAME = "aslip_cnn_uncalibrated.pt"
 SVM_NAME = "svm.pt"
 MANIFEST = "manifest.json"
-COMMAND = "aslip demo --train-models"
+COMMAND = "python -m benchmarks.demo --train-models"
 #: Trials per object and condition, seconds per trial, export hop (the recipe).
 RECIPE = {"robot_moving": 4, "robot_stationary": 2, "duration_s": 10.0, "hop_s": 0.05,
           "window_s": 0.2, "seed": 0, "time_budget_s": 240.0, "epochs": 40,
@@ -76,23 +76,16 @@ def shipped_models(models_dir: str | Path) -> dict | None:
 
 
 def aslip(argv: list[str]) -> int:
-    """``aslip train|evaluate ARGS`` through the subcommand's own parser and ``run`` (the
-    same defaults as the command line, without importing the command line above this floor)."""
-    import argparse
-
-    from aslip_ros.learn import evaluate
-
-    from aslip_ros.learn.training import train
-    module = {"train": train, "evaluate": evaluate}[argv[0]]
-    parser = argparse.ArgumentParser(prog=f"aslip {argv[0]}")
-    module.add_arguments(parser)
-    return int(module.run(parser.parse_args(argv[1:])) or 0)
+    """``aslip train|evaluate ARGS`` in this process: the command's own parser, defaults and
+    exit codes."""
+    from aslip_ros import cli
+    return cli.main(argv)
 
 
 def stream_problem(models_dir: str | Path, name: str) -> str | None:
     """Why the streaming checkpoint ``name`` in models_dir must not run in this scene, or None.
 
-    It is trained elsewhere (``python -m aslip_ros.experiments.lag``, not by
+    It is trained elsewhere (``python -m benchmarks.lag``, not by
     :func:`train_models`), so the manifest's ``stream`` entry records the scene version its
     data came from; a model of another scene (or of an unknown one) is refused rather than
     shown as if it belonged to this one."""

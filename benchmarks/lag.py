@@ -1,4 +1,4 @@
-"""Lag against accuracy: ``python -m aslip_ros.experiments.lag --out results/lag``.
+"""Lag against accuracy: ``python -m benchmarks.lag --out results/lag``.
 
 Every method is run over fresh scene trials (externally induced slip on the five demo
 objects, seeds no training set uses) and publishes one estimate per 10 ms hop, stamped at
@@ -278,7 +278,7 @@ def lag_markdown(res: dict[str, Any]) -> str:
     return ("# Lag against accuracy\n\n" + markdown_table(hdr, body)
             + f"\n{c['trials']} fresh scene trials of {c['duration_s']:g} s (seed {c['seed']}),"
             f" epsilon {c['epsilon_m_s'] * 1e3:g} mm/s; estimates every 10 ms, truth from "
-            f"the scene. Command: `python -m aslip_ros.experiments.lag`.\n")
+            f"the scene. Command: `python -m benchmarks.lag`.\n")
 
 
 def plot_lag(res: dict[str, Any], path: Path) -> None:
@@ -327,7 +327,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m aslip_ros.experiments.lag",
+    p = argparse.ArgumentParser(prog="python -m benchmarks.lag",
                                 description=__doc__.splitlines()[0])
     add_arguments(p)
     args = p.parse_args(argv)

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
-from aslip_ros.experiments import stability
-from aslip_ros.experiments.common import DataPlan, Recipe
+from benchmarks import stability
+from benchmarks.common import DataPlan, Recipe
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.training.config import TrainConfig
 from aslip_ros.learn.training.train import train_cnn

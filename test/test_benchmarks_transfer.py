@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from aslip_ros.experiments import transfer
+from benchmarks import transfer
 
 
 def test_best_and_ties_follow_the_intervals():
@@ -122,7 +122,7 @@ def _preds(rng, n_trials, err_deg, mag_scale, p_correct):
 
 
 def test_target_met_only_when_far_better_with_separated_intervals():
-    from aslip_ros.experiments import transfer_targets as tt
+    from benchmarks import transfer_targets as tt
     # The same seed draws the same trials and labels; only the predictions differ.
     good = _preds(np.random.default_rng(0), 24, 10.0, 1.05, 0.95)
     bad = _preds(np.random.default_rng(0), 24, 40.0, 1.6, 0.9)
@@ -198,7 +198,6 @@ def test_a_dataset_at_another_rate_is_resampled_to_the_models_rate(tmp_path):
 
 
 def test_the_aslip_method_is_what_aslip_train_does_by_default(tmp_path, monkeypatch):
-    from aslip_ros.learn.training import train
     from aslip_ros.learn.training import cli as train_cli
     seen = {}
 
@@ -207,7 +206,7 @@ def test_the_aslip_method_is_what_aslip_train_does_by_default(tmp_path, monkeypa
         open(args.out, "wb").close()
         return 0
 
-    monkeypatch.setattr(train, "run", fake_run)
+    monkeypatch.setattr(train_cli, "run", fake_run)
     cfg = transfer.TransferConfig(out=tmp_path, data=tmp_path, progress=False)
     for method in ("aslip", "paper_svm", "aslip_uncalibrated"):
         transfer.train_method(cfg, method, tmp_path / "ds", tmp_path / "m", log=lambda s: None)

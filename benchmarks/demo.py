@@ -1,4 +1,5 @@
-"""``aslip demo`` (``make demo``): the paper's closed-loop tasks (Table III) in the scene.
+"""The paper's closed-loop tasks (Table III) in the scene: ``make demo``
+(``python -m benchmarks.demo``).
 
 Both tasks run through the real nodes and topics: ``scene_sim`` audio -> ``slip_inference``
 -> ``slip_stop`` / ``slip_track`` -> ``/aslip/arm/cmd_vel`` -> the scene's simulated arm.
@@ -14,14 +15,14 @@ calibration (``aslip``) and without it (``aslip_uncalibrated``), the SVM baselin
 and the causal streaming estimator (``stream``); the scene couples every microphone
 differently in every grasp (scene version 3). Episodes
 run in real time, so a small pool of worker processes each runs many of them in sequence
-(:mod:`aslip_ros.experiments.demo_episode`: fresh context and domain per episode, the node
+(:mod:`benchmarks.demo_episode`: fresh context and domain per episode, the node
 classes composed in the worker). Results: ``<out>/summary.json``, ``<out>/table.md`` (beside
 the paper's numbers), ``<out>/*.png`` and per-episode traces in ``<out>/episodes/``.
 
 Models: the shipped window checkpoints (``models/aslip_cnn.pt``,
 ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``) when they match the scene
 (``models/manifest.json``), otherwise they are retrained first (``--train-models`` forces it;
-:mod:`aslip_ros.experiments.demo_models`).
+:mod:`benchmarks.demo_models`).
 """
 
 from __future__ import annotations
@@ -40,17 +41,17 @@ from typing import Optional
 
 import numpy as np
 
-from aslip_ros.experiments import demo_metrics as dm
-from aslip_ros.experiments.demo_episode import (TASKS, Episode, StopSettings, TrackSettings,
-                                                save_trace)
-from aslip_ros.experiments.demo_models import OBJECTS
 from aslip_ros.util import write_json, write_text
+from benchmarks import demo_metrics as dm
+from benchmarks.demo_episode import (TASKS, Episode, StopSettings, TrackSettings,
+                                     save_trace)
+from benchmarks.demo_models import OBJECTS
 
 METHODS = ("aslip", "aslip_uncalibrated", "svm", "stream")
 #: What ``make demo`` runs: the streaming model only joins when it belongs to this scene.
 DEFAULT_METHODS = ("aslip", "aslip_uncalibrated", "svm")
 #: The causal streaming estimator's checkpoint in --models (docs/streaming.md; trained by
-#: ``python -m aslip_ros.experiments.lag``, not by --train-models).
+#: ``python -m benchmarks.lag``, not by --train-models).
 STREAM_NAME = "aslip_stream.pt"
 #: Repeats of a trial that a watchdog ended on stale input (a stalled machine).
 MAX_RERUNS = 2
@@ -59,7 +60,7 @@ SEED_BASE = {"slip_stop": 1000, "slip_track": 2000}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Arguments of ``aslip demo``."""
+    """Arguments of ``python -m benchmarks.demo``."""
     p.add_argument("--out", default="results/demo", help="output directory")
     p.add_argument("--models", default="models", help="directory of the shipped checkpoints")
     p.add_argument("--train-models", action="store_true",
@@ -117,14 +118,14 @@ def _worker_init(checkpoints: list, log_dir: str) -> None:
         "ASLIP_DEMO_LOG_LEVEL", "WARN")
     import torch
     torch.set_num_threads(1)
-    from aslip_ros.experiments.demo_episode import warm_up
+    from benchmarks.demo_episode import warm_up
     for ck in checkpoints:
         warm_up(ck)
 
 
 def _worker_run(args: tuple) -> dict:
     ep, trace_dir = args
-    from aslip_ros.experiments.demo_episode import run_episode
+    from benchmarks.demo_episode import run_episode
     reruns = []
     for _ in range(1 + MAX_RERUNS):
         try:
@@ -164,7 +165,7 @@ def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
 
 def resolve_models(args, methods=METHODS) -> dict:
     """Checkpoint per method: explicit, shipped and matching, or freshly trained."""
-    from aslip_ros.experiments import demo_models
+    from benchmarks import demo_models
     d = Path(args.models)
     explicit = {"aslip": args.cnn, "aslip_uncalibrated": args.cnn_uncalibrated,
                 "svm": args.svm}
@@ -241,7 +242,7 @@ def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True
     write_json(out / "summary.json", summary)
     write_text(out / "table.md", head + table + _notes(summary))
     if plots:
-        from aslip_ros.experiments.demo_plots import make_plots
+        from benchmarks.demo_plots import make_plots
         summary["plots"] = make_plots(out, ok)
     return summary
 
@@ -267,8 +268,8 @@ def _notes(summary: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Entry point of ``aslip demo``."""
-    from aslip_ros.experiments import demo_models
+    """Entry point of ``python -m benchmarks.demo``."""
+    from benchmarks import demo_models
     t0 = time.perf_counter()
     if args.train_models:
         man = demo_models.train_models(args.models, args.train_data,
@@ -281,21 +282,21 @@ def run(args: argparse.Namespace) -> int:
     bad = [t for t in tasks if t not in TASKS] + [m for m in methods if m not in METHODS] + \
         [o for o in objects if o not in OBJECTS]
     if bad or args.trials < 1:
-        print(f"aslip demo: unknown task/method/object {bad} or --trials < 1",
+        print(f"benchmarks.demo: unknown task/method/object {bad} or --trials < 1",
               file=sys.stderr)
         return 2
     models = resolve_models(args, methods)
     if "stream" in methods and not args.stream:
         why = demo_models.stream_problem(args.models, STREAM_NAME)
         if why:
-            print(f"aslip demo: not running the streaming model: {why}. Retrain it for this "
+            print(f"benchmarks.demo: not running the streaming model: {why}. Retrain it for this "
                   f"scene (docs/streaming.md) and record its scene version in the manifest's "
                   f"'stream' entry, pass --stream FILE, or leave 'stream' out of --methods.",
                   file=sys.stderr)
             return 2
     missing = [m for m in methods if m not in models or not Path(models[m]).is_file()]
     if missing:
-        print(f"aslip demo: no checkpoint for {missing}: "
+        print(f"benchmarks.demo: no checkpoint for {missing}: "
               f"{[str(models.get(m)) for m in missing]}",
               file=sys.stderr)
         return 1
@@ -309,8 +310,7 @@ def run(args: argparse.Namespace) -> int:
           f"{models['source']}", file=sys.stderr, flush=True)
     t_run = time.perf_counter()
     results = run_episodes(eps, args.workers, out / "episodes", not args.no_progress)
-    meta = {"command": "aslip demo " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["demo"]
-            else "aslip demo", "tasks": tasks, "methods": methods, "objects": objects,
+    meta = {"command": _command_line(), "tasks": tasks, "methods": methods, "objects": objects,
             "trials": args.trials, "workers": args.workers, "cpus": os.cpu_count(),
             "stop_settings": asdict(stop), "track_settings": asdict(track),
             "checkpoints": {m: str(models[m]) for m in methods},
@@ -331,6 +331,12 @@ def run(args: argparse.Namespace) -> int:
     return 0 if not summary["errors"] else 1
 
 
+def _command_line() -> str:
+    """``python -m benchmarks.demo`` with this run's options when it was started so."""
+    started_here = Path(sys.argv[0]).resolve() == Path(__file__).resolve()
+    return " ".join(["python -m benchmarks.demo", *(sys.argv[1:] if started_here else [])])
+
+
 def _load() -> Optional[float]:
     try:
         return round(os.getloadavg()[0], 2)
@@ -344,3 +350,8 @@ def _finite(x) -> bool:
 
 __all__ = ["add_arguments", "run", "plan_episodes", "run_episodes", "write_outputs",
            "np"]
+
+
+if __name__ == "__main__":
+    from benchmarks.cli import main
+    sys.exit(main("demo"))

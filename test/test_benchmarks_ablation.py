@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from aslip_ros.experiments import ablation
-from aslip_ros.experiments.common import DataPlan, Recipe
+from benchmarks import ablation
+from benchmarks.common import DataPlan, Recipe
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from aslip_ros.experiments import magnitude
+from benchmarks import magnitude
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Speed against accuracy: ``aslip bench --out results/bench`` (``make bench``).
+"""Speed against accuracy: ``make bench`` (``python -m benchmarks.bench``).
 
 For every method (the SVM and CNNs of several sizes) the CPU latency of one window
 (features + model, ``Predictor.predict``, one torch thread, after warm-up; p50 and p99) and
@@ -17,7 +17,7 @@ Also in ``bench.json``: the scene's generation speed (x real time, peak memory;
 ``scene.bench.measure``), the export speed (``data.export.measure_export_speed``) and the
 live node's latency (``nodes.bench``). The chart and the markdown table:
 ``bench_report.py``. Lag against accuracy (the streaming estimator against window models):
-``python -m aslip_ros.experiments.lag`` (docs/streaming.md).
+``python -m benchmarks.lag`` (docs/streaming.md).
 
 Latency is wall time on whatever machine runs this; on a shared machine other processes
 inflate p99, so ``bench.json`` records the load average beside the numbers.
@@ -390,9 +390,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         cfg = config_from_args(args)
     except ValueError as exc:
-        print(f"aslip bench: {exc}", file=sys.stderr)
+        print(f"benchmarks.bench: error: {exc}", file=sys.stderr)
         return 2
     set_threads(cfg.recipe.threads)
     Bench(cfg).run()
     print((cfg.out / "bench.md").read_text())
     return 0
+
+
+if __name__ == "__main__":
+    from benchmarks.cli import main
+    sys.exit(main("bench"))

@@ -1,10 +1,10 @@
 """The paper's Table I and Table II and the robot-noise evaluation on the scene.
 
-``aslip ablation --out results/ablation`` (``make ablation``) trains and evaluates every row
-of Table I (SVM; single microphone without and with pretraining; pretrain-only and
-finetuned for the four layouts; 100, 200 and 300 ms windows), Table II (per-object against
-all-object finetuning, 4 microphones) and evaluates each finetuned model on the
-robot-induced validation set (Sec. "Slip with Robot Noise"). Beside the paper's SVM stand
+``make ablation`` (``python -m benchmarks.ablation --out results/ablation``) trains and
+evaluates every row of Table I (SVM; single microphone without and with pretraining;
+pretrain-only and finetuned for the four layouts; 100, 200 and 300 ms windows), Table II
+(per-object against all-object finetuning, 4 microphones) and evaluates each finetuned model
+on the robot-induced validation set (Sec. "Slip with Robot Noise"). Beside the paper's SVM stand
 the plain baselines of ``learn.baselines`` (a plain log-mel CNN and an RBF SVM on
 time-averaged log-mel; rows without paper numbers), trained on the same training trials.
 
@@ -420,7 +420,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         cfg = config_from_args(args)
     except ValueError as exc:
-        print(f"aslip ablation: {exc}", file=sys.stderr)
+        print(f"benchmarks.ablation: error: {exc}", file=sys.stderr)
         return 2
     set_threads(cfg.recipe.threads)
     abl = Ablation(cfg)
@@ -433,3 +433,8 @@ def run(args: argparse.Namespace) -> int:
     res = abl.run()
     print((cfg.out / "table.md").read_text())
     return 0 if res["table"]["rows"] else 1
+
+
+if __name__ == "__main__":
+    from benchmarks.cli import main
+    sys.exit(main("ablation"))

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from aslip_ros.experiments import calibration as ex
+from benchmarks import calibration as ex
 
 
 def test_tiny_run_writes_report_and_predictions(tmp_path, capsys):

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from aslip_ros.experiments import bench
-from aslip_ros.experiments.common import DataPlan, Recipe
+from benchmarks import bench
+from benchmarks.common import DataPlan, Recipe
 
 
 def _pt(name, n, lat, d, det=80.0, cost=100.0):

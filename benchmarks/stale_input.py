@@ -12,10 +12,11 @@ ROS domain of its own. Two kinds:
 - ``load``: no fault, ``--hogs`` CPU-busy processes (``yes >/dev/null``) beside the loop; a
   stale-input stop is a false stop.
 
-Usage (``source install/setup.bash`` first)::
+Usage, from the repository root (``source install/setup.bash`` first; ``-P`` and the root
+after the install on the path keep the installed ``aslip_ros``, with its messages)::
 
-    python -P -m aslip_ros.experiments.stale_input --fault 20 --load 50 --hogs 2 \\
-        --out results/stale_input.json
+    PYTHONPATH=$PYTHONPATH:$PWD python -P -m benchmarks.stale_input --fault 20 --load 50 \\
+        --hogs 2 --out results/stale_input.json
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ import numpy as np
 
 from aslip_ros.util import die_with_parent, write_json
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 #: Below this TCP speed the arm counts as at rest [m/s] (the issue's 1 mm/s).
 REST_M_S = 1e-3
 STALE = ("stale_slip", "stale_pose")
@@ -136,7 +137,7 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
 
     from aslip_ros.nodes.process import NodeProcess
 
-    from aslip_ros.experiments.demo_episode import StopSettings
+    from benchmarks.demo_episode import StopSettings
     from aslip_ros.scene.layouts import get_object
     s = StopSettings()
     obj = "chips_can"

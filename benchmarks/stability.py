@@ -1,4 +1,4 @@
-"""Where methods fail: ``aslip stability --out results/stability`` (``make stability``).
+"""Where methods fail: ``make stability`` (``python -m benchmarks.stability``).
 
 The finetuned 4-microphone CNN and the SVM (both from the ablation's cache, trained there
 when missing) are evaluated under one stressor at a time:
@@ -412,9 +412,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         cfg = config_from_args(args)
     except ValueError as exc:
-        print(f"aslip stability: {exc}", file=sys.stderr)
+        print(f"benchmarks.stability: error: {exc}", file=sys.stderr)
         return 2
     set_threads(cfg.recipe.threads)
     Stability(cfg).run()
     print((cfg.out / "stability.md").read_text())
     return 0
+
+
+if __name__ == "__main__":
+    from benchmarks.cli import main
+    sys.exit(main("stability"))

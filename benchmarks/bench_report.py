@@ -1,4 +1,4 @@
-"""The report of ``aslip bench``: the latency-against-accuracy chart (``pareto.png``) and
+"""The report of ``make bench``: the latency-against-accuracy chart (``pareto.png``) and
 ``bench.md``."""
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ and latency), ``mocap:coupling`` trains on motion-capture labels and tests on pe
 coupling. Trained models and per-window predictions are cached under ``--out/cache``
 (git-ignored), so a run resumes and a variant is trained once.
 
-    python -m aslip_ros.experiments.magnitude --out results/magnitude        (make magnitude)
+    python -m benchmarks.magnitude --out results/magnitude        (make magnitude)
 """
 
 from __future__ import annotations
@@ -414,7 +414,7 @@ def config_from_args(args: argparse.Namespace) -> MagnitudeConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m aslip_ros.experiments.magnitude",
+    p = argparse.ArgumentParser(prog="python -m benchmarks.magnitude",
                                 description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     add_arguments(p)

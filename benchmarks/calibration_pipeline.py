@@ -1,6 +1,6 @@
 """Per-grasp calibration through the user's pipeline: simulate -> export -> train -> evaluate.
 
-    python -m aslip_ros.experiments.calibration_pipeline --work /tmp/calbench \\
+    python -m benchmarks.calibration_pipeline --work /tmp/calbench \\
         --out results/calibration --variant coupling --models svm,cnn --cnn-budget 240
 
 For one scene variant (``aslip simulate --variant``), it records 5 objects x ``--trials``
@@ -148,7 +148,7 @@ def convergence(args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m aslip_ros.experiments.calibration_pipeline")
+    p = argparse.ArgumentParser(prog="python -m benchmarks.calibration_pipeline")
     p.add_argument("--work", required=True, help="bags, datasets and checkpoints go here")
     p.add_argument("--out", default="results/calibration")
     p.add_argument("--variant", choices=("coupling", "one_sided"), default="coupling")

@@ -27,7 +27,7 @@ import numpy as np
 
 from aslip_ros.control.slip_stop import SlipStopConfig
 from aslip_ros.control.slip_track import SlipTrackConfig
-from aslip_ros.experiments import demo_metrics as dm
+from benchmarks import demo_metrics as dm
 from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 
 TASKS = ("slip_stop", "slip_track")

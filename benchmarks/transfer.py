@@ -27,7 +27,7 @@ best method of each column and every method whose interval overlaps the best one
 cannot be told apart on these trials). ``transfer_targets`` compares ``aslip`` with the best
 baseline of each cell on the same trial resamples.
 
-    python -m aslip_ros.experiments.transfer --out results/transfer       (make transfer)
+    python -m benchmarks.transfer --out results/transfer       (make transfer)
 """
 
 from __future__ import annotations
@@ -293,7 +293,7 @@ def run_protocol(cfg: TransferConfig, log: Callable[[str], None] = print) -> dic
 def write_tables(cfg: TransferConfig) -> dict[str, Any]:
     """The tables from the cached predictions of ``cfg.methods`` (with ``merge``: of every
     method that has them), written to ``cfg.out``."""
-    from aslip_ros.experiments.transfer_targets import PLAIN, targets
+    from benchmarks.transfer_targets import PLAIN, targets
     cells: dict[str, dict[str, dict[str, Any]]] = {}
     preds: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     for train in cfg.train_on:
@@ -349,7 +349,7 @@ def table_markdown(result: dict[str, Any]) -> str:
     lines = ["# Transfer: trained on one scene, tested on scenes no model saw", "",
              "Cells: value [95 % trial-bootstrap interval]. **Bold**: the best method of the "
              "column; *italic*: cannot be told apart from it (overlapping intervals).", ""]
-    from aslip_ros.experiments.transfer_targets import targets_markdown
+    from benchmarks.transfer_targets import targets_markdown
     lines += [f"`aslip`: {result.get('aslip_method', '')}. The training scene is tested on a "
               "fresh draw of it (other seeds), every held-out scene on all its trials.", ""]
     for cell, rows in result["cells"].items():
@@ -417,13 +417,13 @@ def config_from_args(args: argparse.Namespace) -> TransferConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m aslip_ros.experiments.transfer",
+    p = argparse.ArgumentParser(prog="python -m benchmarks.transfer",
                                 description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     add_arguments(p)
     args = p.parse_args(argv)
     cfg = config_from_args(args)
-    from aslip_ros.experiments.common import Log, set_threads
+    from benchmarks.common import Log, set_threads
     set_threads(cfg.threads)
     if args.tables_only:
         write_tables(cfg)

@@ -1,4 +1,4 @@
-"""The breakdown criterion of ``aslip stability`` and its report: one chart per stressor and
+"""The breakdown criterion of ``make stability`` and its report: one chart per stressor and
 ``stability.md``.
 
 A method breaks down at the first level (benign to harsh) where its detection drops below

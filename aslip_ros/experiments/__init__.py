@@ -1,1 +1,0 @@
-"""aslip_ros.experiments."""
