@@ -237,8 +237,10 @@ def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True
         + dm.calibration_table(ok)
     head = (f"# Table III in the scene ({meta['command']})\n\n"
             f"Slip-stop cells: successes/trials, |Delta x| mean ± std [mm] over all trials "
-            f"(failures included); slip-track: pose RMSE mean ± std [mm]. Paper columns from "
-            f"the A-SLIP paper, Table III (real hardware).\n\n")
+            f"(failures included); slip-track: pose RMSE mean ± std [mm]. A trial that was "
+            f"run again after a watchdog stop on stale input counts as a failure "
+            f"(`reruns` in summary.json). Paper columns from the A-SLIP paper, Table III "
+            f"(real hardware).\n\n")
     write_json(out / "summary.json", summary)
     write_text(out / "table.md", head + table + _notes(summary))
     if plots:

@@ -190,21 +190,33 @@ def _cell(task: str, rows: Sequence[dict]) -> dict:
     return {**_cell_values(task, rows), **_reruns(rows)}
 
 
+def succeeded(task: str, r: dict) -> bool:
+    """One trial's verdict in the table. A trial that had to be run again after a watchdog
+    stop on stale input is a failure, whatever its repeat did: on a robot that trial was
+    lost (its repeats stay visible in ``reruns``)."""
+    if r.get("reruns"):
+        return False
+    if task == "slip_stop":
+        return bool(r.get("success"))
+    return r.get("pose_rmse_m") is not None
+
+
 def _cell_values(task: str, rows: Sequence[dict]) -> dict:
+    ok_rows = [r for r in rows if succeeded(task, r)]
     if task == "slip_stop":
         errs = [abs(r["stopping_error_m"]) * 1e3 if r.get("stopping_error_m") is not None
                 else None for r in rows]
         m, s, n = mean_std(errs)
-        ok = [abs(r["stopping_error_m"]) * 1e3 for r in rows
-              if r.get("success") and r.get("stopping_error_m") is not None]
+        ok = [abs(r["stopping_error_m"]) * 1e3 for r in ok_rows
+              if r.get("stopping_error_m") is not None]
         ms, ss, _ = mean_std(ok)
-        return {"successes": int(sum(bool(r.get("success")) for r in rows)),
-                "trials": len(rows), "mean_mm": _num(m), "std_mm": _num(s), "n_mm": n,
-                "mean_success_mm": _num(ms), "std_success_mm": _num(ss)}
+        return {"successes": len(ok_rows), "trials": len(rows), "mean_mm": _num(m),
+                "std_mm": _num(s), "n_mm": n, "mean_success_mm": _num(ms),
+                "std_success_mm": _num(ss)}
     vals = [r["pose_rmse_m"] * 1e3 if r.get("pose_rmse_m") is not None else None
             for r in rows]
     m, s, n = mean_std(vals)
-    return {"successes": sum(1 for v in vals if v is not None), "trials": len(rows),
+    return {"successes": len(ok_rows), "trials": len(rows),
             "mean_mm": _num(m), "std_mm": _num(s), "n_mm": n}
 
 
@@ -253,13 +265,14 @@ def methods_table(summary: dict) -> str:
     stop = summary.get("slip_stop", {})
     track = summary.get("slip_track", {})
     methods = sorted(set(stop) | set(track))
-    lines = ["", "| method | slip-stop successes | slip-stop error mm | slip-track RMSE mm |",
-             "|---|---|---|---|"]
+    lines = ["", "| method | slip-stop successes | slip-stop error mm | slip-track successes "
+                 "| slip-track RMSE mm |", "|---|---|---|---|---|"]
     for m in methods:
         c = stop.get(m, {}).get("overall")
         t = track.get(m, {}).get("overall")
         lines.append(f"| {m} | " + (f"{c['successes']}/{c['trials']}" if c else "-") + " | "
                      + (_fmt(c["mean_mm"], c["std_mm"]) if c else "-") + " | "
+                     + (f"{t['successes']}/{t['trials']}" if t else "-") + " | "
                      + (_fmt(t["mean_mm"], t["std_mm"]) if t else "-") + " |")
     return "\n".join(lines) + "\n"
 

@@ -109,9 +109,22 @@ def test_summary_counts_reruns_per_cell():
                  stopping_error_m=0.004, reruns=[], controller_reason="slip")]
     cells = dm.summarize(rows)["slip_stop"]["aslip"]
     assert cells["chips_can"]["reruns"] == 3 and cells["chips_can"]["trials_rerun"] == 2
-    assert cells["chips_can"]["stale_final"] == 1 and cells["chips_can"]["successes"] == 1
+    # A rerun is a failure in the table (#26): the first trial succeeded only on its repeat.
+    assert cells["chips_can"]["stale_final"] == 1 and cells["chips_can"]["successes"] == 0
+    assert cells["pla_rod"]["successes"] == 1
     assert cells["pla_rod"]["reruns"] == 0
     assert cells["overall"]["reruns"] == 3 and cells["overall"]["trials"] == 3
+
+
+def test_a_slip_track_trial_that_was_rerun_is_a_failure():
+    from benchmarks import demo_metrics as dm
+    rows = [dict(task="slip_track", method="aslip", object="chips_can", pose_rmse_m=0.004,
+                 reruns=["stale_slip"]),
+            dict(task="slip_track", method="aslip", object="chips_can", pose_rmse_m=0.006,
+                 reruns=[])]
+    c = dm.summarize(rows)["slip_track"]["aslip"]["overall"]
+    assert (c["successes"], c["trials"], c["reruns"]) == (1, 2, 1)
+    assert "| aslip | - | - | 1/2 | 5.0 ± 1.0 |" in dm.methods_table(dm.summarize(rows))
 
 
 def test_methods_table_lists_every_method_of_the_run():

@@ -58,6 +58,19 @@ def make_checkpoint(path, seed=0, **meta_changes):
     return save_checkpoint(path, meta, net.state_dict())
 
 
+def calibration_doc(names=NAMES, converge_frames=30) -> dict:
+    """Per-grasp calibration constants that accept every frame above a low floor as
+    background (the gate says no slip), converged after ``converge_frames`` frames."""
+    from aslip_ros.learn.calibration.grasp import CalibrationConstants
+    fcfg = FeatureConfig()
+    m = fcfg.n_mels
+    return CalibrationConstants(
+        channel_names=tuple(names), n_mels=m, hop_s=fcfg.hop / fcfg.sample_rate,
+        gate_mean=(0.0,) * m, gate_std=(1.0,) * m, gate_coef=(0.0,) * m, gate_bias=-10.0,
+        floor_level=-60.0, ref_offset=(0.0,) * len(names),
+        converge_frames=converge_frames, prior_frames=5.0).to_dict()
+
+
 def audio(n=48000, seed=0):
     rng = np.random.default_rng(seed)
     env = 1.0 + np.sin(np.arange(n) / 4000.0)[:, None]
@@ -221,6 +234,13 @@ def test_aslip_train_stage_stream_writes_a_streaming_checkpoint(dataset, tmp_pat
     pred = StreamingPredictor.from_checkpoint(out)
     ests = [e for b in blocks(audio(n=9600)) for e in pred.push(b)]
     assert len(ests) == 17 and all(np.isfinite(e.prediction.probability) for e in ests)
+    # Per-grasp calibration by default, as for the window models (#26); off on request.
+    assert pred.calibrated and ck.meta["calibration"]["method"] == "background"
+    off = tmp_path / "off.pt"
+    assert cli.main(["train", "--dataset", str(dataset), "--stage", "stream", "--out",
+                     str(off), "--epochs", "1", "--threads", "1", "--no-progress",
+                     "--calibration", "off"]) == 0
+    assert "calibration" not in load_checkpoint(off).meta
 
 
 def test_guard_band_covers_the_smoothed_onset_and_end():
@@ -246,3 +266,39 @@ def test_threshold_is_chosen_for_the_false_alarm_rate():
     assert t == 0.75 and table[0]["fa_per_min"] > 5.0
     t, _ = select_threshold([p], [slip], 0.01, fa_per_min=10.0)
     assert t == 0.5
+
+
+def test_a_calibrated_streaming_checkpoint_live_equals_offline_and_converges(tmp_path):
+    """The per-grasp calibration in the streaming path: fed block by block it gives what
+    the offline whole-trial computation gives, learns the microphones' relative gain and
+    converges; a new grasp starts it again."""
+    path = make_checkpoint(tmp_path / "cal.pt", calibration=calibration_doc())
+    x = audio(n=48000)
+    x[:, 1] *= 3.0                              # the second pad couples 9.5 dB louder
+    live = StreamingPredictor.from_checkpoint(path)
+    assert live.calibrated and not live.calibration_converged
+    ests = [e for b in blocks(x, n=441) for e in live.push(b)]
+    ends, p, v = StreamingPredictor.from_checkpoint(path).trial_outputs(x)
+    assert len(ests) == len(ends) > 50
+    lp, lv = outputs(ests)
+    np.testing.assert_allclose(lp, p, atol=2e-5)
+    raw = np.array([e.raw_velocity for e in ests])
+    np.testing.assert_allclose(raw, v, atol=2e-5)
+    assert live.calibration_converged
+    gain = live.calibration_summary()["gain_db"]
+    assert gain["m1"] - gain["m0"] == pytest.approx(20 * np.log10(3.0), abs=1.5)
+    # The calibration changes what the model reads: without it the outputs differ.
+    plain = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "plain.pt"))
+    _, p0, _ = plain.trial_outputs(x)
+    assert np.abs(p0 - p).max() > 1e-4
+    live.reset_calibration()
+    assert not live.calibration_converged
+
+
+def test_a_calibration_for_other_microphones_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="calibration"):
+        make_checkpoint(tmp_path / "cal.pt", calibration=calibration_doc(names=["m0", "x"]))
+    p = StreamingPredictor.from_checkpoint(
+        make_checkpoint(tmp_path / "ok.pt", calibration=calibration_doc()))
+    with pytest.raises(ValueError, match="channel"):
+        p.check_stream(RATE, ["m1", "m0"])

@@ -54,6 +54,15 @@ def stream_ckpt(tmp_path_factory):
     return make_stream(tmp_path_factory.mktemp("live") / "stream.pt", threshold=0.5)
 
 
+@pytest.fixture(scope="module")
+def stream_cal_ckpt(tmp_path_factory):
+    """A streaming checkpoint with per-grasp calibration that converges within 0.1 s."""
+    from test_learn_streaming_model import calibration_doc
+    from test_learn_streaming_model import make_checkpoint as make_stream
+    return make_stream(tmp_path_factory.mktemp("live") / "stream_cal.pt", threshold=0.5,
+                       calibration=calibration_doc(converge_frames=10))
+
+
 def _core(ckpt, blocks, **config):
     est = LiveEstimator(load_predictor(ckpt), LiveConfig(**config))
     return est, [est.feed(b) for b in blocks]
@@ -173,13 +182,28 @@ def _node_estimates(context, ckpt, blocks, expected_counts):
         bus.close()
 
 
+def test_a_calibrated_stream_says_when_it_converged_and_restarts_at_a_gap(stream_cal_ckpt):
+    blocks = recorded_stream(STREAM_NAMES, seconds=0.6, gap_at=40)
+    est = LiveEstimator(load_predictor(stream_cal_ckpt))
+    first, later = [], []
+    for i, b in enumerate(blocks):
+        (first if i < 5 else later).extend(est.feed(b))
+    assert est.calibrated
+    assert all(e.direction_sigma == UNCONVERGED_DIRECTION_SIGMA for e in first)
+    kinds = [e.kind for e in est.take_events()]
+    assert kinds.count("converged") == 2 and kinds.count("restart") == 1     # the gap
+    assert est.calibration_converged and later[-1].direction_sigma != UNCONVERGED_DIRECTION_SIGMA
+    assert est.new_grasp("~/recalibrate") and not est.calibration_converged
+
+
 @pytest.mark.ros
-@pytest.mark.parametrize("kind", ["window", "stream"])
+@pytest.mark.parametrize("kind", ["window", "stream", "stream_calibrated"])
 def test_the_node_publishes_exactly_what_the_core_estimates(kind, window_ckpt, stream_ckpt,
-                                                            rclpy_context):
+                                                            stream_cal_ckpt, rclpy_context):
     import torch
     torch.set_num_threads(1)                     # the node's torch_threads
-    ckpt = window_ckpt if kind == "window" else stream_ckpt
+    ckpt = {"window": window_ckpt, "stream": stream_ckpt,
+            "stream_calibrated": stream_cal_ckpt}[kind]
     blocks = recorded_stream(SCENE_NAMES if kind == "window" else STREAM_NAMES, seconds=0.4,
                              gap_at=18)
     _, per_block = _core(ckpt, blocks)

@@ -332,7 +332,7 @@ class SlipInference(Node):
             dead = [n for n in self.predictor.channel_names if n in st.dead_recent]
             st.dead_recent.clear()
             drops, refusal = sum(st.drops.values()), st.refusal
-            cal = None if self.est.streaming else self.predictor.calibration_summary()
+            cal = self.predictor.calibration_summary()
             if self.est.streaming:
                 values.update(stream_resets=self.predictor.resets,
                               last_reset_reason=self.predictor.last_reset_reason)

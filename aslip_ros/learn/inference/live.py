@@ -216,11 +216,11 @@ class LiveEstimator:
 
     def _restart(self, reason: str) -> None:
         if self.streaming:
-            self._reset_stream(reason)
-            return
-        self.ring.reset()
-        self.predictor.reset_calibration()
-        self._since_hop = 0
+            self._reset_stream(reason)        # features, state and calibration
+        else:
+            self.ring.reset()
+            self.predictor.reset_calibration()
+            self._since_hop = 0
         self._announced_converged = False
         self._event("restart", reason)
 
@@ -282,9 +282,7 @@ class LiveEstimator:
         pr = self.predictor
         self.ring.push(a.block)
         pr.push_audio(a.block)
-        if self.calibration_converged and not self._announced_converged:
-            self._announced_converged = True
-            self._event("converged", "converged")
+        self._note_convergence()
         self._since_hop += a.frames
         if self.ring.filled < self.ring.length or self._since_hop < self.hop_frames:
             return None
@@ -320,9 +318,17 @@ class LiveEstimator:
                 self.stats.drops["bad_estimate"] += 1
                 self._event("bad_estimate", "bad_estimate", f"non-finite estimate {e}")
                 return out
-            out.append(Estimate(est.stamp_ns, e, e.direction_sigma, est.raw_velocity))
+            sigma = UNCONVERGED_DIRECTION_SIGMA \
+                if self.calibrated and not self.calibration_converged else e.direction_sigma
+            out.append(Estimate(est.stamp_ns, e, sigma, est.raw_velocity))
+        self._note_convergence()
         self.stats.estimates += len(out)
         return out
+
+    def _note_convergence(self) -> None:
+        if self.calibration_converged and not self._announced_converged:
+            self._announced_converged = True
+            self._event("converged", "converged")
 
     # --- the model ------------------------------------------------------------------------
     def run(self, job: Job) -> Optional[Estimate]:

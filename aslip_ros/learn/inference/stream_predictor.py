@@ -33,8 +33,10 @@ from typing import Sequence
 import numpy as np
 
 from aslip_ros.slip import DEFAULT_THRESHOLD
-from aslip_ros.learn.checkpoint import (Checkpoint, CheckpointFacts, check_compatible,
-                                        load_checkpoint)
+from aslip_ros.learn.calibration.frames import FrameCutter, StreamCalibration, window_offsets
+from aslip_ros.learn.calibration.grasp import CalibrationConstants
+from aslip_ros.learn.checkpoint import (Checkpoint, CheckpointFacts, CheckpointMismatch,
+                                        check_compatible, load_checkpoint)
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.calibration.output import sigma_model
 from aslip_ros.learn.inference.predictor import Prediction
@@ -82,6 +84,16 @@ class StreamingPredictor(CheckpointFacts):
         self._origin_ns = 0
         self.resets = 0
         self.last_reset_reason = ""
+        # Per-grasp calibration (a checkpoint with ``calibration``): the same state as the
+        # window models', fed every sample of the grasp; frame k is read with the state
+        # after the calibration frames complete by its last sample.
+        self.calibration: CalibrationConstants | None = None
+        self._cal: StreamCalibration | None = None
+        if ckpt.meta.get("calibration") is not None:
+            self.calibration = CalibrationConstants.from_dict(ckpt.meta["calibration"])
+            self._check_calibration(ckpt.channel_names)
+            self._cal = StreamCalibration(self.calibration, self.feature_config,
+                                          ckpt.sample_rate)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, threshold: float | None = None,
@@ -93,15 +105,34 @@ class StreamingPredictor(CheckpointFacts):
     def window_samples(self) -> int:
         return int(self.meta["window_samples"])
 
-    @property
-    def calibrated(self) -> bool:
-        """False: the streaming model has no per-grasp calibration."""
-        return False
+    # --- per-grasp calibration (the window Predictor's interface) --------------------------
+    def _check_calibration(self, channel_names: Sequence[str]) -> None:
+        try:
+            hop_s = FrameCutter(self.feature_config, self.sample_rate).hop_s
+        except ValueError as exc:
+            raise CheckpointMismatch(str(exc)) from exc
+        self.calibration.check_stream(channel_names, self.feature_config.n_mels, hop_s)
 
     @property
-    def calibration(self) -> None:
-        """None: no per-grasp calibration (the Predictor's interface)."""
-        return None
+    def calibrated(self) -> bool:
+        """True when the checkpoint carries a per-grasp calibration."""
+        return self._cal is not None
+
+    def reset_calibration(self) -> None:
+        """A new grasp: the calibration starts again from zero gain (features and the
+        recurrent state run on)."""
+        if self._cal is not None:
+            self._cal.reset()
+
+    def calibration_offsets(self) -> np.ndarray | None:
+        return None if self._cal is None else self._cal.offsets.copy()
+
+    @property
+    def calibration_converged(self) -> bool:
+        return self._cal is not None and self._cal.state.converged
+
+    def calibration_summary(self) -> dict | None:
+        return None if self._cal is None else self._cal.summary()
 
     @property
     def fresh(self) -> bool:
@@ -125,11 +156,14 @@ class StreamingPredictor(CheckpointFacts):
     def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
         """CheckpointMismatch unless rate and channel names (in order) match the training."""
         check_compatible(self.meta, sample_rate, channel_names)
+        if self.calibration is not None:
+            self._check_calibration(channel_names)
 
     def reset(self, reason: str = "reset") -> None:
-        """Forget the audio history and the recurrent state."""
+        """Forget the audio history, the recurrent state and the grasp's calibration."""
         self.features.reset()
         self.stepper.reset()
+        self.reset_calibration()
         self._origin = None
         self.resets += 1
         self.last_reset_reason = reason
@@ -186,12 +220,21 @@ class StreamingPredictor(CheckpointFacts):
                                                          first_frame + frames.shape[0]))
         # Sample times on the block's clock: the rate the gate holds the stamps to.
         ns_per = (a.end_stamp_ns - a.stamp_ns) / a.frames if a.frames else 1e9 / a.sample_rate
+        block = np.asarray(a.block, np.float32)
+        fed = 0                       # samples of this block given to the calibration
         for frame, end in zip(frames, ends):
-            p, v = self.stepper.step(frame)
             idx = self._origin + int(end)
+            if self._cal is not None:
+                upto = idx - int(a.first_sample_index)
+                self._cal.push(block[fed:upto])
+                fed = upto
+                frame = frame - self._cal.offsets.astype(np.float32)[:, None]
+            p, v = self.stepper.step(frame)
             stamp = int(a.stamp_ns + round((idx - 1 - a.first_sample_index) * ns_per))
             out.append(StreamEstimate(stamp, idx, self._prediction(p, v),
                                       (float(v[0]), float(v[1]))))
+        if self._cal is not None:
+            self._cal.push(block[fed:])
         return out
 
     def _prediction(self, p: float, v: np.ndarray) -> Prediction:
@@ -208,10 +251,14 @@ class StreamingPredictor(CheckpointFacts):
         """A whole ``(n, C)`` recording from a zero state (offline, batched; equal to pushing
         it block by block): frame end sample indices (exclusive, from the recording's first
         sample), p and the raw (ungated) velocity per frame."""
-        frames = stream_logmel(np.asarray(audio, np.float32), self.feature_config,
-                               self.sample_rate)
-        p, v = self.offline(frames)
+        audio = np.asarray(audio, np.float32)
+        frames = stream_logmel(audio, self.feature_config, self.sample_rate)
         ends = self.features.frame_end_samples(np.arange(frames.shape[0]))
+        if self.calibration is not None:
+            cutter = FrameCutter(self.feature_config, self.sample_rate)
+            offsets = window_offsets(cutter.frames(audio), ends, cutter, self.calibration)
+            frames = frames - offsets.astype(np.float32)[:, :, None]
+        p, v = self.offline(frames)
         return ends, np.asarray(p), np.asarray(v)
 
     def offline(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -27,6 +27,8 @@ from aslip_ros.slip import DEFAULT_THRESHOLD
 import torch
 from torch.nn import functional as F
 
+from aslip_ros.learn.calibration.frames import FrameCutter, fit_on_dataset, window_offsets
+from aslip_ros.learn.calibration.grasp import CalibrationConstants
 from aslip_ros.learn.models.aslip_stream import StreamBackend
 from aslip_ros.learn.checkpoint import checkpoint_meta, git_revision, save_checkpoint
 from aslip_ros.learn.data_io import WindowSet, open_dataset, trial_splits
@@ -60,6 +62,9 @@ class StreamTrainConfig:
     threads: int = 1
     progress: bool = True
     device: str = "cpu"            # auto | cpu | cuda (train_loop.resolve_device)
+    # Per-grasp calibration (as the window models'): off, or a method of calibration.grasp.
+    # ``aslip train`` defaults to background.
+    calibration: str = "off"
 
 
 @dataclass
@@ -75,10 +80,14 @@ class Sequences:
 
 
 def trial_sequences(ds: WindowSet, trials: Sequence[int], channels: Sequence[str],
-                    fcfg: FeatureConfig, smoother: Smoother = DEFAULT_SMOOTHER) -> Sequences:
+                    fcfg: FeatureConfig, smoother: Smoother = DEFAULT_SMOOTHER,
+                    calibration: CalibrationConstants | None = None) -> Sequences:
     """Frames and per-frame labels of whole trials (trials with audio gaps are skipped:
-    their file joins segments the live estimator would see as a reset)."""
+    their file joins segments the live estimator would see as a reset). With
+    ``calibration``, each frame is read with its grasp's causal calibration removed, as
+    ``StreamingPredictor`` reads it live."""
     cols = ds.channel_indices(channels)
+    cutter = FrameCutter(fcfg, ds.sample_rate) if calibration is not None else None
     out = Sequences([], [], [], [], [], [])
     for k in trials:
         if int(ds.trials[k].get("audio_gaps") or 0):
@@ -87,6 +96,9 @@ def trial_sequences(ds: WindowSet, trials: Sequence[int], channels: Sequence[str
         frames = stream_logmel(audio, fcfg, ds.sample_rate)
         ends = StreamingLogMel(fcfg, ds.sample_rate, len(cols)).frame_end_samples(
             np.arange(frames.shape[0]))
+        if cutter is not None:
+            offsets = window_offsets(cutter.frames(audio), ends, cutter, calibration)
+            frames = frames - offsets.astype(np.float32)[:, :, None]
         lab = frame_labels(load_track(ds.root, k), ends, ds.sample_rate, ds.epsilon, smoother)
         out.trials.append(int(k))
         out.frames.append(frames)
@@ -229,10 +241,11 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
     fcfg = feature_config or FeatureConfig()
     StreamingLogMel(fcfg, ds.sample_rate, len(channels))    # refuses unsupported rates early
     t0 = time.perf_counter()
-    tr = trial_sequences(ds, split_trial_indices(ds, "train", cfg.split_seed), channels, fcfg,
-                         smoother)
+    train_trials = split_trial_indices(ds, "train", cfg.split_seed)
+    cal = stream_calibration(ds, cfg.calibration, train_trials, channels, fcfg, log)
+    tr = trial_sequences(ds, train_trials, channels, fcfg, smoother, cal)
     va = trial_sequences(ds, split_trial_indices(ds, "val", cfg.split_seed), channels, fcfg,
-                         smoother)
+                         smoother, cal)
     if not tr.trials or not va.trials:
         raise ValueError(f"need training and validation trials, have {len(tr.trials)} and "
                          f"{len(va.trials)}")
@@ -284,6 +297,8 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
     log(f"threshold {threshold:.2f} (validation false alarms per minute <= "
         f"{cfg.fa_per_min:g} where reachable)")
     meta = stream_meta(ds, cfg, mcfg, fcfg, channels, smoother, model)
+    if cal is not None:
+        meta["calibration"] = cal.to_dict()
     meta.update(threshold=threshold, **sequence_fields(out_val, va, threshold))
     meta["threshold_selection"] = {"fa_per_min_target": cfg.fa_per_min, "sweep": sweep}
     meta["provenance"].update(
@@ -294,6 +309,23 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
                   "device": str(device)})
     tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
     return meta, tensors, history
+
+
+def stream_calibration(ds: WindowSet, method: str, train_trials: Sequence[int],
+                       channels: Sequence[str], fcfg: FeatureConfig,
+                       log: Callable[[str], None] = print) -> CalibrationConstants | None:
+    """Per-grasp calibration constants fitted on the training trials (None when off or with
+    one channel: gains are relative between microphones)."""
+    if method == "off":
+        return None
+    if len(channels) < 2:
+        log("calibration: off (one channel: gains are relative between microphones)")
+        return None
+    rows = np.flatnonzero(np.isin(ds.windows["trial"], np.asarray(train_trials)))
+    k = fit_on_dataset(ds, rows, channels, fcfg, method=method)
+    log(f"calibration: {k.method} constants fitted on the training trials (converged after "
+        f"{k.convergence_s:g} s of accepted audio)")
+    return k
 
 
 def stream_meta(ds: WindowSet, cfg: StreamTrainConfig, mcfg: StreamConfig,
@@ -329,7 +361,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             split_seed=args.split_seed, gain_db=args.gain_db,
             channel_gain_db=args.channel_gain_db, threads=args.threads,
             time_budget_s=args.time_budget, progress=not args.no_progress,
-            device=args.device)
+            device=args.device, calibration=args.calibration)
         fcfg = FeatureConfig(sample_rate=args.feature_rate, n_fft=args.n_fft, hop=args.hop,
                              n_mels=args.n_mels, fmin=args.fmin, fmax=args.fmax)
         chans = [c for c in (args.channels or "").split(",") if c] or None
