@@ -48,8 +48,8 @@ from benchmarks.demo_episode import (TASKS, Episode, StopSettings, TrackSettings
 from benchmarks.demo_models import OBJECTS
 
 METHODS = ("aslip", "aslip_uncalibrated", "svm", "stream")
-#: What ``make demo`` runs: the streaming model only joins when it belongs to this scene.
-DEFAULT_METHODS = ("aslip", "aslip_uncalibrated", "svm")
+#: What ``make demo`` runs (the streaming model is refused when it is not of this scene).
+DEFAULT_METHODS = ("aslip", "aslip_uncalibrated", "svm", "stream")
 #: The causal streaming estimator's checkpoint in --models (docs/streaming.md; trained by
 #: ``python -m benchmarks.lag``, not by --train-models).
 STREAM_NAME = "aslip_stream.pt"

@@ -283,12 +283,16 @@ def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:
         res = rec.result or {}
         out["controller_reason"] = res.get("reason")
         out["controller_distance_m"] = res.get("stopping_distance_m")
+        out["onset_to_stop_s"] = dm.onset_to_stop_s(world.slip_onset_time,
+                                                    world.arm.stop_times)
     else:
         out["pose_rmse_m"] = dm.pose_rmse(traj["t"], traj["rel"])
         rel = traj["rel"]
         out["max_excursion_m"] = float(np.max(np.linalg.norm(rel - rel[0], axis=1))) \
             if len(rel) else math.nan
     slip = np.array(rec.slip, dtype=float).reshape(-1, 5)
+    out["lag_curve"] = dm.lag_curve(traj["t"], traj["v_rel"], (slip[:, 0] - start_ns) / 1e9,
+                                    slip[:, 1:3])
     out["trace"] = {
         "t": traj["t"].astype(np.float32), "tcp": traj["tcp"].astype(np.float32),
         "object": traj["object"].astype(np.float32), "rel": traj["rel"].astype(np.float32),

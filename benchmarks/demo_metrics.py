@@ -142,6 +142,51 @@ def pose_rmse(t, rel, t_ref_s: float = TRACK_REFERENCE_S) -> float:
     return float(np.sqrt(np.mean(np.sum(e * e, axis=1))))
 
 
+#: Shifts of the estimate against the true slip velocity searched for the tracking delay [s].
+LAGS_S = np.round(np.arange(0.0, 0.3001, 0.005), 3)
+
+
+def lag_curve(t_true, v_true, t_pred, v_pred, lags_s=LAGS_S, dt_s: float = 0.005) -> list:
+    """Correlation of the published slip velocity with the true one shifted by each lag:
+    ``sum v_pred(t) . v_true(t - lag)`` over a common ``dt_s`` grid, normalised per lag.
+    Summed over the episodes of a method, its argmax is the estimate's tracking delay in
+    the loop (an estimate stamped at the end of its window lags by about half a window).
+    Empty when there is nothing to correlate."""
+    t_true, t_pred = np.asarray(t_true, float), np.asarray(t_pred, float)
+    v_true = np.asarray(v_true, float).reshape(-1, 2)
+    v_pred = np.asarray(v_pred, float).reshape(-1, 2)
+    if t_true.size < 2 or t_pred.size < 2:
+        return []
+    lo, hi = max(t_true[0] + lags_s[-1], t_pred[0]), min(t_true[-1], t_pred[-1])
+    if hi - lo < 10 * dt_s:
+        return []
+    grid = np.arange(lo, hi, dt_s)
+    pred = np.stack([np.interp(grid, t_pred, v_pred[:, j]) for j in range(2)], axis=1)
+    out = []
+    for lag in lags_s:
+        true = np.stack([np.interp(grid - lag, t_true, v_true[:, j]) for j in range(2)], axis=1)
+        den = np.sqrt((pred ** 2).sum() * (true ** 2).sum())
+        out.append(float((pred * true).sum() / den) if den > 0 else 0.0)
+    return out
+
+
+def tracking_delay_ms(curves: Iterable[Sequence[float]], lags_s=LAGS_S) -> Optional[float]:
+    """The lag [ms] that best correlates estimate and truth over the summed curves."""
+    curves = [np.asarray(c, float) for c in curves if c is not None and len(c) == len(lags_s)]
+    if not curves:
+        return None
+    return float(lags_s[int(np.argmax(np.sum(curves, axis=0)))] * 1e3)
+
+
+def onset_to_stop_s(onset_s: Optional[float], stop_times: Sequence[float]) -> Optional[float]:
+    """Seconds from the true slip onset to the first stop command the arm received after
+    it (None without an onset or a stop)."""
+    if onset_s is None or not math.isfinite(onset_s):
+        return None
+    after = [t for t in stop_times if t >= onset_s]
+    return float(after[0] - onset_s) if after else None
+
+
 def mean_std(values: Iterable[float]) -> tuple[float, float, int]:
     """Mean, population std and count of the finite values (NaN, NaN, 0 if none)."""
     v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)
@@ -187,7 +232,15 @@ def _reruns(rows: Sequence[dict]) -> dict:
 
 
 def _cell(task: str, rows: Sequence[dict]) -> dict:
-    return {**_cell_values(task, rows), **_reruns(rows)}
+    return {**_cell_values(task, rows), **_reruns(rows), **_timing(rows)}
+
+
+def _timing(rows: Sequence[dict]) -> dict:
+    """The estimate's tracking delay in the loop and, for slip-stop, slip onset to stop."""
+    stops = [r["onset_to_stop_s"] * 1e3 for r in rows if r.get("onset_to_stop_s") is not None]
+    return {"tracking_delay_ms": tracking_delay_ms(r.get("lag_curve") for r in rows),
+            "onset_to_stop_median_ms": _num(float(np.median(stops))) if stops else None,
+            "n_onset_to_stop": len(stops)}
 
 
 def succeeded(task: str, r: dict) -> bool:
@@ -266,14 +319,19 @@ def methods_table(summary: dict) -> str:
     track = summary.get("slip_track", {})
     methods = sorted(set(stop) | set(track))
     lines = ["", "| method | slip-stop successes | slip-stop error mm | slip-track successes "
-                 "| slip-track RMSE mm |", "|---|---|---|---|---|"]
+                 "| slip-track RMSE mm | tracking delay ms (slip-track) | slip onset to stop "
+                 "ms (median) |", "|---|---|---|---|---|---|---|"]
     for m in methods:
         c = stop.get(m, {}).get("overall")
         t = track.get(m, {}).get("overall")
+        delay = (t or {}).get("tracking_delay_ms")
+        onset = (c or {}).get("onset_to_stop_median_ms")
         lines.append(f"| {m} | " + (f"{c['successes']}/{c['trials']}" if c else "-") + " | "
                      + (_fmt(c["mean_mm"], c["std_mm"]) if c else "-") + " | "
                      + (f"{t['successes']}/{t['trials']}" if t else "-") + " | "
-                     + (_fmt(t["mean_mm"], t["std_mm"]) if t else "-") + " |")
+                     + (_fmt(t["mean_mm"], t["std_mm"]) if t else "-") + " | "
+                     + ("-" if delay is None else f"{delay:.0f}") + " | "
+                     + ("-" if onset is None else f"{onset:.0f}") + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -1,5 +1,6 @@
-"""The demo's window checkpoints (A-SLIP CNN with and without per-grasp calibration, and the
-SVM baseline), trained on the scene.
+"""The demo's checkpoints (A-SLIP CNN with and without per-grasp calibration, the SVM
+baseline and the causal streaming estimator with per-grasp calibration), trained on the
+scene.
 
 ``python -m benchmarks.demo --train-models`` runs this: simulate externally induced slip on
 the five objects with the scene's microphones (4mic, 200 ms windows), mostly with the arm
@@ -33,16 +34,18 @@ OBJECTS = ("pla_rod", "glass_cleaner", "chips_can", "mustard_container", "cracke
 CNN_NAME = "aslip_cnn.pt"
 UNCALIBRATED_NAME = "aslip_cnn_uncalibrated.pt"
 SVM_NAME = "svm.pt"
+STREAM_NAME = "aslip_stream.pt"
 MANIFEST = "manifest.json"
 COMMAND = "python -m benchmarks.demo --train-models"
 #: Trials per object and condition, seconds per trial, export hop (the recipe).
 RECIPE = {"robot_moving": 4, "robot_stationary": 2, "duration_s": 10.0, "hop_s": 0.05,
           "window_s": 0.2, "seed": 0, "time_budget_s": 240.0, "epochs": 40,
-          "svm_max_train": 1500}
+          "svm_max_train": 1500, "stream_epochs": 60, "stream_time_budget_s": 240.0}
 #: Demo method -> (checkpoint file, ``aslip train`` stage, per-grasp calibration).
 MODELS = {"aslip": (CNN_NAME, "scratch", "background"),
           "aslip_uncalibrated": (UNCALIBRATED_NAME, "scratch", "off"),
-          "svm": (SVM_NAME, "svm", "background")}
+          "svm": (SVM_NAME, "svm", "background"),
+          "stream": (STREAM_NAME, "stream", "background")}
 
 
 def scene_version() -> str:
@@ -85,10 +88,10 @@ def aslip(argv: list[str]) -> int:
 def stream_problem(models_dir: str | Path, name: str) -> str | None:
     """Why the streaming checkpoint ``name`` in models_dir must not run in this scene, or None.
 
-    It is trained elsewhere (``python -m benchmarks.lag``, not by
-    :func:`train_models`), so the manifest's ``stream`` entry records the scene version its
-    data came from; a model of another scene (or of an unknown one) is refused rather than
-    shown as if it belonged to this one."""
+    :func:`train_models` trains it with the window models and records the scene version in
+    the manifest's ``stream`` entry; a checkpoint put there by hand (``python -m
+    benchmarks.lag``) must say its scene too. A model of another scene (or of an unknown
+    one) is refused rather than shown as if it belonged to this one."""
     d = Path(models_dir)
     try:
         entry = json.loads((d / MANIFEST).read_text()).get("stream")
@@ -139,6 +142,9 @@ def train_command(method: str, dataset: str | Path, out: str | Path,
             "--seed", str(r["seed"]), "--calibration", calibration]
     if stage == "svm":
         return args + ["--svm-max-train", str(r["svm_max_train"])]
+    if stage == "stream":
+        return args + ["--epochs", str(r["stream_epochs"]), "--time-budget",
+                       str(r["stream_time_budget_s"]), "--threads", str(threads)]
     return args + ["--epochs", str(r["epochs"]), "--time-budget", str(r["time_budget_s"]),
                    "--threads", str(threads)]
 
@@ -169,10 +175,9 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
                             "direction_mae_deg", "direction_std_deg", "magnitude_rmse_mm",
                             "magnitude_std_mm")}
     files = {m: v[0] for m, v in MODELS.items()}
-    try:        # the streaming model is trained elsewhere: keep what the manifest says of it
-        stream = json.loads((out / MANIFEST).read_text()).get("stream")
-    except (OSError, ValueError, AttributeError):
-        stream = None
+    # The streaming model is trained here too, on the same trials, with the same per-grasp
+    # calibration: the entry that stream_problem reads says so.
+    stream = {"file": STREAM_NAME, "scene_version": scene_version(), "trained_by": COMMAND}
     man = {"format": "aslip-demo-models", "version": 2, "scene_version": scene_version(),
            "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
            "layout": DEFAULT_LAYOUT, "files": files,
@@ -183,8 +188,7 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
            "test_metrics": metrics, "train_s_per_model": train_s,
            "train_s": round(time.perf_counter() - t0, 1),
            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-    if isinstance(stream, dict):
-        man["stream"] = stream
+    man["stream"] = stream
     write_json(out / MANIFEST, man)
     _log(f"wrote {', '.join(files.values())} and {MANIFEST} in {out}")
     return man

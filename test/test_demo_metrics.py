@@ -175,3 +175,27 @@ def test_calibration_outcome_against_the_scene_gains():
     off = _Predictor()
     off.calibrated = False
     assert calibration_outcome(off, _World()) is None
+
+
+def test_tracking_delay_is_the_lag_that_best_correlates_estimate_and_truth():
+    from benchmarks import demo_metrics as dm
+    t = np.arange(0.0, 6.0, 0.01)
+    rng = np.random.default_rng(0)
+    true = np.stack([np.convolve(rng.standard_normal(t.size), np.ones(20) / 20, "same"),
+                     np.zeros(t.size)], axis=1)
+    tp = np.arange(0.3, 6.0, 0.01)
+    late = np.stack([np.interp(tp - 0.11, t, true[:, 0]), np.zeros(tp.size)], axis=1)
+    curves = [dm.lag_curve(t, true, tp, late), dm.lag_curve(t, true, tp, late)]
+    assert dm.tracking_delay_ms(curves) == pytest.approx(110.0, abs=5.0)
+    assert dm.tracking_delay_ms([]) is None and dm.lag_curve(t[:1], true[:1], tp, late) == []
+
+
+def test_onset_to_stop_is_the_first_stop_command_after_the_onset():
+    from benchmarks import demo_metrics as dm
+    assert dm.onset_to_stop_s(1.0, [0.2, 1.05, 2.0]) == pytest.approx(0.05)
+    assert dm.onset_to_stop_s(None, [1.0]) is None and dm.onset_to_stop_s(3.0, [1.0]) is None
+    rows = [dict(task="slip_stop", method="aslip", object="o", success=True,
+                 stopping_error_m=0.005, onset_to_stop_s=s) for s in (0.03, 0.05, 0.04)]
+    cell = dm.summarize(rows)["slip_stop"]["aslip"]["overall"]
+    assert cell["onset_to_stop_median_ms"] == pytest.approx(40.0)
+    assert "| 40 |" in dm.methods_table(dm.summarize(rows))

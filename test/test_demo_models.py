@@ -29,8 +29,11 @@ def test_the_uncalibrated_cnn_is_trained_without_calibration_and_the_others_with
                      if a not in ("off", "out/aslip_uncalibrated.pt")]
     assert _option(cmds["aslip"], "--stage") == "scratch"
     assert _option(cmds["svm"], "--stage") == "svm"
-    # Every window method of the demo has a model in the set, and the set nothing else.
-    assert set(demo_models.MODELS) == set(demo.METHODS) - {"stream"}
+    # The streaming estimator is trained on the same trials, with per-grasp calibration.
+    assert _option(cmds["stream"], "--stage") == "stream"
+    assert _option(cmds["stream"], "--calibration") == "background"
+    # Every method of the demo has a model in the set, and the set nothing else.
+    assert set(demo_models.MODELS) == set(demo.METHODS)
 
 
 def _write_set(d: Path, version: str, skip: str | None = None) -> dict:
@@ -129,7 +132,7 @@ def _stream_entry(d: Path, version: str | None) -> None:
 
 
 def test_a_streaming_model_of_another_scene_is_refused(tmp_path):
-    _write_set(tmp_path, demo_models.scene_version())
+    _write_set(tmp_path, demo_models.scene_version(), skip="stream")
     assert "no streaming checkpoint" in demo_models.stream_problem(tmp_path, demo.STREAM_NAME)
     (tmp_path / demo.STREAM_NAME).write_bytes(b"x")
     assert "does not say" in demo_models.stream_problem(tmp_path, demo.STREAM_NAME)
@@ -148,11 +151,10 @@ def test_the_demo_refuses_a_stale_streaming_model_before_any_episode(tmp_path, m
     args = _args(tmp_path, methods="aslip,stream", out=str(tmp_path / "out"))
     assert demo.run(args) == 2
     assert "trained on scene version 2" in capsys.readouterr().err
-    assert demo.DEFAULT_METHODS == ("aslip", "aslip_uncalibrated", "svm")
+    assert demo.DEFAULT_METHODS == ("aslip", "aslip_uncalibrated", "svm", "stream")
 
 
-def test_retraining_keeps_what_the_manifest_says_of_the_streaming_model(tmp_path,
-                                                                        monkeypatch):
+def test_retraining_trains_the_streaming_model_and_records_its_scene(tmp_path, monkeypatch):
     _write_set(tmp_path, "2")
     _stream_entry(tmp_path, "2")
     monkeypatch.setattr(demo_models, "prepare_data", lambda *a: tmp_path / "data" / "ds")
@@ -166,7 +168,9 @@ def test_retraining_keeps_what_the_manifest_says_of_the_streaming_model(tmp_path
     (tmp_path / "data").mkdir()
     monkeypatch.setattr(demo_models, "aslip", fake_aslip)
     man = demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
-    assert man["stream"] == {"file": demo.STREAM_NAME, "scene_version": "2"}
+    assert man["stream"]["file"] == demo.STREAM_NAME
+    assert man["stream"]["scene_version"] == demo_models.scene_version()
     assert man["scene_version"] == demo_models.scene_version()
     assert man["calibration"] == {"aslip": "background", "aslip_uncalibrated": "off",
-                                  "svm": "background"}
+                                  "svm": "background", "stream": "background"}
+    assert demo_models.stream_problem(tmp_path, demo.STREAM_NAME) is None

@@ -175,3 +175,7 @@ def test_a_commanded_arm_sweeps_across_the_still_probe():
     assert moved @ along == pytest.approx(0.02 * 0.5, abs=1.5e-3)
     assert np.linalg.norm(moved - (moved @ along) * along) < 1e-9
     assert chunk.v_rel[-1] == pytest.approx([-0.02, 0.0], abs=1e-4)
+    # Every stop command is logged at its scene time (the demo's slip-onset-to-stop).
+    assert world.arm.stop_times == []
+    world.arm.stop()
+    assert world.arm.stop_times == [pytest.approx(world.t)]

@@ -70,6 +70,7 @@ class SimArm:
         self._deadline = 0.0
         self.v = np.zeros(3)
         self.n_commands = 0
+        self.stop_times: list[float] = []      # scene time of every stop command [s]
 
     def connect(self) -> None:
         """Open the (simulated) connection."""
@@ -105,6 +106,7 @@ class SimArm:
         """Command zero velocity now (the lag still applies, as on a real arm)."""
         self._cmd = np.zeros(3)
         self._deadline = self._world.t
+        self.stop_times.append(float(self._world.t))
 
     def tcp_pose(self) -> np.ndarray:
         """Current TCP pose ``(x, y, z, qx, qy, qz, qw)`` in ``link_base`` [m]."""
