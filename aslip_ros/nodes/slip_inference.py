@@ -65,6 +65,7 @@ import threading
 import time
 from typing import Optional
 
+import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
@@ -265,7 +266,7 @@ class SlipInference(Node):
         if job is not None:
             with self._wake:
                 if self._job is not None:
-                    self.est.stats.hops_superseded += 1
+                    self.est.count_superseded()
                 self._job = (job, t_in)
                 self._wake.notify()
 
@@ -314,28 +315,16 @@ class SlipInference(Node):
     # -- diagnostics --------------------------------------------------------------------------
 
     def _diagnose(self) -> None:
-        import numpy as np
-        st = self.est.stats
         with self._lock:
             lat = np.array(self.latency) * 1e3
             arr = list(self.arrivals)
-            values = {"blocks_received": self.blocks_in, "estimates_published": self.published}
-        with self.est._lock:
-            values.update({"blocks_accepted": st.blocks_ok,
-                           "blocks_dropped": sum(st.drops.values()), "gaps": st.gaps,
-                           "stream_restarts": st.stream_restarts,
-                           "frames_lost": st.frames_lost,
-                           "hops_superseded": st.hops_superseded,
-                           "dead_channel_windows": st.dead_windows,
-                           "threshold": self.est.threshold, "model": self.source})
-            values.update({f"dropped_{k}": v for k, v in sorted(st.drops.items())})
-            dead = [n for n in self.predictor.channel_names if n in st.dead_recent]
-            st.dead_recent.clear()
-            drops, refusal = sum(st.drops.values()), st.refusal
-            cal = self.predictor.calibration_summary()
-            if self.est.streaming:
-                values.update(stream_resets=self.predictor.resets,
-                              last_reset_reason=self.predictor.last_reset_reason)
+            values = {"blocks_received": self.blocks_in, "estimates_published": self.published,
+                      "model": self.source}
+        rep = self.est.report()
+        values.update(rep["values"])
+        values.update({f"dropped_{k}": v for k, v in sorted(rep["drops"].items())})
+        dead, drops, refusal, cal = rep["dead"], sum(rep["drops"].values()), rep["refusal"], \
+            rep["summary"]
         if cal is not None:
             gains = cal.pop("gain_db")
             values.update(cal)

@@ -176,6 +176,29 @@ class LiveEstimator:
     def _event(self, kind: str, reason: str, detail: str = "") -> None:
         self.events.append(Event(kind, reason, detail))
 
+    def report(self) -> dict:
+        """A consistent copy of the counters for diagnostics (thread-safe): ``values`` by
+        name, ``drops`` by reason, the ``dead`` channels seen since the last report (then
+        forgotten), the current ``refusal`` and the calibration ``summary`` (or None)."""
+        with self._lock:
+            st = self.stats
+            dead = [n for n in self.predictor.channel_names if n in st.dead_recent]
+            st.dead_recent.clear()
+            values = {"blocks_accepted": st.blocks_ok, "blocks_dropped": sum(st.drops.values()),
+                      "gaps": st.gaps, "stream_restarts": st.stream_restarts,
+                      "frames_lost": st.frames_lost, "hops_superseded": st.hops_superseded,
+                      "dead_channel_windows": st.dead_windows, "threshold": self.threshold}
+            if self.streaming:
+                values.update(stream_resets=self.predictor.resets,
+                              last_reset_reason=self.predictor.last_reset_reason)
+            return {"values": values, "drops": dict(st.drops), "dead": dead,
+                    "refusal": st.refusal, "summary": self.predictor.calibration_summary()}
+
+    def count_superseded(self) -> None:
+        """A caller's waiting window was replaced by a newer one before the model ran it."""
+        with self._lock:
+            self.stats.hops_superseded += 1
+
     @property
     def calibrated(self) -> bool:
         return bool(self.predictor.calibrated)

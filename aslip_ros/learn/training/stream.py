@@ -241,14 +241,7 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
     fcfg = feature_config or FeatureConfig()
     StreamingLogMel(fcfg, ds.sample_rate, len(channels))    # refuses unsupported rates early
     t0 = time.perf_counter()
-    train_trials = split_trial_indices(ds, "train", cfg.split_seed)
-    cal = stream_calibration(ds, cfg.calibration, train_trials, channels, fcfg, log)
-    tr = trial_sequences(ds, train_trials, channels, fcfg, smoother, cal)
-    va = trial_sequences(ds, split_trial_indices(ds, "val", cfg.split_seed), channels, fcfg,
-                         smoother, cal)
-    if not tr.trials or not va.trials:
-        raise ValueError(f"need training and validation trials, have {len(tr.trials)} and "
-                         f"{len(va.trials)}")
+    tr, va, cal = _split_sequences(ds, cfg, channels, fcfg, smoother, log)
     t_feat = time.perf_counter() - t0
     allf = np.concatenate(tr.frames)
     mean, std = allf.mean(axis=(0, 1)), np.maximum(allf.std(axis=(0, 1)), 1e-3)
@@ -309,6 +302,22 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
                   "device": str(device)})
     tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
     return meta, tensors, history
+
+
+def _split_sequences(ds: WindowSet, cfg: StreamTrainConfig, channels: Sequence[str],
+                     fcfg: FeatureConfig, smoother: Smoother, log: Callable[[str], None]
+                     ) -> tuple[Sequences, Sequences, CalibrationConstants | None]:
+    """Training and validation sequences, read with the calibration fitted on the training
+    trials (None when off)."""
+    train_trials = split_trial_indices(ds, "train", cfg.split_seed)
+    cal = stream_calibration(ds, cfg.calibration, train_trials, channels, fcfg, log)
+    tr = trial_sequences(ds, train_trials, channels, fcfg, smoother, cal)
+    va = trial_sequences(ds, split_trial_indices(ds, "val", cfg.split_seed), channels, fcfg,
+                         smoother, cal)
+    if not tr.trials or not va.trials:
+        raise ValueError(f"need training and validation trials, have {len(tr.trials)} and "
+                         f"{len(va.trials)}")
+    return tr, va, cal
 
 
 def stream_calibration(ds: WindowSet, method: str, train_trials: Sequence[int],
