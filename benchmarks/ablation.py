@@ -45,7 +45,7 @@ from .ablation_report import (CI_COLUMNS, bootstrap_intervals, majority, merge_r
                               pct, per_object_markdown, robot_noise_markdown, short,
                               table_markdown)
 from .common import (EXTERNAL_TRIALS, DataPlan, Log, Recipe, evaluate_cached, paper_units,
-                     set_threads, train_named)
+                     configured, train_named)
 
 
 @dataclass(frozen=True)
@@ -417,12 +417,9 @@ def config_from_args(args: argparse.Namespace) -> AblationConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        cfg = config_from_args(args)
-    except ValueError as exc:
-        print(f"benchmarks.ablation: error: {exc}", file=sys.stderr)
+    cfg = configured("ablation", args, config_from_args)
+    if cfg is None:
         return 2
-    set_threads(cfg.recipe.threads)
     abl = Ablation(cfg)
     if args.datasets_only:
         for r in (r for r in TABLE1 if r.key in cfg.rows):

@@ -40,7 +40,7 @@ from aslip_ros.util import write_json, write_text
 
 from .bench_report import bench_markdown, plot_pareto
 from .common import (DataPlan, Log, Recipe, add_plan_arguments, plan_from_args, evaluate_cached,
-                     fmt_num, paper_units, recipe_changes, set_threads, train_named)
+                     fmt_num, paper_units, recipe_changes, configured, train_named)
 
 #: Model-size sweep: name -> ModelConfig overrides (the default is width 16, depth 3, 64).
 MODEL_SIZES: dict[str, dict[str, int]] = {
@@ -387,12 +387,9 @@ def config_from_args(args: argparse.Namespace) -> BenchConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        cfg = config_from_args(args)
-    except ValueError as exc:
-        print(f"benchmarks.bench: error: {exc}", file=sys.stderr)
+    cfg = configured("bench", args, config_from_args)
+    if cfg is None:
         return 2
-    set_threads(cfg.recipe.threads)
     Bench(cfg).run()
     print((cfg.out / "bench.md").read_text())
     return 0

@@ -320,6 +320,18 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def configured(name: str, args: Any, config_from_args: Any) -> Any:
+    """A study's config from its command line, with its torch threads set; None (after one
+    error line naming ``benchmarks.<name>``) when the arguments are refused."""
+    try:
+        cfg = config_from_args(args)
+    except ValueError as exc:
+        print(f"benchmarks.{name}: error: {exc}", file=sys.stderr)
+        return None
+    set_threads(cfg.recipe.threads)
+    return cfg
+
+
 def set_threads(n: int) -> None:
     """torch threads (and BLAS through the environment for child processes)."""
     import torch

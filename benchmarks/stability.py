@@ -33,7 +33,7 @@ import numpy as np
 from aslip_ros.util import write_json, write_text
 
 from .common import (DataPlan, Log, Recipe, add_plan_arguments, plan_from_args, evaluate_cached,
-                     paper_units, set_threads, train_cached, train_named)
+                     paper_units, configured, train_cached, train_named)
 from .stability_report import (DET_MIN_PCT, DIR_MAX_DEG, breakdown, plot_stressor,
                                stability_markdown)
 
@@ -409,12 +409,9 @@ def config_from_args(args: argparse.Namespace) -> StabilityConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        cfg = config_from_args(args)
-    except ValueError as exc:
-        print(f"benchmarks.stability: error: {exc}", file=sys.stderr)
+    cfg = configured("stability", args, config_from_args)
+    if cfg is None:
         return 2
-    set_threads(cfg.recipe.threads)
     Stability(cfg).run()
     print((cfg.out / "stability.md").read_text())
     return 0

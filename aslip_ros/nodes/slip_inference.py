@@ -152,6 +152,9 @@ class SlipInference(Node):
         self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
         self.pub_calibration = self.create_publisher(String, topics.CALIBRATION, c.LATCHED_QOS)
         self._grasp = 0                          # grasps begun (resets of the calibration)
+        # The audio, model and service threads all report the estimator's events: one at a
+        # time, so the grasp count and the announcements keep their order.
+        self._report_lock = threading.Lock()
         self._announce_calibration("start")
         self.diag = c.Diagnostics(self, "aslip: slip_inference", self.source)
         self._worker = threading.Thread(target=self._infer_loop, name="slip_inference_model",
@@ -215,8 +218,12 @@ class SlipInference(Node):
 
     def _report(self) -> None:
         """The estimator's events as log lines and calibration announcements."""
+        with self._report_lock:
+            self._log_events(self.est.take_events())
+
+    def _log_events(self, events) -> None:
         log = self.get_logger()
-        for e in self.est.take_events():
+        for e in events:
             if e.kind == "drop":
                 log.warning(f"dropped AudioFrame ({e.reason}): {e.detail}",
                             throttle_duration_sec=1.0)
