@@ -18,7 +18,7 @@ PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/p
 BENCHMARK := $(ROS) PYTHONPATH="$$PYTHONPATH:$(CURDIR)" $(VENV)/bin/python -P -m
 
 .PHONY: help setup build test test-fast demo datasets ablation bench stability transfer lint clean
-.PHONY: ablation-baselines magnitude flake-hunt soak-recording
+.PHONY: ablation-baselines magnitude flake-hunt soak-recording latency
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
@@ -31,6 +31,7 @@ help:
 	@echo "make ablation-baselines  only the SVM and plain-baseline rows of Table I (minutes)"
 	@echo "make magnitude  the package CNN against the plain CNN, one cause at a time (after transfer)"
 	@echo "make bench      latency against accuracy (results/bench/)"
+	@echo "make latency    tail latency of the live node per step, shipped models (results/latency/)"
 	@echo "make stability  accuracy under stressors (results/stability/)"
 	@echo "make transfer   train on the default scene, test on held-out variants (results/transfer/)"
 	@echo "                (the benchmark targets run benchmarks/ from this checkout; ARGS=\"...\" adds options)"
@@ -81,6 +82,10 @@ magnitude: setup
 bench: setup
 	$(BENCHMARK) benchmarks.bench --out results/bench $(ARGS)
 	$(BENCHMARK) benchmarks.lag --out results/lag --cache results/lag/cache/scale120
+
+# ARGS: --models, --duration (30 s per model), --hogs N (CPU hogs beside).
+latency: setup
+	$(BENCHMARK) benchmarks.tail_latency --out results/latency $(ARGS)
 
 stability: setup
 	$(BENCHMARK) benchmarks.stability --out results/stability $(ARGS)

@@ -11,6 +11,12 @@ from ``aslip evaluate``, 95 % intervals from resampling test trials, and the pai
 difference of direction MAE (background - off). ``--chart`` also renders fresh grasps of
 the variant with known gains and plots the RMS error of the background estimate against
 the time since the grasp started (``<out>/convergence.png`` and ``.json``).
+
+``--frames-table --checkpoint models/aslip_stream.pt`` measures what the state's two
+constants cost (``prior_frames``, ``converge_frames``): on held-out scene grasps (five objects,
+the arm moving and still, known gains), the RMS and 90th-percentile gain error after a given
+number of accepted frames, for several priors (``<out>/frames.json`` and ``frames.md``).
+The package's defaults come from this table.
 """
 
 from __future__ import annotations
@@ -147,9 +153,67 @@ def convergence(args: argparse.Namespace) -> None:
     (out / "convergence.json").write_text(json.dumps(curves, indent=2))
 
 
+FRAME_COUNTS = (10, 20, 30, 40, 60, 80, 100, 150, 200, 300)
+PRIORS = (0.0, 10.0, 25.0, 50.0)
+
+
+def frames_table(args: argparse.Namespace) -> dict:
+    """Gain error [dB] against accepted frames and prior, on fresh scene grasps."""
+    from aslip_ros.learn.calibration.frames import FrameCutter
+    from aslip_ros.learn.calibration.grasp import (CalibrationConstants, frame_stats,
+                                                   frame_weights, relative_log_gain)
+    from aslip_ros.learn.checkpoint import load_checkpoint
+    from aslip_ros.learn.features import FeatureConfig
+    from aslip_ros.scene import OBJECTS as SCENE_OBJECTS
+    from aslip_ros.scene import World
+    from aslip_ros.scene import scenarios as sc
+    meta = load_checkpoint(args.checkpoint).meta
+    k = CalibrationConstants.from_dict(meta["calibration"])
+    cutter = FrameCutter(FeatureConfig.from_dict(meta["feature_config"]), 48000.0)
+    db = 10.0 / np.log(10.0)
+    grasps = []
+    for i in range(args.chart_grasps):
+        scn = sc.external_induced(seed=70000 + i, object=list(SCENE_OBJECTS)[i % 5],
+                                  duration_s=12.0, sample_rate=48000.0,
+                                  condition=("robot_moving", "robot_stationary")[i % 2])
+        world = World(scn)
+        audio = np.concatenate([c.audio for c in world.stream(block_frames=4800)])
+        dev, p, active = frame_stats(cutter.frames(audio), k)
+        w = frame_weights(p, active, k)
+        centred = (dev - np.asarray(k.ref_offset)[:, None]) * w
+        grasps.append((np.cumsum(w), np.cumsum(centred.T, axis=0),
+                       relative_log_gain(world.synth.gain)))
+    rows = []
+    for prior in PRIORS:
+        for n in FRAME_COUNTS:
+            errs = [np.sqrt(np.mean((cs[j] / (cw[j] + prior) - truth) ** 2)) * db
+                    for cw, cs, truth in grasps
+                    for j in [int(np.searchsorted(cw, n))] if j < cw.size]
+            rows.append({"prior_frames": prior, "accepted_frames": n, "grasps": len(errs),
+                         "rms_db": float(np.sqrt(np.mean(np.square(errs)))),
+                         "p90_db": float(np.percentile(errs, 90))})
+    raw = float(np.sqrt(np.mean([np.mean(g[2] ** 2) for g in grasps])) * db)
+    res = {"checkpoint": str(args.checkpoint), "grasps": len(grasps),
+           "uncalibrated_rms_db": raw, "rows": rows}
+    lines = [f"Gain error after n accepted frames (RMS / p90 dB over {len(grasps)} held-out "
+             f"grasps; uncorrected {raw:.2f} dB)", "",
+             "| prior frames | " + " | ".join(str(n) for n in FRAME_COUNTS) + " |",
+             "|---|" + "---|" * len(FRAME_COUNTS)]
+    for prior in PRIORS:
+        cells = [f"{r['rms_db']:.2f} / {r['p90_db']:.2f}" for r in rows
+                 if r["prior_frames"] == prior]
+        lines.append(f"| {prior:g} | " + " | ".join(cells) + " |")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "frames.json").write_text(json.dumps(res, indent=1))
+    (out / "frames.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return res
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.calibration_pipeline")
-    p.add_argument("--work", required=True, help="bags, datasets and checkpoints go here")
+    p.add_argument("--work", help="bags, datasets and checkpoints go here")
     p.add_argument("--out", default="results/calibration")
     p.add_argument("--variant", choices=("coupling", "one_sided"), default="coupling")
     p.add_argument("--trials", type=int, default=8, help="grasps per object")
@@ -157,7 +221,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cnn-budget", type=float, default=240.0, help="seconds per CNN")
     p.add_argument("--chart", action="store_true", help="only the convergence chart")
     p.add_argument("--chart-grasps", type=int, default=10)
+    p.add_argument("--frames-table", action="store_true",
+                   help="only the gain error against accepted frames and prior")
+    p.add_argument("--checkpoint", default="models/aslip_stream.pt",
+                   help="--frames-table: whose calibration constants (gate, floor)")
     args = p.parse_args(argv)
+    if args.frames_table:
+        frames_table(args)
+        return 0
+    if not args.work:
+        p.error("--work is required (except with --frames-table)")
     import torch
     torch.set_num_threads(1)
     if args.chart:

@@ -10,16 +10,17 @@ Both tasks run through the real nodes and topics: ``scene_sim`` audio -> ``slip_
 - slip-track: an agent drags the object in the grasp; the arm follows the predicted slip.
   Metric: RMSE of the gripper-object relative position in the grasp plane.
 
-Five objects x ``--trials`` trials per task and method: A-SLIP (CNN) with the live per-grasp
-calibration (``aslip``) and without it (``aslip_uncalibrated``), the SVM baseline (calibrated)
-and the causal streaming estimator (``stream``); the scene couples every microphone
-differently in every grasp (scene version 3). Episodes
+Five objects x ``--trials`` trials per task and method: the package's estimator (``aslip``:
+the causal streaming model with the live per-grasp calibration, an estimate per 10 ms hop),
+the 200 ms window CNN with that calibration (``aslip_window``) and without it
+(``aslip_uncalibrated``), and the SVM baseline (calibrated); the scene couples every
+microphone differently in every grasp (scene version 3). Episodes
 run in real time, so a small pool of worker processes each runs many of them in sequence
 (:mod:`benchmarks.demo_episode`: fresh context and domain per episode, the node
 classes composed in the worker). Results: ``<out>/summary.json``, ``<out>/table.md`` (beside
 the paper's numbers), ``<out>/*.png`` and per-episode traces in ``<out>/episodes/``.
 
-Models: the shipped window checkpoints (``models/aslip_cnn.pt``,
+Models: the shipped checkpoints (``models/aslip_stream.pt``, ``models/aslip_cnn.pt``,
 ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``) when they match the scene
 (``models/manifest.json``), otherwise they are retrained first (``--train-models`` forces it;
 :mod:`benchmarks.demo_models`).
@@ -35,7 +36,7 @@ import os
 import platform
 import sys
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Optional
 
@@ -45,14 +46,12 @@ from aslip_ros.util import write_json, write_text
 from benchmarks import demo_metrics as dm
 from benchmarks.demo_episode import (TASKS, Episode, StopSettings, TrackSettings,
                                      save_trace)
+from benchmarks import demo_models
 from benchmarks.demo_models import OBJECTS
 
-METHODS = ("aslip", "aslip_uncalibrated", "svm", "stream")
-#: What ``make demo`` runs (the streaming model is refused when it is not of this scene).
-DEFAULT_METHODS = ("aslip", "aslip_uncalibrated", "svm", "stream")
-#: The causal streaming estimator's checkpoint in --models (docs/streaming.md; trained by
-#: ``python -m benchmarks.lag``, not by --train-models).
-STREAM_NAME = "aslip_stream.pt"
+METHODS = tuple(demo_models.MODELS)
+#: What ``make demo`` runs: the package's estimator first, then the three it is measured by.
+DEFAULT_METHODS = ("aslip", "aslip_window", "aslip_uncalibrated", "svm")
 #: Repeats of a trial that a watchdog ended on stale input (a stalled machine).
 MAX_RERUNS = 2
 #: Seeds are disjoint from the training set's (simulate derives those from seed 0).
@@ -66,12 +65,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--train-models", action="store_true",
                    help="(re)train the demo checkpoints into --models and exit")
     p.add_argument("--train-data", default="data/demo", help="scratch data for --train-models")
-    p.add_argument("--cnn", default=None, help="A-SLIP checkpoint (default: --models)")
-    p.add_argument("--cnn-uncalibrated", default=None,
-                   help="A-SLIP checkpoint without calibration (default: --models)")
-    p.add_argument("--svm", default=None, help="SVM checkpoint (default: --models)")
     p.add_argument("--stream", default=None,
-                   help=f"streaming checkpoint (default: --models/{STREAM_NAME})")
+                   help="the aslip method's streaming checkpoint (default: --models)")
+    p.add_argument("--cnn", default=None,
+                   help="aslip_window: window CNN checkpoint (default: --models)")
+    p.add_argument("--cnn-uncalibrated", default=None,
+                   help="window CNN checkpoint without calibration (default: --models)")
+    p.add_argument("--svm", default=None, help="SVM checkpoint (default: --models)")
     p.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help=f"comma-separated methods out of {','.join(METHODS)}")
@@ -86,6 +86,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--track-duration", type=float, default=TrackSettings.duration_s,
                    help="slip-track drag duration [s]")
     p.add_argument("--gain", type=float, default=TrackSettings.gain, help="slip-track gain")
+    p.add_argument("--track-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="any other slip-track setting (a TrackSettings field, e.g. "
+                        "velocity_window_s=0.1 or agent_hold_s=0); repeatable")
+    p.add_argument("--stop-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="any other slip-stop setting (a StopSettings field, e.g. "
+                        "debounce_count=2); repeatable")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -149,6 +155,19 @@ def _worker_run(args: tuple) -> dict:
 
 # --- planning -------------------------------------------------------------------------------
 
+def settings_overrides(cls, items: list[str]) -> dict:
+    """``NAME=VALUE`` strings as fields of the settings class ``cls`` (StopSettings,
+    TrackSettings), each converted to the field's type."""
+    kinds = {f.name: type(getattr(cls(), f.name)) for f in fields(cls)}
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in kinds:
+            raise ValueError(f"{item!r} is not NAME=VALUE with NAME one of {sorted(kinds)}")
+        out[name] = kinds[name](value) if kinds[name] is not bool else value == "true"
+    return out
+
+
 def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
                   stop: StopSettings, track: TrackSettings) -> list[Episode]:
     """Every (task, method, object, trial); both methods see the same seeds."""
@@ -165,14 +184,11 @@ def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
 
 def resolve_models(args, methods=METHODS) -> dict:
     """Checkpoint per method: explicit, shipped and matching, or freshly trained."""
-    from benchmarks import demo_models
     d = Path(args.models)
-    explicit = {"aslip": args.cnn, "aslip_uncalibrated": args.cnn_uncalibrated,
-                "svm": args.svm}
-    stream = Path(args.stream or d / STREAM_NAME)
+    explicit = {"aslip": args.stream, "aslip_window": args.cnn,
+                "aslip_uncalibrated": args.cnn_uncalibrated, "svm": args.svm}
     if all(explicit[m] for m in methods if m in explicit):
-        return {**{m: Path(p) for m, p in explicit.items() if p}, "stream": stream,
-                "source": "command line"}
+        return {**{m: Path(p) for m, p in explicit.items() if p}, "source": "command line"}
     man = demo_models.shipped_models(d)
     if man is None:
         print(f"[demo] no checkpoints in {d} for this scene version "
@@ -183,7 +199,7 @@ def resolve_models(args, methods=METHODS) -> dict:
     else:
         source = f"shipped ({d / demo_models.MANIFEST})"
     return {**{m: Path(p or d / man["files"][m]) for m, p in explicit.items()},
-            "stream": stream, "source": source, "test_metrics": man.get("test_metrics")}
+            "source": source, "test_metrics": man.get("test_metrics")}
 
 
 def run_episodes(episodes: list[Episode], workers: int, trace_dir: Path,
@@ -234,7 +250,7 @@ def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True
                "table": dm.summarize(ok), "episodes": results,
                "errors": [r for r in results if "error" in r]}
     table = dm.format_table(summary["table"]) + dm.methods_table(summary["table"]) \
-        + dm.calibration_table(ok)
+        + dm.calibration_table(ok) + dm.tail_table(ok)
     head = (f"# Table III in the scene ({meta['command']})\n\n"
             f"Slip-stop cells: successes/trials, |Delta x| mean ± std [mm] over all trials "
             f"(failures included); slip-track: pose RMSE mean ± std [mm]. A trial that was "
@@ -271,7 +287,6 @@ def _notes(summary: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of ``python -m benchmarks.demo``."""
-    from benchmarks import demo_models
     t0 = time.perf_counter()
     if args.train_models:
         man = demo_models.train_models(args.models, args.train_data,
@@ -288,23 +303,21 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     models = resolve_models(args, methods)
-    if "stream" in methods and not args.stream:
-        why = demo_models.stream_problem(args.models, STREAM_NAME)
-        if why:
-            print(f"benchmarks.demo: not running the streaming model: {why}. Retrain it for this "
-                  f"scene (docs/streaming.md) and record its scene version in the manifest's "
-                  f"'stream' entry, pass --stream FILE, or leave 'stream' out of --methods.",
-                  file=sys.stderr)
-            return 2
     missing = [m for m in methods if m not in models or not Path(models[m]).is_file()]
     if missing:
         print(f"benchmarks.demo: no checkpoint for {missing}: "
               f"{[str(models.get(m)) for m in missing]}",
               file=sys.stderr)
         return 1
-    stop = replace(StopSettings(), approach_speed_m_s=args.approach_speed,
-                   retract_speed_m_s=args.retract_speed)
-    track = replace(TrackSettings(), duration_s=args.track_duration, gain=args.gain)
+    try:
+        stop = replace(StopSettings(), approach_speed_m_s=args.approach_speed,
+                       retract_speed_m_s=args.retract_speed,
+                       **settings_overrides(StopSettings, args.stop_set))
+        track = replace(TrackSettings(), duration_s=args.track_duration, gain=args.gain,
+                        **settings_overrides(TrackSettings, args.track_set))
+    except (TypeError, ValueError) as exc:
+        print(f"benchmarks.demo: --stop-set/--track-set: {exc}", file=sys.stderr)
+        return 2
     eps = plan_episodes(tasks, methods, objects, args.trials, models, stop, track)
     out = Path(args.out)
     load0 = _load()
@@ -325,7 +338,8 @@ def run(args: argparse.Namespace) -> int:
             "reruns": sum(len(r.get("reruns", [])) for r in results)}
     summary = write_outputs(out, results, meta, plots=not args.no_plots)
     print(dm.format_table(summary["table"]) + dm.methods_table(summary["table"])
-          + dm.calibration_table([r for r in results if "error" not in r]))
+          + dm.calibration_table([r for r in results if "error" not in r])
+          + dm.tail_table([r for r in results if "error" not in r]))
     print(f"results: {out / 'summary.json'}, {out / 'table.md'}")
     if summary.get("plots"):
         print("plots: " + ", ".join(str(p) for p in summary["plots"]))

@@ -15,6 +15,7 @@ declarations as from a launch file. The scene's true trajectory
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
@@ -29,6 +30,7 @@ from aslip_ros.control.slip_stop import SlipStopConfig
 from aslip_ros.control.slip_track import SlipTrackConfig
 from benchmarks import demo_metrics as dm
 from aslip_ros.scene.layouts import DEFAULT_LAYOUT
+from aslip_ros.scene.scenario import Scenario
 
 TASKS = ("slip_stop", "slip_track")
 
@@ -60,6 +62,10 @@ class TrackSettings:
 
     duration_s: float = 4.0
     drag_speed_m_s: float = 0.04
+    # The agent holds the object still this long after the grasp (what grasp_calibration
+    # asks of a user) before its first pull; the episode lasts hold + duration, and the
+    # RMSE is taken over the duration after the hold. The scene's default.
+    agent_hold_s: float = Scenario.drag_hold_s
     gain: float = SlipTrackConfig.gain
     deadband_m_s: float = SlipTrackConfig.deadband_m_s
     max_speed_m_s: float = SlipTrackConfig.max_speed_m_s
@@ -117,7 +123,8 @@ def node_params(ep: Episode, length_m: float) -> dict:
                "debounce_count": int(s.debounce_count),
                "settle_result_s": s.settle_result_s}
     else:
-        scene.update(scenario="drag", drag_speed_m_s=ep.track.drag_speed_m_s)
+        scene.update(scenario="drag", drag_speed_m_s=ep.track.drag_speed_m_s,
+                     drag_hold_s=ep.track.agent_hold_s)
         ctl = ep.track.law()
     return {"scene_sim": scene, "slip_inference": {"checkpoint": str(ep.checkpoint)},
             ep.task: ctl}
@@ -176,6 +183,58 @@ def warm_up(checkpoint: str) -> None:
     _WARM.add(checkpoint)
 
 
+class StallProbe:
+    """The worker's own tail during one episode: how long the executor went between two
+    callbacks (``spin_once`` returns; idle ones wait at most ``SPIN_TIMEOUT_S``) and every
+    pause of Python's cyclic garbage collector, per generation."""
+
+    def __init__(self) -> None:
+        self.gaps: list[float] = []
+        self.gc_pauses: list[tuple[int, float]] = []
+        self._last: Optional[float] = None
+        self._gc_t0 = 0.0
+
+    def _on_gc(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._gc_t0 = time.perf_counter()
+        else:
+            self.gc_pauses.append((int(info.get("generation", -1)),
+                                   time.perf_counter() - self._gc_t0))
+
+    def __enter__(self) -> "StallProbe":
+        gc.callbacks.append(self._on_gc)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        gc.callbacks.remove(self._on_gc)
+
+    def tick(self) -> None:
+        """After each ``spin_once``: the gap since the previous one."""
+        now = time.perf_counter()
+        if self._last is not None:
+            self.gaps.append(now - self._last)
+        self._last = now
+
+    def summary(self) -> dict:
+        """Gaps and pauses in ms: p99, p99.9, max, and what exceeded 50 ms."""
+        g = np.asarray(self.gaps, dtype=float) * 1e3
+        pauses = np.asarray([d for _, d in self.gc_pauses], dtype=float) * 1e3
+        full = [d * 1e3 for gen, d in self.gc_pauses if gen == 2]
+        return {"spin_gaps": int(g.size),
+                "spin_gap_p99_ms": float(np.percentile(g, 99)) if g.size else None,
+                "spin_gap_p999_ms": float(np.percentile(g, 99.9)) if g.size else None,
+                "spin_gap_max_ms": float(g.max()) if g.size else None,
+                "spin_gaps_over_50ms": int(np.sum(g > 50.0)),
+                "gc_pauses": int(pauses.size),
+                "gc_pause_max_ms": float(pauses.max()) if pauses.size else 0.0,
+                "gc_full_collections": len(full),
+                "gc_full_max_ms": max(full) if full else 0.0}
+
+
+#: The longest an idle ``spin_once`` waits in an episode [s].
+SPIN_TIMEOUT_S = 0.02
+
+
 def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
     """Run one episode; returns its metrics (and, with ``keep_trace``, arrays for plots)."""
     import rclpy
@@ -213,13 +272,15 @@ def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
             executor = _make_executor()
             for n in nodes:
                 executor.add_node(n)
-            outcome = _spin(ep, executor, sim, ctl, rec, t_wall0)
+            with StallProbe() as probe:
+                outcome = _spin(ep, executor, sim, ctl, rec, t_wall0, probe)
             # Input arrival gaps and stop latency, as the controller saw them.
             timing = dict(ctl.inputs.values(), **ctl.stop_latency())
             ctl.before_shutdown()
             out = _score(ep, sim, rec, length, outcome)
             out["calibration"] = calibration_outcome(infer.predictor, sim.world)
             out["controller_timing"] = timing
+            out["worker_timing"] = probe.summary()
             if ep.task == "slip_track":
                 out["controller_reason"] = ctl.task.reason if ctl.task else "not started"
         finally:
@@ -247,17 +308,18 @@ def _make_executor():
     return MultiThreadedExecutor(num_threads=4)
 
 
-def _spin(ep: Episode, executor, sim, ctl, rec, t_wall0: float) -> str:
+def _spin(ep: Episode, executor, sim, ctl, rec, t_wall0: float, probe: StallProbe) -> str:
     """Spin until the trial is decided; returns why the episode ended."""
     world = sim.world
     length = world.object.length_m
     n = world.wall_normal()
     while True:
-        executor.spin_once(timeout_sec=0.02)
+        executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+        probe.tick()
         if time.monotonic() - t_wall0 > ep.wall_s_limit:
             return "wall_clock_limit"
         if ep.task == "slip_track":
-            if world.t >= ep.track.duration_s:
+            if world.t >= ep.track.agent_hold_s + ep.track.duration_s:
                 return "duration"
             continue
         if rec.result is not None and rec.result.get("final"):
@@ -286,7 +348,8 @@ def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:
         out["onset_to_stop_s"] = dm.onset_to_stop_s(world.slip_onset_time,
                                                     world.arm.stop_times)
     else:
-        out["pose_rmse_m"] = dm.pose_rmse(traj["t"], traj["rel"])
+        out["pose_rmse_m"] = dm.pose_rmse(traj["t"], traj["rel"],
+                                          t_from_s=ep.track.agent_hold_s)
         rel = traj["rel"]
         out["max_excursion_m"] = float(np.max(np.linalg.norm(rel - rel[0], axis=1))) \
             if len(rel) else math.nan
@@ -313,6 +376,7 @@ def calibration_outcome(predictor, world) -> Optional[dict]:
     true = 20.0 * np.log10(np.asarray(world.synth.gain, dtype=float))
     true -= true.mean()         # gains are relative: the calibration has no absolute level
     return {"converged": bool(s["calibration_converged"]),
+            "converged_after_s": s.get("calibration_converged_after_s"),
             "accepted_frames": int(s["calibration_accepted_frames"]),
             "gain_error_db": float(np.sqrt(np.mean((est - true) ** 2))),
             "uncalibrated_error_db": float(np.sqrt(np.mean(true ** 2)))}

@@ -130,15 +130,19 @@ def stop_outcome(t, tcp, push_dir, contacts, object_length_m: float,
     return StopOutcome(success, touched, at_rest, err, t_c, speed)
 
 
-def pose_rmse(t, rel, t_ref_s: float = TRACK_REFERENCE_S) -> float:
-    """RMSE [m] of the grasp-plane relative position against its initial reference."""
+def pose_rmse(t, rel, t_ref_s: float = TRACK_REFERENCE_S, t_from_s: float = 0.0) -> float:
+    """RMSE [m] of the grasp-plane relative position against its initial reference (the
+    median over the first ``t_ref_s``), over the samples from ``t_from_s`` on (the task's
+    tracking part, after any hold at the grasp)."""
     t = np.asarray(t, dtype=float)
     rel = np.asarray(rel, dtype=float)
     if rel.ndim != 2 or rel.shape[0] == 0:
         return math.nan
     k = max(1, int(np.searchsorted(t, t[0] + t_ref_s, side="right")))
     ref = np.median(rel[:k], axis=0)
-    e = rel - ref
+    e = rel[t >= t[0] + t_from_s] - ref
+    if e.shape[0] == 0:
+        return math.nan
     return float(np.sqrt(np.mean(np.sum(e * e, axis=1))))
 
 
@@ -269,8 +273,24 @@ def _cell_values(task: str, rows: Sequence[dict]) -> dict:
     vals = [r["pose_rmse_m"] * 1e3 if r.get("pose_rmse_m") is not None else None
             for r in rows]
     m, s, n = mean_std(vals)
+    fin = np.asarray([v for v in vals if v is not None and math.isfinite(v)], dtype=float)
+    lo, hi = mean_interval(fin)
     return {"successes": len(ok_rows), "trials": len(rows),
-            "mean_mm": _num(m), "std_mm": _num(s), "n_mm": n}
+            "mean_mm": _num(m), "std_mm": _num(s), "n_mm": n,
+            "median_mm": _num(float(np.median(fin))) if fin.size else None,
+            "p90_mm": _num(float(np.percentile(fin, 90))) if fin.size else None,
+            "mean_ci95_mm": [_num(lo), _num(hi)]}
+
+
+def mean_interval(values: np.ndarray, n_boot: int = 2000, seed: int = 0
+                  ) -> tuple[float, float]:
+    """95 % percentile-bootstrap interval of the mean (NaN, NaN for fewer than 2 values)."""
+    v = np.asarray(values, dtype=float)
+    if v.size < 2:
+        return math.nan, math.nan
+    idx = np.random.default_rng(seed).integers(0, v.size, (n_boot, v.size))
+    means = v[idx].mean(axis=1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
 def _num(x: float) -> Optional[float]:
@@ -319,8 +339,9 @@ def methods_table(summary: dict) -> str:
     track = summary.get("slip_track", {})
     methods = sorted(set(stop) | set(track))
     lines = ["", "| method | slip-stop successes | slip-stop error mm | slip-track successes "
-                 "| slip-track RMSE mm | tracking delay ms (slip-track) | slip onset to stop "
-                 "ms (median) |", "|---|---|---|---|---|---|---|"]
+                 "| slip-track RMSE mm | slip-track RMSE: 95 % interval of the mean; median, "
+                 "p90 | tracking delay ms (slip-track) | slip onset to stop ms (median) |",
+             "|---|---|---|---|---|---|---|---|"]
     for m in methods:
         c = stop.get(m, {}).get("overall")
         t = track.get(m, {}).get("overall")
@@ -330,9 +351,21 @@ def methods_table(summary: dict) -> str:
                      + (_fmt(c["mean_mm"], c["std_mm"]) if c else "-") + " | "
                      + (f"{t['successes']}/{t['trials']}" if t else "-") + " | "
                      + (_fmt(t["mean_mm"], t["std_mm"]) if t else "-") + " | "
+                     + (_spread(t) if t else "-") + " | "
                      + ("-" if delay is None else f"{delay:.0f}") + " | "
                      + ("-" if onset is None else f"{onset:.0f}") + " |")
     return "\n".join(lines) + "\n"
+
+
+#: The issue's bound on the per-grasp calibration: converged this soon after the grasp [s].
+CONVERGE_BOUND_S = 2.0
+
+
+def _spread(cell: dict) -> str:
+    lo, hi = cell.get("mean_ci95_mm") or (None, None)
+    if lo is None or hi is None or cell.get("median_mm") is None:
+        return "-"
+    return f"[{lo:.1f}, {hi:.1f}]; {cell['median_mm']:.1f}, {cell['p90_mm']:.1f}"
 
 
 def calibration_table(results: Sequence[dict]) -> str:
@@ -342,15 +375,60 @@ def calibration_table(results: Sequence[dict]) -> str:
     rows = [r for r in results if isinstance(r.get("calibration"), dict)]
     if not rows:
         return ""
-    lines = ["", "| task | method | calibration converged | gain error dB | "
-                 "uncorrected gain error dB |", "|---|---|---|---|---|"]
+    lines = ["", f"| task | method | calibration converged | within {CONVERGE_BOUND_S:g} s "
+                 "of the grasp | time to converge s (median, max) | gain error dB | "
+                 "uncorrected gain error dB |", "|---|---|---|---|---|---|---|"]
     for task in ("slip_stop", "slip_track"):
         for method in sorted({r["method"] for r in rows if r["task"] == task}):
             cal = [r["calibration"] for r in rows
                    if r["task"] == task and r["method"] == method]
             err, _, _ = mean_std(c.get("gain_error_db") for c in cal)
             raw, _, _ = mean_std(c.get("uncalibrated_error_db") for c in cal)
+            after = [c["converged_after_s"] for c in cal
+                     if c.get("converged_after_s") is not None]
+            within = sum(1 for a in after if a <= CONVERGE_BOUND_S)
+            spread = f"{np.median(after):.2f}, {max(after):.2f}" if after else "-"
             lines.append(f"| {task.replace('_', '-')} | {method} | "
                          f"{sum(bool(c.get('converged')) for c in cal)}/{len(cal)} | "
-                         f"{err:.2f} | {raw:.2f} |")
+                         f"{within}/{len(cal)} | {spread} | {err:.2f} | {raw:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+#: The tail figures of the live path per episode (the worker's StallProbe and the
+#: controller's input gaps) [ms]: (summary key, where, what).
+TAIL_FIGURES = (("slip_gap_max_ms", "controller_timing", "SlipVector gap at the controller"),
+                ("spin_gap_max_ms", "worker_timing", "executor gap in the worker"),
+                ("gc_pause_max_ms", "worker_timing", "garbage-collector pause"))
+
+
+def tail_values(results: Sequence[dict], method: str, key: str, where: str) -> np.ndarray:
+    """Per episode of ``method``, its worst ``key`` [ms] (episodes without it left out)."""
+    return np.asarray([r[where][key] for r in results if r.get("method") == method
+                       and isinstance(r.get(where), dict) and r[where].get(key) is not None],
+                      dtype=float)
+
+
+def tail_table(results: Sequence[dict]) -> str:
+    """Per method, the worst step of each episode: median, p99, p99.9 and max over the
+    episodes, for the controller's SlipVector gaps, the worker's executor gaps and the
+    garbage collector's pauses [ms]; and how many episodes had a gap over the 50 ms
+    watchdog. Empty when no episode carries the figures."""
+    methods = sorted({r["method"] for r in results
+                      if isinstance(r.get("worker_timing"), dict)})
+    if not methods:
+        return ""
+    heads = " | ".join(f"{what}: p50 / p99 / p99.9 / max ms" for _, _, what in TAIL_FIGURES)
+    lines = ["", f"| method | episodes | {heads} | episodes with a gap over 50 ms |",
+             "|---|---|" + "---|" * 4]
+    for m in methods:
+        cells = []
+        for key, where, _ in TAIL_FIGURES:
+            v = tail_values(results, m, key, where)
+            stats = (*np.percentile(v, [50, 99, 99.9]), v.max()) if v.size else ()
+            cells.append(" / ".join(f"{x:.1f}" for x in stats) or "-")
+        over = sum(1 for r in results if r.get("method") == m and (
+            (r.get("controller_timing") or {}).get("slip_gaps_over_50ms", 0) > 0
+            or (r.get("worker_timing") or {}).get("spin_gaps_over_50ms", 0) > 0))
+        n = sum(1 for r in results if r.get("method") == m)
+        lines.append(f"| {m} | {n} | " + " | ".join(cells) + f" | {over} |")
     return "\n".join(lines) + "\n"

@@ -1,13 +1,15 @@
-"""The demo's checkpoints (A-SLIP CNN with and without per-grasp calibration, the SVM
-baseline and the causal streaming estimator with per-grasp calibration), trained on the
-scene.
+"""The demo's checkpoints, trained on the scene: the package's estimator (``aslip``: the
+causal streaming model, one estimate per 10 ms hop, with the live per-grasp calibration),
+the 200 ms window CNN with and without that calibration (``aslip_window``,
+``aslip_uncalibrated``) and the SVM baseline (calibrated).
 
 ``python -m benchmarks.demo --train-models`` runs this: simulate externally induced slip on
 the five objects with the scene's microphones (4mic, 200 ms windows), mostly with the arm
-moving, export it, train the CNN from scratch twice (``--calibration background``, the
-default, and ``off``) and the SVM (calibrated) on the same trials, evaluate them on the
-held-out test trials and write ``models/aslip_cnn.pt``, ``models/aslip_cnn_uncalibrated.pt``,
-``models/svm.pt`` and ``models/manifest.json`` (scene version, command, metrics).
+moving, export it, train the four models on the same trials, evaluate them on the held-out
+test trials and write ``models/aslip_stream.pt``, ``models/aslip_cnn.pt``,
+``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt`` and ``models/manifest.json`` (scene
+version, commands, metrics). A set is used only when every model in it was trained for the
+current scene version; otherwise all are retrained, never mixed.
 
 The scene couples every microphone differently in every grasp (scene version 3), so the
 uncalibrated CNN is the control that shows what the live calibration buys in closed loop.
@@ -38,14 +40,14 @@ STREAM_NAME = "aslip_stream.pt"
 MANIFEST = "manifest.json"
 COMMAND = "python -m benchmarks.demo --train-models"
 #: Trials per object and condition, seconds per trial, export hop (the recipe).
-RECIPE = {"robot_moving": 4, "robot_stationary": 2, "duration_s": 10.0, "hop_s": 0.05,
-          "window_s": 0.2, "seed": 0, "time_budget_s": 240.0, "epochs": 40,
-          "svm_max_train": 1500, "stream_epochs": 60, "stream_time_budget_s": 240.0}
+RECIPE = {"robot_moving": 12, "robot_stationary": 6, "duration_s": 10.0, "hop_s": 0.05,
+          "window_s": 0.2, "seed": 0, "time_budget_s": 480.0, "epochs": 40,
+          "svm_max_train": 1500, "stream_epochs": 60, "stream_time_budget_s": 600.0}
 #: Demo method -> (checkpoint file, ``aslip train`` stage, per-grasp calibration).
-MODELS = {"aslip": (CNN_NAME, "scratch", "background"),
+MODELS = {"aslip": (STREAM_NAME, "stream", "background"),
+          "aslip_window": (CNN_NAME, "scratch", "background"),
           "aslip_uncalibrated": (UNCALIBRATED_NAME, "scratch", "off"),
-          "svm": (SVM_NAME, "svm", "background"),
-          "stream": (STREAM_NAME, "stream", "background")}
+          "svm": (SVM_NAME, "svm", "background")}
 
 
 def scene_version() -> str:
@@ -83,28 +85,6 @@ def aslip(argv: list[str]) -> int:
     exit codes."""
     from aslip_ros import cli
     return cli.main(argv)
-
-
-def stream_problem(models_dir: str | Path, name: str) -> str | None:
-    """Why the streaming checkpoint ``name`` in models_dir must not run in this scene, or None.
-
-    :func:`train_models` trains it with the window models and records the scene version in
-    the manifest's ``stream`` entry; a checkpoint put there by hand (``python -m
-    benchmarks.lag``) must say its scene too. A model of another scene (or of an unknown
-    one) is refused rather than shown as if it belonged to this one."""
-    d = Path(models_dir)
-    try:
-        entry = json.loads((d / MANIFEST).read_text()).get("stream")
-    except (OSError, ValueError, AttributeError):
-        entry = None
-    if not (d / name).is_file():
-        return f"no streaming checkpoint {d / name}"
-    if not isinstance(entry, dict) or entry.get("file") != name:
-        return f"{d / MANIFEST} does not say which scene {name} was trained on"
-    if str(entry.get("scene_version")) != scene_version():
-        return (f"{d / name} was trained on scene version {entry.get('scene_version')}, "
-                f"this scene is version {scene_version()}")
-    return None
 
 
 def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True) -> Path:
@@ -175,10 +155,7 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
                             "direction_mae_deg", "direction_std_deg", "magnitude_rmse_mm",
                             "magnitude_std_mm")}
     files = {m: v[0] for m, v in MODELS.items()}
-    # The streaming model is trained here too, on the same trials, with the same per-grasp
-    # calibration: the entry that stream_problem reads says so.
-    stream = {"file": STREAM_NAME, "scene_version": scene_version(), "trained_by": COMMAND}
-    man = {"format": "aslip-demo-models", "version": 2, "scene_version": scene_version(),
+    man = {"format": "aslip-demo-models", "version": 3, "scene_version": scene_version(),
            "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
            "layout": DEFAULT_LAYOUT, "files": files,
            "calibration": {m: v[2] for m, v in MODELS.items()},
@@ -188,7 +165,6 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
            "test_metrics": metrics, "train_s_per_model": train_s,
            "train_s": round(time.perf_counter() - t0, 1),
            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-    man["stream"] = stream
     write_json(out / MANIFEST, man)
     _log(f"wrote {', '.join(files.values())} and {MANIFEST} in {out}")
     return man

@@ -13,8 +13,8 @@ import numpy as np
 from aslip_ros.slip import DEFAULT_THRESHOLD
 from aslip_ros.util import atomic_path
 
-COLORS = {"aslip": "tab:blue", "aslip_uncalibrated": "tab:purple", "svm": "tab:orange",
-          "stream": "tab:green"}
+COLORS = {"aslip": "tab:green", "aslip_window": "tab:blue", "aslip_uncalibrated": "tab:purple",
+          "svm": "tab:orange"}
 #: The slip-stop figure's zoom on the stop: the last seconds of each episode [s].
 ZOOM_S = 1.0
 
@@ -69,7 +69,36 @@ def make_plots(out: Path, results: list[dict]) -> list[Path]:
         path = _prediction_figure(plt, eps, task)
         if path is not None:
             written.append(path)
+    if any(isinstance(r.get("worker_timing"), dict) for r in results):
+        written.append(_tail_figure(plt, eps))
     return written
+
+
+def _tail_figure(plt, eps: _Episodes) -> Path:
+    """The live path's tail: per method, each episode's worst SlipVector gap at the
+    controller, executor gap in the worker and garbage-collector pause, sorted (the right
+    end of each curve is the worst episode), beside the 50 ms stale-input watchdog."""
+    from benchmarks.demo_metrics import TAIL_FIGURES, tail_values
+    fig, axes = plt.subplots(1, len(TAIL_FIGURES), figsize=(5 * len(TAIL_FIGURES), 3.6),
+                             sharey=True, squeeze=False)
+    for ax, (key, where, what) in zip(axes[0], TAIL_FIGURES):
+        for m in eps.methods:
+            # 0 (no pause at all) drawn at 0.05 ms, the axis' floor
+            v = np.maximum(np.sort(tail_values(eps.results, m, key, where)), 0.05)
+            if v.size:
+                ax.plot(100.0 * np.arange(1, v.size + 1) / v.size, v, color=COLORS[m],
+                        label=m)
+        ax.axhline(50.0, color="red", lw=0.8, ls="--", label="watchdog (50 ms)")
+        ax.set_yscale("log")
+        ax.set_ylim(bottom=0.04)
+        ax.set_xlabel("episodes [%], sorted by their worst")
+        ax.set_title(what, fontsize=9)
+    axes[0][0].set_ylabel("worst in the episode [ms]")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    path = _save(fig, eps.out / "tail_latency.png")
+    plt.close(fig)
+    return path
 
 
 def _slip_stop_figure(plt, eps: _Episodes) -> Path:

@@ -211,6 +211,19 @@ def test_stale_slip_stops_once_and_latches():
     assert ctl.state is TrackState.STOPPED
 
 
+def test_the_hold_at_the_grasp_moves_nothing_and_no_command_follows_a_stop():
+    """The calibration phase of a slip-track grasp is the hold: estimates arrive (no slip,
+    direction unknown while the calibration converges) and the arm gets no command; a stop
+    during it is sent once, and nothing follows it, not even on slip."""
+    ctl, clock = make()
+    assert all(tick(ctl, clock, (0.0, 0.0), False) is None for _ in range(100))   # 1 s
+    ctl.shutdown()
+    halt = ctl.step()
+    assert halt is not None and halt.stop
+    assert all(tick(ctl, clock, (0.02, 0.01), True) is None for _ in range(20))
+    assert ctl.state is TrackState.STOPPED
+
+
 def test_stale_pose_stops():
     ctl, clock = make()
     cmds = [tick(ctl, clock, (0.02, 0.0), True, pose=None) for _ in range(15)]

@@ -148,16 +148,63 @@ def test_calibration_table_counts_convergence_and_compares_with_no_correction():
     rows.append({"task": "slip_track", "method": "aslip_uncalibrated", "object": "chips_can",
                  "calibration": None})
     md = dm.calibration_table(rows)
-    assert "| slip-track | aslip | 1/2 | 0.40 | 1.50 |" in md
+    assert "| slip-track | aslip | 1/2 | 0/2 | - | 0.40 | 1.50 |" in md
     assert "aslip_uncalibrated" not in md            # no calibration, no row
     assert dm.calibration_table(rows[2:]) == ""
+
+
+def test_calibration_table_counts_convergence_within_the_bound_after_the_grasp():
+    cal = [{"converged": True, "converged_after_s": a, "gain_error_db": 0.5,
+            "uncalibrated_error_db": 1.0} for a in (0.7, 1.9, 2.5)]
+    cal.append({"converged": False, "converged_after_s": None, "gain_error_db": 0.5,
+                "uncalibrated_error_db": 1.0})
+    rows = [{"task": "slip_stop", "method": "aslip", "object": "pla_rod", "calibration": c}
+            for c in cal]
+    md = dm.calibration_table(rows)
+    assert "| slip-stop | aslip | 3/4 | 2/4 | 1.90, 2.50 | 0.50 | 1.00 |" in md
+
+
+def test_slip_track_rmse_is_taken_after_the_hold_at_the_grasp():
+    """The hold at the grasp is not tracking: its zero error must not dilute the RMSE."""
+    t = np.arange(0.0, 5.0, 0.01)
+    rel = np.zeros((t.size, 2))
+    rel[t >= 1.0, 0] = 0.01                     # 10 mm off for the whole tracked part
+    assert dm.pose_rmse(t, rel, t_from_s=1.0) == pytest.approx(0.01)
+    assert dm.pose_rmse(t, rel) < 0.0095        # the whole episode would flatter it
+
+
+def test_the_track_cell_has_an_interval_of_the_mean_median_and_p90():
+    rows = [{"task": "slip_track", "method": "aslip", "object": "chips_can",
+             "pose_rmse_m": v * 1e-3, "reruns": []} for v in range(1, 21)]
+    c = dm.summarize(rows)["slip_track"]["aslip"]["overall"]
+    lo, hi = c["mean_ci95_mm"]
+    assert c["mean_mm"] == pytest.approx(10.5)
+    assert lo < c["mean_mm"] < hi and hi - lo < 6.0
+    assert c["median_mm"] == pytest.approx(10.5) and c["p90_mm"] == pytest.approx(18.1)
+    assert f"[{lo:.1f}, {hi:.1f}]; 10.5, 18.1" in dm.methods_table(dm.summarize(rows))
+
+
+def test_the_tail_table_takes_each_episodes_worst_and_counts_watchdog_gaps():
+    rows = [{"task": "slip_track", "method": "aslip", "object": "chips_can",
+             "controller_timing": {"slip_gap_max_ms": g, "slip_gaps_over_50ms": int(g > 50)},
+             "worker_timing": {"spin_gap_max_ms": g / 2, "spin_gaps_over_50ms": 0,
+                               "gc_pause_max_ms": 0.0}}
+            for g in (10.0, 12.0, 60.0)]
+    rows.append({"task": "slip_track", "method": "svm", "object": "chips_can"})
+    md = dm.tail_table(rows)
+    line = next(ln for ln in md.splitlines() if ln.startswith("| aslip "))
+    assert line.startswith("| aslip | 3 | 12.0 / ") and "/ 60.0 | " in line
+    assert line.rstrip().endswith("| 1 |")                # one episode beyond the watchdog
+    assert "| svm " not in md                             # no figures, no row
+    assert dm.tail_table(rows[3:]) == ""
 
 
 class _Predictor:
     calibrated = True
 
     def calibration_summary(self):
-        return {"calibration_converged": False, "calibration_accepted_frames": 120,
+        return {"calibration_converged": True, "calibration_converged_after_s": 0.8,
+                "calibration_accepted_frames": 120,
                 "gain_db": {"a": 1.0, "b": -1.0}}
 
 
@@ -169,7 +216,8 @@ class _World:
 def test_calibration_outcome_against_the_scene_gains():
     from benchmarks.demo_episode import calibration_outcome
     out = calibration_outcome(_Predictor(), _World())
-    assert out["converged"] is False and out["accepted_frames"] == 120
+    assert out["converged"] is True and out["accepted_frames"] == 120
+    assert out["converged_after_s"] == 0.8
     assert out["gain_error_db"] == pytest.approx(0.0, abs=1e-9)
     assert out["uncalibrated_error_db"] == pytest.approx(1.0)
     off = _Predictor()

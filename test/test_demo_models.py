@@ -20,18 +20,20 @@ def _option(cmd: list[str], name: str) -> str:
 
 def test_the_uncalibrated_cnn_is_trained_without_calibration_and_the_others_with_it():
     cmds = {m: demo_models.train_command(m, "D", f"out/{m}.pt") for m in demo_models.MODELS}
-    assert _option(cmds["aslip"], "--calibration") == "background"
+    assert _option(cmds["aslip_window"], "--calibration") == "background"
     assert _option(cmds["svm"], "--calibration") == "background"
     assert _option(cmds["aslip_uncalibrated"], "--calibration") == "off"
-    # The two CNNs differ in nothing else: the calibration is what the pair compares.
-    strip = [a for a in cmds["aslip"] if a not in ("background", "out/aslip.pt")]
+    # The two window CNNs differ in nothing else: the calibration is what the pair compares.
+    strip = [a for a in cmds["aslip_window"]
+             if a not in ("background", "out/aslip_window.pt")]
     assert strip == [a for a in cmds["aslip_uncalibrated"]
                      if a not in ("off", "out/aslip_uncalibrated.pt")]
-    assert _option(cmds["aslip"], "--stage") == "scratch"
+    assert _option(cmds["aslip_window"], "--stage") == "scratch"
     assert _option(cmds["svm"], "--stage") == "svm"
-    # The streaming estimator is trained on the same trials, with per-grasp calibration.
-    assert _option(cmds["stream"], "--stage") == "stream"
-    assert _option(cmds["stream"], "--calibration") == "background"
+    # The package's estimator, aslip: the streaming model, on the same trials, calibrated.
+    assert _option(cmds["aslip"], "--stage") == "stream"
+    assert _option(cmds["aslip"], "--calibration") == "background"
+    assert demo_models.MODELS["aslip"][0] == "aslip_stream.pt"
     # Every method of the demo has a model in the set, and the set nothing else.
     assert set(demo_models.MODELS) == set(demo.METHODS)
 
@@ -83,10 +85,10 @@ def _args(models: Path, **kw) -> argparse.Namespace:
 def test_each_method_runs_its_own_checkpoint(tmp_path):
     _write_set(tmp_path, demo_models.scene_version())
     got = demo.resolve_models(_args(tmp_path))
-    assert got["aslip"] == tmp_path / demo_models.CNN_NAME
+    assert got["aslip"] == tmp_path / demo_models.STREAM_NAME
+    assert got["aslip_window"] == tmp_path / demo_models.CNN_NAME
     assert got["aslip_uncalibrated"] == tmp_path / demo_models.UNCALIBRATED_NAME
     assert got["svm"] == tmp_path / demo_models.SVM_NAME
-    assert got["stream"] == tmp_path / demo.STREAM_NAME
     assert got["source"].startswith("shipped")
 
 
@@ -103,7 +105,7 @@ def test_a_stale_set_is_retrained_before_the_demo_runs(tmp_path, monkeypatch):
 
 
 def test_explicit_checkpoints_need_no_manifest(tmp_path):
-    a = _args(tmp_path / "nothing", cnn="a.pt", svm="s.pt")
+    a = _args(tmp_path / "nothing", stream="a.pt", svm="s.pt")
     got = demo.resolve_models(a, ("aslip", "svm"))
     assert got["aslip"] == Path("a.pt") and got["svm"] == Path("s.pt")
     assert got["source"] == "command line"
@@ -124,43 +126,18 @@ def test_the_shipped_models_belong_to_this_scene_with_their_calibration():
             assert meta["calibration"]["method"] == calibration, method
 
 
-def _stream_entry(d: Path, version: str | None) -> None:
-    man = json.loads((d / demo_models.MANIFEST).read_text())
-    if version is not None:
-        man["stream"] = {"file": demo.STREAM_NAME, "scene_version": version}
-    (d / demo_models.MANIFEST).write_text(json.dumps(man))
+def test_the_demo_runs_the_package_estimator_first_beside_the_three_it_is_measured_by():
+    assert demo.DEFAULT_METHODS == ("aslip", "aslip_window", "aslip_uncalibrated", "svm")
 
 
-def test_a_streaming_model_of_another_scene_is_refused(tmp_path):
-    _write_set(tmp_path, demo_models.scene_version(), skip="stream")
-    assert "no streaming checkpoint" in demo_models.stream_problem(tmp_path, demo.STREAM_NAME)
-    (tmp_path / demo.STREAM_NAME).write_bytes(b"x")
-    assert "does not say" in demo_models.stream_problem(tmp_path, demo.STREAM_NAME)
-    _stream_entry(tmp_path, "2")
-    assert "scene version 2" in demo_models.stream_problem(tmp_path, demo.STREAM_NAME)
-    _stream_entry(tmp_path, demo_models.scene_version())
-    assert demo_models.stream_problem(tmp_path, demo.STREAM_NAME) is None
-
-
-def test_the_demo_refuses_a_stale_streaming_model_before_any_episode(tmp_path, monkeypatch,
-                                                                     capsys):
-    _write_set(tmp_path, demo_models.scene_version())
-    (tmp_path / demo.STREAM_NAME).write_bytes(b"x")
-    _stream_entry(tmp_path, "2")
-    monkeypatch.setattr(demo, "run_episodes", lambda *a, **k: pytest.fail("episodes ran"))
-    args = _args(tmp_path, methods="aslip,stream", out=str(tmp_path / "out"))
-    assert demo.run(args) == 2
-    assert "trained on scene version 2" in capsys.readouterr().err
-    assert demo.DEFAULT_METHODS == ("aslip", "aslip_uncalibrated", "svm", "stream")
-
-
-def test_retraining_trains_the_streaming_model_and_records_its_scene(tmp_path, monkeypatch):
+def test_retraining_trains_every_model_and_records_its_scene(tmp_path, monkeypatch):
     _write_set(tmp_path, "2")
-    _stream_entry(tmp_path, "2")
     monkeypatch.setattr(demo_models, "prepare_data", lambda *a: tmp_path / "data" / "ds")
+    trained = []
 
     def fake_aslip(argv):
         if argv[0] == "train":
+            trained.append(argv[argv.index("--stage") + 1])
             Path(argv[argv.index("--out") + 1]).write_bytes(b"model")
         else:
             Path(argv[argv.index("--json") + 1]).write_text(json.dumps({"overall": {}}))
@@ -168,9 +145,19 @@ def test_retraining_trains_the_streaming_model_and_records_its_scene(tmp_path, m
     (tmp_path / "data").mkdir()
     monkeypatch.setattr(demo_models, "aslip", fake_aslip)
     man = demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
-    assert man["stream"]["file"] == demo.STREAM_NAME
-    assert man["stream"]["scene_version"] == demo_models.scene_version()
+    assert sorted(trained) == ["scratch", "scratch", "stream", "svm"]
     assert man["scene_version"] == demo_models.scene_version()
-    assert man["calibration"] == {"aslip": "background", "aslip_uncalibrated": "off",
-                                  "svm": "background", "stream": "background"}
-    assert demo_models.stream_problem(tmp_path, demo.STREAM_NAME) is None
+    assert man["calibration"] == {"aslip": "background", "aslip_window": "background",
+                                  "aslip_uncalibrated": "off", "svm": "background"}
+    assert demo_models.shipped_models(tmp_path)["files"]["aslip"] == demo_models.STREAM_NAME
+
+
+def test_track_settings_from_the_command_line_keep_their_types_and_refuse_unknown_names():
+    from benchmarks.demo_episode import StopSettings, TrackSettings
+    got = demo.settings_overrides(TrackSettings, ["velocity_window_s=0.1", "agent_hold_s=0"])
+    assert got == {"velocity_window_s": 0.1, "agent_hold_s": 0.0}
+    assert demo.settings_overrides(StopSettings, ["debounce_count=2"]) == {"debounce_count": 2}
+    with pytest.raises(ValueError, match="NAME=VALUE"):
+        demo.settings_overrides(TrackSettings, ["no_such_field=1"])
+    with pytest.raises(ValueError):
+        demo.settings_overrides(TrackSettings, ["gain=fast"])

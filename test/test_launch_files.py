@@ -245,7 +245,8 @@ def test_closed_loop_defaults_use_the_shipped_model(launch_file):
     assert all(handles_exit(ev, n[3]) for n in ev.nodes)
     ckpt = nodes["slip_inference"]["checkpoint"]
     share = get_package_share_directory("aslip_ros")
-    assert ckpt == os.path.join(share, "models", "aslip_cnn.pt")
+    want = {"slip_stop.launch.py": "aslip_stream.pt", "slip_track.launch.py": "aslip_cnn.pt"}
+    assert ckpt == os.path.join(share, "models", want[launch_file])
     assert Path(ckpt).is_file(), f"{ckpt} is not installed"
     assert {"scene_sim", "slip_inference", "mocap_bridge", launch_file.split(".")[0]} == \
         set(nodes)

@@ -108,6 +108,33 @@ def test_background_calibration_recovers_gains_and_converges(fitted):
     assert k.convergence_s == pytest.approx(2.0)  # 200 frames of 10 ms (fixture)
 
 
+def test_the_state_says_when_in_the_grasp_it_converged(fitted):
+    """converged_after_s: the grasp's audio up to the frame whose acceptance met the
+    criterion, the same however the frames arrive, and forgotten on a reset."""
+    k = fitted["background"]
+    rng = np.random.default_rng(5)
+    f, _, _ = grasp(rng, rel(np.array([0.4, -0.4, 0.2, -0.2])), n=1500)
+    dev, p, active = cal.frame_stats(f, k)
+    w = cal.frame_weights(p, active, k)
+    first = int(np.argmax(np.cumsum(w) >= k.converge_frames)) + 1   # frames up to it
+    whole = cal.CalibrationState(k)
+    assert whole.converged_after_s is None
+    whole.update(f)
+    ragged = cal.CalibrationState(k)
+    for s in range(0, f.shape[2], 23):
+        ragged.update(f[:, :, s:s + 23])
+    assert whole.converged_at_frame == ragged.converged_at_frame == first
+    assert whole.converged_after_s == pytest.approx(first * k.hop_s)
+    whole.reset()
+    assert whole.converged_after_s is None
+
+
+def test_the_default_criterion_is_the_measured_one():
+    """60 accepted frames with 10 pseudo-frames of prior (docs/model.md: measured)."""
+    fields = {f.name: f.default for f in cal.dataclasses.fields(cal.CalibrationConstants)}
+    assert fields["converge_frames"] == 60 and fields["prior_frames"] == 10.0
+
+
 def _direction_of_slip(x, slip):
     """Direction read from the mean calibrated level pattern of slip frames."""
     lv = x[:, :, slip].mean(axis=1)                   # (C, n) mean over mels

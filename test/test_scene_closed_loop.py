@@ -120,3 +120,20 @@ def test_drag_slips_unless_the_arm_follows():
     free, followed = _drag(False), _drag(True)
     assert free > 0.01                                  # centimetres of slip
     assert followed < 0.3 * free
+
+
+def test_a_drag_hold_delays_the_agent_path_and_changes_nothing_else():
+    """drag_hold_s: the agent holds the object still at the grasp, then pulls exactly as it
+    would have without the hold, only later."""
+    t = np.arange(0.0, 6.0, 0.005)
+    paths = {}
+    assert scenarios.external_drag(seed=5).drag_hold_s == 1.0     # the scene's default
+    for hold in (0.0, 1.0):
+        world = World(scenarios.external_drag(seed=5, drag_hold_s=hold))
+        paths[hold] = world._drag.evaluate(t)
+    assert not paths[1.0][t < 1.2].any()                       # still through the hold
+    shift = int(round(1.0 / 0.005))
+    np.testing.assert_allclose(paths[1.0][shift:], paths[0.0][:-shift], atol=1e-12)
+    assert paths[0.0][t < 1.0].any()                           # without it, it pulls early
+    with pytest.raises(ValueError, match="drag_hold_s"):
+        scenarios.external_drag(seed=5, drag_hold_s=-1.0)

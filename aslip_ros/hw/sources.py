@@ -26,8 +26,8 @@ def build_world(values: dict, prefix: str = ""):
     """A :class:`aslip_ros.scene.World` from scene parameter values (open-ended duration).
 
     ``values`` holds ``<prefix>scenario``, ``seed``, ``object``, ``layout``, ``pad``,
-    ``condition``, ``sample_rate``, ``wall_distance_m`` and ``drag_speed_m_s``; an unusable
-    combination raises ValueError.
+    ``condition``, ``sample_rate``, ``wall_distance_m``, ``drag_speed_m_s`` and (optional)
+    ``drag_hold_s``; an unusable combination raises ValueError.
     """
     from aslip_ros.scene import World, scenarios
     g = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
@@ -43,7 +43,9 @@ def build_world(values: dict, prefix: str = ""):
         elif kind == "wall_push":
             scn = scenarios.wall_push(wall_distance_m=float(g["wall_distance_m"]), **common)
         else:
-            scn = scenarios.external_drag(drag_speed_m_s=float(g["drag_speed_m_s"]), **common)
+            hold = {"drag_hold_s": float(g["drag_hold_s"])} if "drag_hold_s" in g else {}
+            scn = scenarios.external_drag(drag_speed_m_s=float(g["drag_speed_m_s"]), **hold,
+                                          **common)
     except ValueError as exc:
         raise ValueError(f"cannot build the {kind} scenario: {exc}") from exc
     return World(scn)

@@ -29,8 +29,12 @@ from aslip_ros.cell import NODE_SECTIONS, Cell, CellError, load_cell
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes.introspect import declared_by_name
 
-#: The checkpoint a launch uses when none is given (shipped in share/aslip_ros/models).
-DEFAULT_MODEL = "aslip_cnn.pt"
+#: The checkpoint each closed-loop launch uses when none is given (shipped in
+#: share/aslip_ros/models), the one that did the task best in ``make demo`` (docs/demo.md):
+#: slip-stop the streaming estimator (``aslip``: 50/50, slip onset to stop 37 ms median
+#: against the window CNN's 49/50 and 47 ms), slip-track the 200 ms window CNN
+#: (``aslip_window``: 7.3 mm pose RMSE against the streaming model's 15.8 mm).
+DEFAULT_MODELS = {"slip_stop": "aslip_stream.pt", "slip_track": "aslip_cnn.pt"}
 
 
 def share_dir() -> str:
@@ -38,9 +42,9 @@ def share_dir() -> str:
     return get_package_share_directory("aslip_ros")
 
 
-def default_checkpoint() -> str:
-    """Path of the shipped demo checkpoint in the install's share directory."""
-    return os.path.join(share_dir(), "models", DEFAULT_MODEL)
+def default_checkpoint(controller: str) -> str:
+    """Path of the controller's shipped demo checkpoint in the install's share directory."""
+    return os.path.join(share_dir(), "models", DEFAULT_MODELS[controller])
 
 
 def rviz_found() -> bool:
@@ -265,7 +269,8 @@ def closed_loop_description(controller: str, scenario: str, task_arg: str,
     args = [
         DeclareLaunchArgument("sim", default_value="true", description="simulated scene"),
         DeclareLaunchArgument("checkpoint", default_value="",
-                              description="model checkpoint (CNN or SVM); sim: default the "
+                              description="model checkpoint (streaming, window CNN or "
+                                          "SVM); sim: default the "
                                           "shipped demo model, trained on the scene; "
                                           "hardware: required, a model trained on your "
                                           "cell's recordings"),
@@ -323,7 +328,7 @@ def _closed_loop_nodes(context, controller, scenario, task_arg):
                 "sim:=false needs checkpoint:=YOUR_MODEL.pt: the shipped models are "
                 "trained on the simulated scene's microphones and refuse a real stream; "
                 "train one on your cell's recordings (docs/hardware-quickstart.md)")
-        checkpoint = default_checkpoint()
+        checkpoint = default_checkpoint(controller)
     capture = None if sim else capture_params(context, cell, {})
     ctrl = arm_params(context, cell, controller, sim)
     ctrl["autostart"] = _given(context, "autostart", True)

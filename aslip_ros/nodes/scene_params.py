@@ -35,4 +35,7 @@ def scene_params(prefix: str = "") -> list:
                 c.non_negative, read_only=True),
         c.from_config(Scenario, "drag_speed_m_s", "drag: agent drag speed [m/s]", c.positive,
                       read_only=True, prefix=prefix),
+        c.from_config(Scenario, "drag_hold_s", "drag: the agent holds the object still this "
+                      "long after the grasp before its first pull [s]",
+                      c.in_range(0.0, 60.0), read_only=True, prefix=prefix),
     ]

@@ -43,6 +43,10 @@ class Scenario:
     grip_force_n: float = 15.0
     wall_stiffness_n_m: float = 3000.0
     drag_speed_m_s: float = 0.04
+    #: external_drag: the agent holds the object still this long after the grasp before
+    #: its first pull [s], as grasp_calibration asks a user to while the per-grasp
+    #: calibration converges (0.6-0.8 s on the scene's grasps); 0 = it may pull at once.
+    drag_hold_s: float = 1.0
     one_sided_fraction: float = 0.0
     one_sided_spread_rad: float = np.pi / 6.0
     no_slip_touch_fraction: float = 0.2
@@ -82,7 +86,7 @@ class Scenario:
             raise ValueError(f"sample_rate must be at least 8000 Hz, got {self.sample_rate}")
         if self.mocap_rate_hz > self.sample_rate or self.tcp_rate_hz > self.sample_rate:
             raise ValueError("mocap_rate_hz and tcp_rate_hz must not exceed sample_rate")
-        for name in ("mocap_latency_s", "mocap_noise_m", "wall_distance_m"):
+        for name in ("mocap_latency_s", "mocap_noise_m", "wall_distance_m", "drag_hold_s"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be >= 0, got {value!r}")

@@ -75,7 +75,8 @@ def wall_push(seed: int, object: str = "chips_can", layout: str = "4mic",
 def external_drag(seed: int, object: str = "chips_can", layout: str = "4mic",
                   pad: str = "textured", drag_speed_m_s: float = 0.04,
                   duration_s: float | None = None, **kw) -> Scenario:
-    """Closed loop: an agent drags the object along a random in-plane path."""
+    """Closed loop: an agent drags the object along a random in-plane path (after holding it
+    still for the scenario's ``drag_hold_s``)."""
     return Scenario("external_drag", seed, object, layout, pad, "robot_moving", duration_s,
                     drag_speed_m_s=drag_speed_m_s,
                     trial_id=kw.pop("trial_id", _trial_id("drag", object, seed)), **kw)
@@ -268,12 +269,16 @@ def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, P
 
 
 def drag_path(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
-    """The dragging agent's object velocity in grasp-plane (x, z) coordinates."""
+    """The dragging agent's object velocity in grasp-plane (x, z) coordinates.
+
+    The first pull comes after ``drag_hold_s`` (the hold at the grasp) plus the usual rest;
+    the random draws are the same whatever the hold, so a hold only delays the path."""
     planned = np.zeros(2)
+    hold = [float(scn.drag_hold_s)]
 
     def gen(t: float):
         nonlocal planned
-        rest = rng.uniform(0.2, 1.0)
+        rest = rng.uniform(0.2, 1.0) + (hold.pop() if hold else 0.0)
         speed = rng.uniform(0.3, 1.0) * scn.drag_speed_m_s
         e = _direction_back(rng, planned * 0.5)
         dur = rng.uniform(0.5, 2.0)

@@ -110,11 +110,14 @@ class StreamCalibration:
     def summary(self) -> dict[str, Any]:
         """What the diagnostics show: convergence, per-channel gain, frame counts."""
         s = self.state
-        return {"calibration_converged": bool(s.converged),
-                "calibration_accepted_frames": int(round(s.weight)),
-                "calibration_frames": int(s.n_frames), "calibration_resets": self.resets,
-                "gain_db": {n: round(float(g), 3)
-                            for n, g in zip(s.k.channel_names, s.gain_db)}}
+        out = {"calibration_converged": bool(s.converged),
+               "calibration_accepted_frames": int(round(s.weight)),
+               "calibration_frames": int(s.n_frames), "calibration_resets": self.resets,
+               "gain_db": {n: round(float(g), 3)
+                           for n, g in zip(s.k.channel_names, s.gain_db)}}
+        if s.converged_after_s is not None:     # seconds of the grasp's audio, once converged
+            out["calibration_converged_after_s"] = round(s.converged_after_s, 3)
+        return out
 
 
 def remove_from_audio(windows: np.ndarray, offsets: np.ndarray) -> np.ndarray:

@@ -21,6 +21,13 @@ SVM, registered ones) and streaming ones (``aslip_stream``) alike:
 ``slip_inference`` only decodes messages into blocks, hands ``accept``'s window job to its
 model thread (``run``) and publishes; evaluation and the closed-loop demo call ``feed``,
 which runs the job at once, so what is measured offline is what runs live.
+
+Timing (for the callers' tail-latency figures; nothing here changes a result): ``run`` and
+a streaming ``accept`` leave the model's share of their time in ``last_forward_s`` and, for
+``run``, the rest (dead-channel check, log-mel features, calibration offsets) in
+``last_features_s``. The split comes from timing the backend's log-mel call (window
+models that have one) and the streaming stepper's ``step`` (``_Timed``): a window model
+without a log-mel call counts its features as forward.
 """
 
 from __future__ import annotations
@@ -29,12 +36,14 @@ import collections
 import math
 import os
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
 import numpy as np
 
 from aslip_ros.learn.checkpoint import Checkpoint, load_checkpoint
+from aslip_ros.learn.features import LogMel
 from aslip_ros.learn.inference.audio_window import RingBuffer, StreamGate
 from aslip_ros.learn.inference.channel_check import DEAD_MARGIN_DB, dead_channels
 from aslip_ros.learn.inference.predictor import Prediction, Predictor
@@ -120,6 +129,45 @@ class Event:
     detail: str = ""
 
 
+class _Timed:
+    """A callable that adds the time of each call to ``seconds`` (timing only: arguments,
+    result and attributes are the wrapped one's)."""
+
+    def __init__(self, fn: Any) -> None:
+        self._fn = fn
+        self.seconds = 0.0
+
+    def __call__(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return self._fn(*args, **kwargs)
+        finally:
+            self.seconds += time.perf_counter() - t0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._fn, name)
+
+    def take(self) -> float:
+        out, self.seconds = self.seconds, 0.0
+        return out
+
+
+def _time_model(predictor: Any, streaming: bool) -> Optional[_Timed]:
+    """Wrap the model's own compute (the stepper of a streaming predictor; a window
+    backend's log-mel features) so its time can be told from the rest."""
+    if streaming:
+        stepper = getattr(predictor, "stepper", None)
+        if stepper is None:
+            return None
+        stepper.step = _Timed(stepper.step)
+        return stepper.step
+    backend = getattr(predictor, "backend", None)
+    if isinstance(getattr(backend, "logmel", None), LogMel):
+        backend.logmel = _Timed(backend.logmel)
+        return backend.logmel
+    return None
+
+
 class LiveEstimator:
     """Slip estimates from a live stream of audio blocks (see the module docstring)."""
 
@@ -139,6 +187,11 @@ class LiveEstimator:
         self._lock = threading.RLock()
         self._since_hop = 0
         self._announced_converged = False
+        #: Timing of the last ``run`` (window models) or streaming block [s]: see the module
+        #: docstring. Each is written and read on the thread that runs the model.
+        self.last_features_s = 0.0
+        self.last_forward_s = 0.0
+        self._timed = _time_model(predictor, self.streaming)
         if self.streaming:
             predictor.warm_up()
         else:
@@ -330,11 +383,17 @@ class LiveEstimator:
         """Every hop the block completes. A block with a dead channel gives none and resets
         the state: a state that has read a dead microphone would under-report slip for an
         unknown time after the microphone came back."""
+        if self._timed is not None:
+            self._timed.take()
+        self.last_forward_s = 0.0
         if self._dead(np.asarray(a.block)):
             self._reset_stream("dead channel(s)")
             return []
         out = []
-        for est in self.predictor.feed(a):
+        feed = self.predictor.feed(a)
+        if self._timed is not None:
+            self.last_forward_s = self._timed.take()
+        for est in feed:
             e = est.prediction
             if not _finite(e):
                 self._reset_stream("non-finite estimate")
@@ -357,9 +416,13 @@ class LiveEstimator:
     def run(self, job: Job) -> Optional[Estimate]:
         """A window through the model (a thread of the caller's may do this): the estimate,
         or None when withheld (dead channel, non-finite output: see ``events``)."""
+        t0 = time.perf_counter()
+        if self._timed is not None:
+            self._timed.take()
         margin = self.dead_margin_db
         dead = dead_channels(job.window, self.predictor.channel_names, margin) \
             if margin > 0 else []
+        t1 = time.perf_counter()
         problem, pred = "", None
         if not dead:
             try:
@@ -368,6 +431,9 @@ class LiveEstimator:
                 problem = str(exc)
             if pred is not None and not _finite(pred):
                 problem = f"non-finite estimate {pred}"
+        features = self._timed.take() if self._timed is not None else 0.0
+        self.last_features_s = t1 - t0 + features
+        self.last_forward_s = time.perf_counter() - t1 - features
         with self._lock:
             if dead:
                 self._count_dead(dead)
