@@ -146,6 +146,8 @@ def _nodes(context) -> list:
                                  {"scenario": scenario, "object": arg(context, "object"),
                                   "seed": int(arg(context, "seed")), "duration_s": duration,
                                   "exit_when_done": duration > 0,
+                                  # a recorder that starts late must not lose the start
+                                  "start_with_subscriber": flag(context, "record"),
                                   "condition": "robot_moving" if scenario == "robot_induced"
                                   else "robot_stationary"}])
         actions += [scene,

@@ -112,6 +112,9 @@ class SceneSim(Node):
                     read_only=True),
             c.Param("frame_id", convert.SENSOR_FRAME, "audio frame id", c.non_empty,
                     read_only=True),
+            c.Param("start_with_subscriber", False, "hold the scene's clock at 0 until "
+                    "/aslip/audio has a subscriber (a recorder), so a finite recording "
+                    "loses no scene second to a recorder that starts late", read_only=True),
         ]
         self.p = c.declare_params(self, specs, self._on_change)
         self.world = build_world(self.p)
@@ -145,6 +148,7 @@ class SceneSim(Node):
         self.create_subscription(TwistStamped, c.CMD_VEL_TOPIC, self._on_cmd, c.RELIABLE_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.pub_meta.publish(String(data=json.dumps(self.meta)))
+        self._hold = bool(self.p["start_with_subscriber"])
         self.scene = PacedScene(self.world, self.block_frames,
                                 self.get_clock().now().nanoseconds)
         # The stepping timer and the diagnostics timer never block each other.
@@ -172,7 +176,7 @@ class SceneSim(Node):
             self.get_logger().warning(f"arm command refused: {exc}", throttle_duration_sec=1.0)
 
     def _tick(self) -> None:
-        if self._finished:
+        if self._finished or self._waiting_for_subscriber():
             return
         limit = self.p["duration_s"]
         for _ in range(self.scene.due_blocks()):
@@ -182,6 +186,21 @@ class SceneSim(Node):
             with self._lock:
                 chunk = self.scene.step()
             self._publish(chunk)
+
+    def _waiting_for_subscriber(self) -> bool:
+        """With ``start_with_subscriber``: True until /aslip/audio is subscribed; the scene's
+        clock (and its stamps) start when it is."""
+        if not self._hold:
+            return False
+        if self.pub_audio.get_subscription_count() == 0:
+            self.get_logger().info("waiting for a subscriber on /aslip/audio before the "
+                                   "scene starts", throttle_duration_sec=5.0)
+            return True
+        self._hold = False
+        self.scene = PacedScene(self.world, self.block_frames,
+                                self.get_clock().now().nanoseconds)
+        self.get_logger().info("/aslip/audio is subscribed: the scene starts")
+        return False
 
     def _publish(self, chunk) -> None:
         st = self.scene.stamp_ns
