@@ -112,8 +112,8 @@ class SceneSim(Node):
                     read_only=True),
             c.Param("frame_id", convert.SENSOR_FRAME, "audio frame id", c.non_empty,
                     read_only=True),
-            c.Param("start_with_subscriber", False, "hold the scene's clock at 0 until "
-                    "/aslip/audio has a subscriber (a recorder), so a finite recording "
+            c.Param("start_with_subscriber", False, f"hold the scene's clock at 0 until "
+                    f"{c.AUDIO_TOPIC} has a subscriber (a recorder), so a finite recording "
                     "loses no scene second to a recorder that starts late", read_only=True),
         ]
         self.p = c.declare_params(self, specs, self._on_change)
@@ -188,18 +188,18 @@ class SceneSim(Node):
             self._publish(chunk)
 
     def _waiting_for_subscriber(self) -> bool:
-        """With ``start_with_subscriber``: True until /aslip/audio is subscribed; the scene's
-        clock (and its stamps) start when it is."""
+        """With ``start_with_subscriber``: True until the audio topic is subscribed; the
+        scene's clock (and its stamps) start when it is."""
         if not self._hold:
             return False
         if self.pub_audio.get_subscription_count() == 0:
-            self.get_logger().info("waiting for a subscriber on /aslip/audio before the "
-                                   "scene starts", throttle_duration_sec=5.0)
+            self.get_logger().info(f"waiting for a subscriber on {c.AUDIO_TOPIC} before "
+                                   "the scene starts", throttle_duration_sec=5.0)
             return True
         self._hold = False
         self.scene = PacedScene(self.world, self.block_frames,
                                 self.get_clock().now().nanoseconds)
-        self.get_logger().info("/aslip/audio is subscribed: the scene starts")
+        self.get_logger().info(f"{c.AUDIO_TOPIC} is subscribed: the scene starts")
         return False
 
     def _publish(self, chunk) -> None:
