@@ -131,8 +131,10 @@ def stop_to_rest_s(traj_path: Path) -> Optional[float]:
 
 
 def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
-                timeout_s: Optional[float] = None) -> dict:
-    """One ``fault`` or ``load`` episode; returns its measurements."""
+                timeout_s: Optional[float] = None,
+                pose_timeout_s: Optional[float] = None) -> dict:
+    """One ``fault`` or ``load`` episode; returns its measurements. ``timeout_s`` and
+    ``pose_timeout_s``: the controller's slip and pose watchdogs (default: the node's)."""
     from domain_coordinator import domain_id
 
     from aslip_ros.nodes.process import NodeProcess
@@ -149,6 +151,8 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
            "settle_result_s": s.settle_result_s}
     if timeout_s is not None:
         ctl["slip_timeout_s"] = timeout_s
+    if pose_timeout_s is not None:
+        ctl["pose_timeout_s"] = pose_timeout_s
     out: dict = {"kind": kind, "seed": seed}
     with domain_id() as did, tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",

@@ -25,14 +25,16 @@ CNN = ROOT / "models" / "aslip_cnn.pt"
 MARGIN_S = 5.0
 
 
-#: The controller's slip watchdog here [s]: long enough that no stall of a busy machine
-#: stops the trial before the fault, so the stop this test sees is the fault's.
+#: The controller's slip and pose watchdogs here [s]: long enough that no stall of a busy
+#: machine stops the trial before the fault, so the stop this test sees is the fault's (a
+#: fresh clone's CI once lost the approach to a 50 ms gap in the TCP poses).
 TIMEOUT_S = 1.0
 
 
 def test_killed_inference_stops_the_arm_and_for_good():
     from benchmarks.stale_input import run_episode
-    e = run_episode("fault", str(CNN), 1201, random.Random(0), timeout_s=TIMEOUT_S)
+    e = run_episode("fault", str(CNN), 1201, random.Random(0), timeout_s=TIMEOUT_S,
+                    pose_timeout_s=TIMEOUT_S)
     assert "error" not in e, e
     assert e["reason"] == "stale_slip", e
     assert e["stop_after_slip_s"] <= TIMEOUT_S + MARGIN_S, e
