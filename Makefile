@@ -18,7 +18,7 @@ PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/p
 BENCHMARK := $(ROS) PYTHONPATH="$$PYTHONPATH:$(CURDIR)" $(VENV)/bin/python -P -m
 
 .PHONY: help setup build test test-fast demo datasets ablation bench stability transfer lint clean
-.PHONY: ablation-baselines magnitude flake-hunt soak-recording latency
+.PHONY: ablation-baselines magnitude flake-hunt soak-recording latency recipe-budget
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
@@ -34,6 +34,7 @@ help:
 	@echo "make latency    tail latency of the live node per step, shipped models (results/latency/)"
 	@echo "make stability  accuracy under stressors (results/stability/)"
 	@echo "make transfer   train on the default scene, test on held-out variants (results/transfer/)"
+	@echo "make recipe-budget  the default aslip train at 4, 8, 16 and 32 min (results/recipes/)"
 	@echo "                (the benchmark targets run benchmarks/ from this checkout; ARGS=\"...\" adds options)"
 
 setup:
@@ -92,6 +93,9 @@ stability: setup
 
 transfer: setup
 	$(BENCHMARK) benchmarks.transfer --out results/transfer $(ARGS)
+
+recipe-budget: setup
+	$(BENCHMARK) benchmarks.recipe_budget --out results/recipes $(ARGS)
 
 lint: setup
 	$(VENV)/bin/python -m flake8 --max-line-length 99 aslip_ros benchmarks test || true

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from aslip_ros.learn.training import recipes
+from aslip_ros.learn.training import allocation, recipes, selection
 
 from aslip_ros.learn.training import train
 
@@ -19,6 +19,8 @@ from aslip_ros.learn.checkpoint import load_checkpoint
 from aslip_ros.learn.data_io import open_dataset, trial_splits
 from aslip_ros.learn.synthetic import make_synthetic_dataset
 from aslip_ros.learn.training.loop import resolve_device
+
+from fake_clock import FakeClock
 
 SMALL = ["--width", "8", "--depth", "2", "--temporal-channels", "32", "--head-hidden", "16",
          "--n-mels", "32", "--threads", "1", "--no-progress"]
@@ -54,47 +56,137 @@ def test_select_picks_the_better_candidate_and_says_why():
            "n_windows": 100}
     for order in (("a", "b"), ("b", "a")):
         metrics = dict(zip(order, (good, bad) if order[0] == "a" else (bad, good)))
-        winner, scores, why = recipes.select(metrics)
+        winner, scores, why = selection.select(metrics)
         assert winner == "a" and scores["a"] == pytest.approx(3.0)
         assert scores["b"] == pytest.approx(1.5 + 1.5 + 2.0)
         assert why.startswith("a has the lowest") and "runner-up b" in why
     # A trade: 10 % better direction does not pay for 50 % worse magnitude.
     trade = dict(good, direction_mae_deg=18.0, magnitude_rmse_mm=1.5)
-    assert recipes.select({"good": good, "trade": trade})[0] == "good"
+    assert selection.select({"good": good, "trade": trade})[0] == "good"
     # Equal scores: the candidate trained first wins.
-    assert recipes.select({"x": good, "y": dict(good)})[0] == "x"
+    assert selection.select({"x": good, "y": dict(good)})[0] == "x"
 
 
 def test_candidate_missing_a_metric_cannot_win():
     good = {"detection_accuracy": 0.9, "direction_mae_deg": 40.0, "magnitude_rmse_mm": 2.0}
     blind = {"detection_accuracy": 0.99}
-    assert recipes.select({"blind": blind, "good": good})[0] == "good"
+    assert selection.select({"blind": blind, "good": good})[0] == "good"
 
 
 def test_plan_skips_pretrained_recipes_without_a_robot_set():
     msgs = []
     cands, skipped = recipes.plan(recipes.RECIPES, (0, 3), have_pretrain=False,
                                   log=msgs.append)
-    assert [c.name for c in cands] == ["scratch_s0", "scratch_s3", "svm"]
+    assert [c.name for c in cands] == ["scratch_s0", "scratch_s3", "svm",
+                                       "scratch_s0_uncalibrated", "scratch_s3_uncalibrated",
+                                       "svm_uncalibrated"]
     assert {s["name"] for s in skipped} == {"frozen", "partial", "unfrozen"}
     assert all("--pretrain-dataset" in m for m in msgs) and len(msgs) == 3
     default, _ = recipes.plan(have_pretrain=True)
-    assert [c.name for c in default] == ["frozen", "unfrozen", "scratch_s0", "svm"]
-    cands, skipped = recipes.plan(recipes.RECIPES, (0,), have_pretrain=True)
+    assert [c.name for c in default] == ["unfrozen", "scratch_s0", "scratch_s0_uncalibrated",
+                                         "svm", "svm_uncalibrated"]
+    assert [c.calibrated for c in default] == [True, True, False, True, False]
+    cands, skipped = recipes.plan(recipes.RECIPES[:5], (0,), have_pretrain=True)
     assert [c.name for c in cands] == ["frozen", "partial", "unfrozen", "scratch_s0", "svm"]
     assert not skipped
+    # With --calibration off the uncalibrated variants would train the same thing twice.
+    cands, skipped = recipes.plan(have_pretrain=False, calibration="off", log=msgs.append)
+    assert [c.name for c in cands] == ["scratch_s0", "svm"]
+    assert {s["name"] for s in skipped} == {"unfrozen", "scratch_uncalibrated",
+                                            "svm_uncalibrated"}
     with pytest.raises(ValueError, match="unknown recipe"):
         recipes.plan(["frozen", "bogus"], (0,), True)
     with pytest.raises(ValueError, match="no recipe left"):
         recipes.plan(["frozen"], (0,), False, log=lambda m: None)
 
 
-def test_budget_shares_follow_the_weights():
-    jobs = ["pretrain", recipes.Candidate("frozen", "frozen"),
-            recipes.Candidate("scratch_s0", "scratch")]
-    assert recipes._share(800.0, jobs) == pytest.approx(800 * 4 / 8)
-    assert recipes._share(100.0, jobs[1:]) == pytest.approx(100 * 1 / 4)
-    assert recipes._share(-5.0, jobs[2:]) == 1.0        # out of time: one epoch still runs
+class _CurveJob:
+    """A job whose validation direction error falls with its training time along a known
+    curve, ``floor + 60 / (1 + rate * t)``, on the allocator's clock."""
+
+    def __init__(self, clock, floor, rate, epochs_s=5.0):
+        self.clock, self.floor, self.rate, self.epochs_s = clock, floor, rate, epochs_s
+        self.train_time_s = 0.0
+        self.slices = []
+        self.done = False
+
+    def advance(self, seconds):
+        spent = max(self.epochs_s, self.epochs_s * -(-seconds // self.epochs_s))  # whole epochs
+        self.slices.append(seconds)
+        self.train_time_s += spent
+        self.clock.t += spent
+
+    def val_metrics(self):
+        d = self.floor + 60.0 / (1.0 + self.rate * self.train_time_s)
+        return {"detection_accuracy": 0.95, "direction_mae_deg": d, "magnitude_rmse_mm": 1.0}
+
+    def result(self, stop_reason="time_budget"):
+        return stop_reason
+
+
+@pytest.mark.parametrize("good_first", [True, False])
+def test_successive_halving_finds_the_better_job_and_stops_the_other_early(good_first):
+    """The answer known: ``good`` learns faster and to a lower floor. The allocator must keep
+    it, stop ``poor`` after the first round, and give ``good`` the rest of the budget."""
+    clock = FakeClock()
+    good, poor = _CurveJob(clock, 10.0, 0.1), _CurveJob(clock, 20.0, 0.05)
+    jobs = dict([("good", good), ("poor", poor)] if good_first
+                else [("poor", poor), ("good", good)])
+    budget = 600.0
+    halve = allocation.successive_halving
+    winner, rounds, rest = halve(jobs, budget, clock=clock, log=lambda m: None)
+    assert winner == "good" and [r["name"] for r in rest] == ["good"]
+    assert len(rounds) == 1 and rounds[0]["stopped"] == ["poor"]
+    assert rounds[0]["kept"] == ["good"]
+    slice_s = allocation.EARLY_FRACTION * budget / 2
+    assert poor.slices == [slice_s] and poor.train_time_s <= slice_s + poor.epochs_s
+    assert good.train_time_s >= budget - poor.train_time_s - 1e-9  # the rest went to good
+    assert clock.t <= budget + good.epochs_s                       # within the budget
+
+
+def test_time_an_early_stopped_survivor_leaves_goes_to_the_next_best():
+    clock = FakeClock()
+    good, poor = _CurveJob(clock, 10.0, 0.1), _CurveJob(clock, 20.0, 0.05)
+    orig = good.advance
+
+    def advance_then_stop(seconds):      # the survivor early-stops after 50 s more
+        orig(min(seconds, 50.0) if good.train_time_s >= 150.0 else seconds)
+        good.done = good.train_time_s >= 200.0
+    good.advance = advance_then_stop
+    winner, rounds, rest = allocation.successive_halving(
+        {"good": good, "poor": poor}, 600.0, clock=clock, log=lambda m: None)
+    assert winner == "good" and good.done
+    assert [r["name"] for r in rest] == ["good", "poor"]
+    assert rest[1]["seconds"] >= 600.0 - 300.0 - 50.0 - 1e-9      # the rest went to poor
+    assert clock.t <= 600.0 + poor.epochs_s
+
+
+def test_successive_halving_halves_each_round_and_scores_beside_the_finished():
+    clock = FakeClock()
+    curves = {"a": (30.0, 0.1), "b": (12.0, 0.1), "c": (25.0, 0.1), "d": (11.0, 0.05)}
+    jobs = {n: _CurveJob(clock, f, r) for n, (f, r) in curves.items()}
+    halve = allocation.successive_halving
+    winner, rounds, _ = halve(jobs, 800.0, clock=clock, log=lambda m: None)
+    assert [len(r["scores"]) for r in rounds] == [4, 2]      # 4 -> 2 -> 1
+    assert rounds[0]["kept"] == ["b", "d"] and winner == "b"
+    assert rounds[1]["stopped"] == ["d"]
+    # A finished candidate (the SVM) is scored beside the jobs: the scores are relative to
+    # the best of all, and it is never dropped or trained (it is not a job).
+    svm = {"detection_accuracy": 0.99, "direction_mae_deg": 5.0, "magnitude_rmse_mm": 0.5}
+    clock2 = FakeClock()
+    jobs2 = {n: _CurveJob(clock2, f, r) for n, (f, r) in curves.items()}
+    _, rounds2, _ = halve(jobs2, 800.0, others={"svm": svm}, clock=clock2,
+                          log=lambda m: None)
+    assert "svm" not in rounds2[0]["scores"]
+    assert rounds2[0]["scores"]["b"] > rounds[0]["scores"]["b"]
+    # One job: no round, it gets the whole budget.
+    clock3 = FakeClock()
+    only = _CurveJob(clock3, 10.0, 0.1)
+    assert halve({"x": only}, 100.0, clock=clock3, log=lambda m: None) == (
+        "x", [], [{"name": "x", "seconds": 100.0}])
+    assert only.train_time_s == pytest.approx(100.0)
+    with pytest.raises(ValueError, match="no job"):
+        halve({}, 10.0)
 
 
 # --- on data -----------------------------------------------------------------------------
@@ -117,12 +209,79 @@ def test_selection_on_data_picks_the_trained_candidate(data):
 
     for order in ((("dead", untrained), ("live", trained)),
                   (("live", trained), ("dead", untrained))):
-        cands = [recipes.Candidate(n, "scratch", 0, f) for n, f in order]
+        cands = [recipes.Candidate(n, "scratch", 0, lambda c, f=f: allocation.OneShot(f, c))
+                 for n, f in order]
         res = recipes.train_selected(ds, _cfg(), recipes=cands, budget_s=120, log=lambda m: None)
         sel = res.meta["provenance"]["selection"]
         assert sel["winner"] == "live" and res.meta["provenance"]["recipe"] == "live"
         scores = {r["name"]: r["score"] for r in sel["candidates"]}
         assert scores["live"] < scores["dead"]
+        # What the choice is worth: intervals over the validation trials, and the lead.
+        w = sel["worth"]
+        assert w["runner_up"] == "dead" and w["told_apart"]
+        lo, hi = w["winner_ci"]["direction_mae_deg"]
+        assert lo <= w["winner"]["direction_mae_deg"] <= hi
+        assert w["score_difference"]["ci"][1] < 0
+        assert "validation trials (95 % intervals" in recipes.comparison_markdown(sel)
+
+
+class _ValSet:
+    """The few fields of a WindowSet that selection reads: trials, labels, window length."""
+
+    window_s = 0.2
+
+    def __init__(self, n_trials=6, per_trial=40):
+        n = n_trials * per_trial
+        self.windows = {"trial": np.repeat(np.arange(n_trials), per_trial)}
+        self._v = np.tile([0.01, 0.0], (n, 1))
+
+    def velocity(self, idx):
+        return self._v[idx]
+
+    def slip(self, idx):
+        return np.ones(len(idx), bool)
+
+
+def _result(angles_deg):
+    a = np.radians(np.asarray(angles_deg, float))
+    v = 0.01 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    return train_config.TrainResult(meta={}, tensors={}, history=[],
+                                    val_pred={"prob": np.full(a.size, 0.9), "v": v})
+
+
+def test_an_uncalibrated_winner_within_noise_gives_way_to_its_calibrated_twin():
+    ds = _ValSet()
+    va = np.arange(len(ds.windows["trial"]))
+    rng = np.random.default_rng(0)
+    cal = _result(rng.normal(0, 25, va.size))
+    near = _result(rng.normal(0, 24, va.size))           # a hair better: noise
+    keep, why = recipes.prefer_calibrated(ds, va, {"scratch_s0": cal,
+                                                   "scratch_s0_uncalibrated": near},
+                                          "scratch_s0_uncalibrated")
+    assert keep == "scratch_s0" and "cannot be told apart" in why
+    clear = _result(rng.normal(0, 3, va.size))           # better on every trial
+    keep, why = recipes.prefer_calibrated(ds, va, {"scratch_s0": cal,
+                                                   "scratch_s0_uncalibrated": clear},
+                                          "scratch_s0_uncalibrated")
+    assert keep == "scratch_s0_uncalibrated" and why is None
+    # A calibrated winner, or an uncalibrated one without its twin, stands as chosen.
+    assert recipes.prefer_calibrated(ds, va, {"svm": cal}, "svm") == ("svm", None)
+    assert recipes.prefer_calibrated(ds, va, {"svm_uncalibrated": near},
+                                     "svm_uncalibrated") == ("svm_uncalibrated", None)
+
+
+def test_worth_says_when_the_two_cannot_be_told_apart():
+    w = {"n_trials": 3, "winner": {"detection_accuracy": 0.95, "direction_mae_deg": 20.0,
+                                   "magnitude_rmse_mm": 1.0},
+         "winner_ci": {"detection_accuracy": (0.9, 0.97), "direction_mae_deg": (15.0, 26.0),
+                       "magnitude_rmse_mm": (0.8, 1.3)},
+         "runner_up": "svm", "score_difference": {"estimate": -0.1, "ci": (-0.4, 0.2)},
+         "told_apart": False}
+    line = selection.worth_line(w)
+    assert "20.0 [15.0, 26.0]" in line and "cannot be told apart" in line
+    assert "better on these trials" in selection.worth_line(
+        dict(w, score_difference={"estimate": -0.3, "ci": (-0.5, -0.1)}, told_apart=True))
+    assert selection.worth_line({}) == ""
 
 
 def test_validation_never_shares_a_trial_with_training(data, tmp_path):
@@ -153,8 +312,41 @@ def test_validation_never_shares_a_trial_with_training(data, tmp_path):
         n_val = int(np.isin(trial_of, [k for k, x in enumerate(ds.trials)
                                        if x["id"] in val_t]).sum())
         assert t["metrics"]["val"]["n_windows"] == t["training"]["n_val_windows"] == n_val
-    assert sel["winner"] in sel["reason"] and sel["criterion"] == recipes.CRITERION
+    assert sel["winner"] in sel["reason"] and sel["criterion"] == selection.CRITERION
     assert all(t.device.type == "cpu" for t in ck.tensors.values())
+
+
+def test_selection_never_reads_a_test_trial(data, tmp_path):
+    """The same dataset with every test trial's audio replaced by NaN gives the same choice
+    and the same validation scores: selection reads training and validation trials only."""
+    import shutil
+    _, _, ext = data
+    nan_root = tmp_path / "nan_test"
+    shutil.copytree(ext, nan_root, ignore=shutil.ignore_patterns(".feature_cache"))
+    ds_nan = open_dataset(nan_root)
+    test_idx = ds_nan.dataset.select("test", seed=0)
+    test_trials = np.unique(np.asarray(ds_nan.windows["trial"])[test_idx])
+    assert test_trials.size >= 1
+    for k in test_trials:
+        path = nan_root / ds_nan.trials[int(k)]["file"]
+        audio = np.load(path)
+        np.save(path, np.full_like(audio, np.nan))
+    ds_nan = open_dataset(nan_root)
+    assert np.isnan(ds_nan.window_audio(test_idx[:5])).all()
+    from aslip_ros.learn.features import FeatureConfig
+    kw = dict(recipes=["scratch", "scratch_uncalibrated", "svm"], budget_s=600,
+              feature_config=FeatureConfig(n_mels=32), model_options=SMALL_MODEL,
+              log=lambda m: None)
+    cfg = _cfg(epochs=3, calibration="background")
+    sels = [recipes.train_selected(d, cfg, **kw).meta["provenance"]["selection"]
+            for d in (open_dataset(ext), ds_nan)]
+    assert sels[0]["winner"] == sels[1]["winner"]
+    scores = [{r["name"]: r["score"] for r in s["candidates"]} for s in sels]
+    assert scores[0].keys() == scores[1].keys() and len(scores[0]) == 3
+    for name, value in scores[0].items():
+        assert np.isfinite(value) and scores[1][name] == pytest.approx(value, rel=1e-6)
+    assert sels[1]["test_trials_untouched"] == [ds_nan.trials[int(k)]["id"]
+                                                for k in test_trials]
 
 
 def test_too_few_trials_gives_the_clear_message(tmp_path, capsys):

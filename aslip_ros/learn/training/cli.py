@@ -22,13 +22,42 @@ from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ModelConfig
 from aslip_ros.learn.models.svm import SvmConfig
 from aslip_ros.learn.training.config import CALIBRATIONS, DEVICES, STAGES, TrainConfig, fit_stage
-from aslip_ros.learn.training.recipes import run_selected
+from aslip_ros.learn.training.recipes import (DEFAULT_BUDGET_S, DEFAULT_RECIPES, RECIPES,
+                                              run_selected)
 from aslip_ros.learn.training.stream import run_from_args
 from aslip_ros.learn.training.train import train_backend, train_cnn, train_svm
 
 
 def _csv(s: str | None) -> list[str] | None:
     return [x for x in s.split(",") if x] if s else None
+
+
+def _add_auto_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of --stage auto (learn/training/recipes.py)."""
+    p.add_argument("--pretrain-dataset", default=None,
+                   help="--stage auto: a robot-induced dataset to pretrain the encoder on "
+                        "(optional; the frozen/partial/unfrozen recipes need it)")
+    p.add_argument("--recipes", default=None,
+                   help="--stage auto: comma-separated candidates out of "
+                        + ",".join(RECIPES) + " (default " + ",".join(DEFAULT_RECIPES) + ")")
+    p.add_argument("--seeds", default="0",
+                   help="--stage auto: training seeds of the scratch candidate")
+    p.add_argument("--keep-candidates", action="store_true",
+                   help="--stage auto: also write every candidate's checkpoint to "
+                        "<out>.candidates/<name>.pt")
+
+
+def _add_augmentation_arguments(p: argparse.ArgumentParser, d: TrainConfig) -> None:
+    """Random gain and SpecAugment (learn/training/loop.py, ``augment``)."""
+    p.add_argument("--gain-db", type=float, default=d.gain_db,
+                   help="random whole-window gain augmentation, +/- dB")
+    p.add_argument("--channel-gain-db", type=float, default=d.channel_gain_db,
+                   help="extra random per-microphone gain augmentation, +/- dB")
+    p.add_argument("--freq-mask", type=int, default=d.freq_mask,
+                   help="SpecAugment: widest frequency mask in mel bins (-1: n_mels // 8; "
+                        "default %(default)s, none: measured, the masks cost magnitude)")
+    p.add_argument("--time-mask", type=int, default=d.time_mask,
+                   help="SpecAugment: widest time mask in frames (default %(default)s)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,18 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "<model_type>: a registered model's own training stage (its "
                         "backend's fit, docs/design.md)")
     p.add_argument("--init", default=None, help="checkpoint to finetune (--stage finetune)")
-    p.add_argument("--pretrain-dataset", default=None,
-                   help="--stage auto: a robot-induced dataset to pretrain the encoder on "
-                        "(optional; the frozen/partial/unfrozen recipes need it)")
-    p.add_argument("--recipes", default=None,
-                   help="--stage auto: comma-separated candidates out of "
-                        "frozen,partial,unfrozen,scratch,svm (default frozen,unfrozen,"
-                        "scratch,svm)")
-    p.add_argument("--seeds", default="0",
-                   help="--stage auto: training seeds of the scratch candidate")
-    p.add_argument("--keep-candidates", action="store_true",
-                   help="--stage auto: also write every candidate's checkpoint to "
-                        "<out>.candidates/<name>.pt")
+    _add_auto_arguments(p)
     p.add_argument("--device", choices=DEVICES, default=d.device,
                    help="where the network trains: cpu (default), cuda, or auto (a CUDA GPU "
                         "where torch sees one, else the CPU)")
@@ -68,17 +86,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time-budget", type=float, default=None,
                    help="seconds of training after which the best epoch is kept (default "
                         f"{d.time_budget_s:g}); --stage auto: the whole call's budget, "
-                        "shared among the candidates (default 960)")
+                        f"spent by successive halving (default {DEFAULT_BUDGET_S:g})")
     p.add_argument("--batch-size", type=int, default=d.batch_size)
     p.add_argument("--lr", type=float, default=d.lr)
     p.add_argument("--weight-decay", type=float, default=d.weight_decay)
     p.add_argument("--noslip-ratio", type=float, default=d.noslip_ratio,
                    help="no-slip windows per slip window drawn each epoch")
     p.add_argument("--threads", type=int, default=d.threads, help="torch.set_num_threads")
-    p.add_argument("--gain-db", type=float, default=d.gain_db,
-                   help="random whole-window gain augmentation, +/- dB")
-    p.add_argument("--channel-gain-db", type=float, default=d.channel_gain_db,
-                   help="extra random per-microphone gain augmentation, +/- dB")
+    _add_augmentation_arguments(p, d)
     p.add_argument("--window", type=float, default=None,
                    help="window length in s; must equal the dataset's (checked)")
     p.add_argument("--channels", default=None, help="comma-separated channel names to use")
@@ -132,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
                           noslip_ratio=args.noslip_ratio,
                           time_budget_s=args.time_budget or TrainConfig.time_budget_s,
                           gain_db=args.gain_db, channel_gain_db=args.channel_gain_db,
+                          freq_mask=args.freq_mask, time_mask=args.time_mask,
                           threads=args.threads, progress=not args.no_progress,
                           calibration=args.calibration, device=args.device,
                           induced=args.induced, objects=tuple(_csv(args.objects) or ()) or None,

@@ -149,34 +149,68 @@ def _train_epoch(model: SlipNet, data: Batches, order: np.ndarray, opt: torch.op
     return run_loss / n_batches
 
 
-def run_epochs(model: SlipNet, data: Batches, tr: np.ndarray, va: np.ndarray,
-               cfg: TrainConfig, weights: LossWeights, rng: np.random.Generator,
-               log: Callable[[str], None]) -> Fit:
-    """Adam on the trainable weights until ``cfg.epochs``, ``cfg.patience`` epochs without a
-    better validation loss, or ``cfg.time_budget_s``; the best epoch's weights are loaded."""
-    opt = torch.optim.Adam(param_groups(model, cfg.lr, cfg.encoder_lr_scale), lr=cfg.lr,
-                           weight_decay=cfg.weight_decay)
-    feat_mean = model.feat_mean.detach().cpu().numpy().copy()
-    best = (math.inf, -1, copy.deepcopy(model.state_dict()))
-    history: list[dict[str, float]] = []
-    t_start = time.perf_counter()
-    stop_reason = "max_epochs"
-    for epoch in range(cfg.epochs):
-        order = epoch_indices(tr, data.slip, cfg.noslip_ratio, rng)
-        train_loss = _train_epoch(model, data, order, opt, feat_mean, rng, cfg, weights,
-                                  f"epoch {epoch}")
-        val_loss, _ = evaluate_loss(model, data, va, weights)
-        history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss,
-                        "time_s": time.perf_counter() - t_start})
-        if cfg.progress:
-            log(f"epoch {epoch:3d}  train {train_loss:.4f}  val {val_loss:.4f}")
-        if val_loss < best[0]:
-            best = (val_loss, epoch, copy.deepcopy(model.state_dict()))
-        elif epoch - best[1] >= cfg.patience:
-            stop_reason = "early_stopping"
-            break
-        if time.perf_counter() - t_start > cfg.time_budget_s:
-            stop_reason = "time_budget"
-            break
-    model.load_state_dict(best[2])
-    return Fit(best[0], best[1], stop_reason, time.perf_counter() - t_start, history)
+class EpochRun:
+    """Adam on the trainable weights, run in slices: ``advance(seconds)`` trains whole
+    epochs until the slice is spent (the epoch that crosses it finishes), ``cfg.epochs`` or
+    ``cfg.patience`` epochs without a better validation loss; ``finish()`` loads the best
+    epoch's weights. The optimiser, the random stream and the best epoch carry over from one
+    slice to the next, so a job the budget allocator resumes trains as one run would."""
+
+    def __init__(self, model: SlipNet, data: Batches, tr: np.ndarray, va: np.ndarray,
+                 cfg: TrainConfig, weights: LossWeights, rng: np.random.Generator,
+                 log: Callable[[str], None]) -> None:
+        self.model, self.data, self.tr, self.va = model, data, tr, va
+        self.cfg, self.weights, self.rng, self.log = cfg, weights, rng, log
+        self.opt = torch.optim.Adam(param_groups(model, cfg.lr, cfg.encoder_lr_scale),
+                                    lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.feat_mean = model.feat_mean.detach().cpu().numpy().copy()
+        self.best = (math.inf, -1, copy.deepcopy(model.state_dict()))
+        self.history: list[dict[str, float]] = []
+        self.train_time_s = 0.0
+        self.stop_reason = ""           # set once no epoch is left: max_epochs | early_stopping
+
+    @property
+    def done(self) -> bool:
+        return bool(self.stop_reason)
+
+    @property
+    def epochs_run(self) -> int:
+        return len(self.history)
+
+    def _epoch(self) -> None:
+        epoch = len(self.history)
+        order = epoch_indices(self.tr, self.data.slip, self.cfg.noslip_ratio, self.rng)
+        train_loss = _train_epoch(self.model, self.data, order, self.opt, self.feat_mean,
+                                  self.rng, self.cfg, self.weights, f"epoch {epoch}")
+        val_loss, _ = evaluate_loss(self.model, self.data, self.va, self.weights)
+        self.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss,
+                             "time_s": self.train_time_s})
+        if self.cfg.progress:
+            self.log(f"epoch {epoch:3d}  train {train_loss:.4f}  val {val_loss:.4f}")
+        if val_loss < self.best[0]:
+            self.best = (val_loss, epoch, copy.deepcopy(self.model.state_dict()))
+        elif epoch - self.best[1] >= self.cfg.patience:
+            self.stop_reason = "early_stopping"
+        if not self.stop_reason and epoch + 1 >= self.cfg.epochs:
+            self.stop_reason = "max_epochs"
+
+    def advance(self, seconds: float) -> None:
+        """Train whole epochs until ``seconds`` of this slice have passed (at least one)."""
+        t0 = time.perf_counter()
+        while not self.done:
+            self._epoch()
+            elapsed = time.perf_counter() - t0
+            self.history[-1]["time_s"] = self.train_time_s + elapsed
+            if elapsed > seconds:
+                break
+        self.train_time_s += time.perf_counter() - t0
+
+    def best_state(self) -> dict[str, Any]:
+        return self.best[2]
+
+    def finish(self, stop_reason: str = "time_budget") -> Fit:
+        """Load the best epoch's weights; ``stop_reason`` names why a run that still had
+        epochs left ended."""
+        self.model.load_state_dict(self.best[2])
+        return Fit(self.best[0], self.best[1], self.stop_reason or stop_reason,
+                   self.train_time_s, self.history)

@@ -10,24 +10,32 @@ Candidates (``RECIPES``), each trained on the dataset's training trials:
   scratch   every weight from a random start, once per seed (``--seeds``)
   svm       the handcrafted-feature SVM baseline
 
-The three pretrained candidates share one pretraining and are skipped, with a message, when
-no robot-induced set is given. The budget (``budget_s``) is the whole call's wall time. The
-SVM runs first (unbudgeted; ``SvmConfig.max_train`` bounds it), then the pretraining, then
-the CNN candidates in order: each CNN job gets the time left times its weight
-(``JOB_WEIGHTS``) over the weights of the jobs still to run, so time one job leaves unused
-goes to the later ones; a job stops at the end of the epoch that crosses its share and
-keeps its best epoch.
+and ``scratch_uncalibrated`` / ``svm_uncalibrated``, the same without the per-grasp
+calibration: whether the calibration helps on this recording is the data's to say (it cost
+direction on a scene where most slip of a grasp goes one way), with the calibration as the
+default hypothesis: an uncalibrated winner that the validation trials cannot tell from its
+calibrated twin gives way to it (``prefer_calibrated``). The three pretrained
+candidates share one pretraining and are skipped, with a message, when no robot-induced set
+is given. ``frozen`` is not a default: it lost to every other candidate on each scene it was
+measured on (docs/results.md); it stays available by name.
+
+The budget (``budget_s``) is the whole call's wall time. The SVMs run first (unbudgeted;
+``SvmConfig.max_train`` bounds them), then the pretraining (``PRETRAIN_FRACTION`` of the
+time left), then the CNN candidates by successive halving (``successive_halving``): in each
+of ``ceil(log2 n)`` rounds every surviving candidate trains for an equal slice, all are
+scored on the validation trials with the criterion below (the SVMs' scores among them), and
+the better half goes on; those rounds spend ``EARLY_FRACTION`` of the CNN time, and the last
+survivor trains on with whatever is left. A stopped candidate keeps its best epoch and still
+stands in the final choice. Training resumes where it paused (``train.CnnJob``), so the
+winner's run is one run, not a restart.
 
 Selection is on the validation trials (``data.dataset.split_trials`` by trial, never a
-training trial; test trials are neither trained on nor looked at). The criterion
-(``score``) is the sum, over direction MAE, magnitude RMSE and detection error
-(1 - accuracy, floored at ``DETECTION_ERROR_FLOOR``), of the candidate's value divided by
-the best candidate's value: 3.0 is best at everything, and a candidate 20 % worse on one
-metric pays 0.2. Lowest wins; ties go to the candidate trained first. With
-fewer than ``MIN_VAL_TRIALS`` validation trials, or none with slip, selection refuses and
-says what is missing. The comparison is printed, written beside the checkpoint as
-``<out>.selection.json`` and ``.md``, and stored in the chosen checkpoint's provenance
-(``selection``) with the reason it won.
+training trial; test trials are neither trained on nor looked at), by the criterion of
+``learn.training.selection`` (lowest wins; 3.0: best at all three metrics), which also says
+what the choice is worth. With fewer than ``MIN_VAL_TRIALS`` validation trials, or none
+with slip, selection refuses and says what is missing. The comparison is printed, written
+beside the checkpoint as ``<out>.selection.json`` and ``.md``, and stored in the chosen
+checkpoint's provenance (``selection``) with the reason it won.
 """
 
 from __future__ import annotations
@@ -48,50 +56,64 @@ from aslip_ros.learn.data_io import WindowSet, open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ENCODER_PARTS
 from aslip_ros.learn.models.svm import SvmConfig
+from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, successive_halving)
 from aslip_ros.learn.training.config import TrainConfig, TrainResult
 from aslip_ros.learn.training.data import split_windows
-from aslip_ros.learn.training.train import train_cnn, train_svm
+from aslip_ros.learn.training.selection import (CRITERION, METRICS, score_difference, select,
+                                                worth, worth_line)
+from aslip_ros.learn.training.train import CnnJob, train_cnn, train_svm
 
-RECIPES = ("frozen", "partial", "unfrozen", "scratch", "svm")
-# ``partial`` by name only: at the default budget on two cores its time is better spent on
-# the others (docs/model.md, "Choosing the recipe", measured).
-DEFAULT_RECIPES = ("frozen", "unfrozen", "scratch", "svm")
+RECIPES = ("frozen", "partial", "unfrozen", "scratch", "svm", "scratch_uncalibrated",
+           "svm_uncalibrated")
+#: ``frozen`` and ``partial`` by name only: measured, their time is better spent on the
+#: others (docs/model.md, "Choosing the recipe").
+DEFAULT_RECIPES = ("unfrozen", "scratch", "scratch_uncalibrated", "svm", "svm_uncalibrated")
 NEEDS_PRETRAIN = ("frozen", "partial", "unfrozen")
+UNCALIBRATED = "_uncalibrated"
 ENCODER_LR_SCALE = 0.1
 DEFAULT_SEEDS = (0,)
-DEFAULT_BUDGET_S = 960.0      # with features and the SVM, inside 20 min on 2 cores
+DEFAULT_BUDGET_S = 960.0      # the whole call, features included (make recipe-budget)
 MIN_VAL_TRIALS = 2
-DETECTION_ERROR_FLOOR = 0.01
-JOB_WEIGHTS = {"pretrain": 4.0, "frozen": 1.0, "partial": 2.0, "unfrozen": 2.0,
-               "scratch": 3.0, "svm": 0.0}
-METRICS = ("detection_accuracy", "direction_mae_deg", "magnitude_rmse_mm")
-CRITERION = ("sum over direction MAE, magnitude RMSE and detection error (1 - accuracy, "
-             f"floored at {DETECTION_ERROR_FLOOR}) of the candidate's value over the best "
-             "candidate's; lowest wins (3.0: best at all three)")
+#: Share of the time left after the SVMs that the shared pretraining gets.
+PRETRAIN_FRACTION = 0.3
 _TRAINABLE = {"frozen": (), "partial": ("conv1d", "pool"), "unfrozen": ENCODER_PARTS}
-
-Trainer = Callable[[TrainConfig], TrainResult]
 
 
 @dataclass(frozen=True)
 class Candidate:
-    """One recipe to train. ``trainer`` replaces the built-in one (tests, experiments)."""
+    """One recipe to train. ``start`` replaces the built-in job (tests, experiments): it
+    takes the candidate's TrainConfig and returns a ``Job``."""
 
     name: str
     recipe: str
     seed: int = 0
-    trainer: Trainer | None = None
+    start: Callable[[TrainConfig], Job] | None = None
+
+    @property
+    def base(self) -> str:
+        """The recipe without its ``_uncalibrated`` suffix."""
+        return self.recipe.removesuffix(UNCALIBRATED)
+
+    @property
+    def calibrated(self) -> bool:
+        return not self.recipe.endswith(UNCALIBRATED)
 
     @property
     def needs_pretrain(self) -> bool:
-        return self.trainer is None and self.recipe in NEEDS_PRETRAIN
+        return self.start is None and self.base in NEEDS_PRETRAIN
+
+    @property
+    def is_svm(self) -> bool:
+        return self.start is None and self.base == "svm"
 
 
 def plan(recipes: Iterable[str | Candidate] = DEFAULT_RECIPES,
          seeds: Sequence[int] = DEFAULT_SEEDS,
-         have_pretrain: bool = False, log: Callable[[str], None] = print
+         have_pretrain: bool = False, log: Callable[[str], None] = print,
+         calibration: str = "background"
          ) -> tuple[list[Candidate], list[dict[str, str]]]:
-    """The candidates to run, and those skipped with the reason."""
+    """The candidates to run, and those skipped with the reason (``calibration``: the
+    call's; with ``off`` the ``_uncalibrated`` variants are the plain ones)."""
     out: list[Candidate] = []
     skipped: list[dict[str, str]] = []
     for r in recipes:
@@ -100,12 +122,19 @@ def plan(recipes: Iterable[str | Candidate] = DEFAULT_RECIPES,
             continue
         if r not in RECIPES:
             raise ValueError(f"unknown recipe {r!r}; the recipes are {', '.join(RECIPES)}")
-        if r in NEEDS_PRETRAIN and not have_pretrain:
+        base = r.removesuffix(UNCALIBRATED)
+        if base in NEEDS_PRETRAIN and not have_pretrain:
             why = "needs a robot-induced set to pretrain on (--pretrain-dataset)"
+        elif r != base and calibration == "off":
+            why = f"the same as {base} with --calibration off"
+        else:
+            why = ""
+        if why:
             log(f"recipe {r}: skipped, {why}")
             skipped.append({"name": r, "reason": why})
-        elif r == "scratch":
-            out += [Candidate(f"scratch_s{s}", "scratch", int(s)) for s in seeds]
+        elif base == "scratch":
+            suffix = r[len(base):]
+            out += [Candidate(f"scratch_s{s}{suffix}", r, int(s)) for s in seeds]
         else:
             out.append(Candidate(r, r))
     if not out:
@@ -133,72 +162,48 @@ def validation_split(ds: WindowSet, cfg: TrainConfig) -> tuple[np.ndarray, np.nd
     return tr, va
 
 
-# --- the criterion ------------------------------------------------------------------------
+# --- calibrated or not --------------------------------------------------------------------
 
-def _value(metrics: dict[str, Any], key: str) -> float | None:
-    v = metrics.get(key)
-    if v is None or not np.isfinite(v):
-        return None
-    return max(1.0 - v, DETECTION_ERROR_FLOOR) if key == "detection_accuracy" else float(v)
+def prefer_calibrated(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult],
+                      winner: str) -> tuple[str, str | None]:
+    """The calibrated twin of an uncalibrated winner that the validation trials cannot tell
+    from it, and why; else the winner and None.
 
-
-def score(val_metrics: dict[str, dict[str, Any]]) -> dict[str, float]:
-    """The criterion (module docstring) per candidate name; lower is better. A metric no
-    candidate has is left out; a candidate without one another has scores infinity."""
-    out = {name: 0.0 for name in val_metrics}
-    for key in METRICS:
-        vals = {n: _value(m, key) for n, m in val_metrics.items()}
-        have = [v for v in vals.values() if v is not None]
-        if not have:
-            continue
-        best = max(min(have), 1e-9)
-        for n, v in vals.items():
-            out[n] += float("inf") if v is None else v / best
-    return out
-
-
-def select(val_metrics: dict[str, dict[str, Any]]) -> tuple[str, dict[str, float], str]:
-    """The winning candidate (first of the lowest scores), all scores, and why it won."""
-    if not val_metrics:
-        raise ValueError("no candidate finished training; nothing to choose from")
-    scores = score(val_metrics)
-    winner = min(scores, key=lambda n: scores[n])   # min keeps the first of equal scores
-    m = val_metrics[winner]
-    others = sorted((s, n) for n, s in scores.items() if n != winner)
-    runner = f"runner-up {others[0][1]} at {others[0][0]:.3f}" if others else "no rival"
-    why = (f"{winner} has the lowest validation score {scores[winner]:.3f} ({runner}; "
-           f"{CRITERION}) with detection "
-           f"{100 * m.get('detection_accuracy', float('nan')):.1f} %, direction MAE "
-           f"{m.get('direction_mae_deg', float('nan')):.1f} deg and magnitude RMSE "
-           f"{m.get('magnitude_rmse_mm', float('nan')):.2f} mm on "
-           f"{m.get('n_windows', 0)} validation windows")
-    return winner, scores, why
+    The calibration is the default hypothesis and the data overrides it only with evidence:
+    the validation grasps come from the same recording as the training grasps, so they do
+    not show what the calibration is for, a grasp coupled unlike any trained on. On the
+    held-out variants the calibrated model kept its direction where the coupling was wider
+    (docs/results.md, "Transfer"), while the two were within noise on validation."""
+    twin = winner.removesuffix(UNCALIBRATED)
+    if twin == winner or twin not in results:
+        return winner, None
+    d = score_difference(ds, va, results, winner, twin)
+    if d is None or d[2] < 0.0:
+        return winner, None
+    return twin, (f"{winner} scored {-d[0]:.3f} better than {twin}, but the two cannot be "
+                  f"told apart on these validation trials (difference {d[0]:+.3f} "
+                  f"[{d[1]:+.3f}, {d[2]:+.3f}]), so the calibrated {twin} is kept: it holds "
+                  "its direction on grasps coupled unlike the trained ones")
 
 
 # --- training the candidates --------------------------------------------------------------
 
-def _share(left_s: float, jobs: Sequence[str | Candidate]) -> float:
-    """This job's seconds: the time left times its weight over the remaining jobs'."""
-    def w(j: str | Candidate) -> float:
-        return JOB_WEIGHTS.get(j if isinstance(j, str) else j.recipe, 1.0)
-    total = sum(w(j) for j in jobs)
-    return max(1.0, left_s * w(jobs[0]) / total) if total > 0 else max(1.0, left_s)
-
-
 def _job_config(cfg: TrainConfig, cand: Candidate, budget_s: float) -> TrainConfig:
     kw: dict[str, Any] = dict(seed=cand.seed, time_budget_s=budget_s)
-    if cand.recipe in NEEDS_PRETRAIN:
-        kw.update(stage="finetune", finetune_trainable=_TRAINABLE[cand.recipe],
-                  encoder_lr_scale=1.0 if cand.recipe == "frozen" else ENCODER_LR_SCALE)
+    if not cand.calibrated:
+        kw["calibration"] = "off"
+    if cand.base in NEEDS_PRETRAIN:
+        kw.update(stage="finetune", finetune_trainable=_TRAINABLE[cand.base],
+                  encoder_lr_scale=1.0 if cand.base == "frozen" else ENCODER_LR_SCALE)
     else:
-        kw["stage"] = "svm" if cand.recipe == "svm" else "scratch"
+        kw["stage"] = "svm" if cand.base == "svm" else "scratch"
     return dataclasses.replace(cfg, **kw)
 
 
 def _row(cand: Candidate, status: str, res: "TrainResult | None" = None,
          **extra: Any) -> dict[str, Any]:
     row: dict[str, Any] = {"name": cand.name, "recipe": cand.recipe, "seed": cand.seed,
-                           "status": status, **extra}
+                           "calibrated": cand.calibrated, "status": status, **extra}
     if res is not None:
         prov = res.meta["provenance"]
         val = prov["metrics"]["val"]
@@ -213,7 +218,8 @@ def _trial_names(ds: WindowSet, idx: np.ndarray) -> list[str]:
 
 
 class _Jobs:
-    """The candidates' training, one job after another, within the whole call's budget."""
+    """The candidates' training within the whole call's budget: the SVMs, the shared
+    pretraining, then successive halving over the CNN candidates."""
 
     def __init__(self, ds: WindowSet, cfg: TrainConfig, pretrain_ds: WindowSet | None,
                  budget_s: float, cnn_kw: dict[str, Any], svm_config: SvmConfig) -> None:
@@ -225,17 +231,48 @@ class _Jobs:
         self.pre_info: dict[str, Any] = {}
         self.rows: list[dict[str, Any]] = []
         self.results: dict[str, TrainResult] = {}
+        self.rounds: list[dict[str, Any]] = []
+        self.rest: list[dict[str, Any]] = []
 
-    def run(self, jobs: list[str | Candidate]) -> None:
-        for i, job in enumerate(jobs):
-            share = _share(self.budget_s - (time.perf_counter() - self.t0), jobs[i:])
-            if isinstance(job, str):
-                self.pretrain(share)
-            elif job.needs_pretrain and self.pretrained is None:
-                self.rows.append(_row(job, "failed", error="pretraining failed: "
+    def left(self) -> float:
+        return self.budget_s - (time.perf_counter() - self.t0)
+
+    def run(self, cands: list[Candidate]) -> None:
+        for cand in (c for c in cands if c.is_svm):
+            self.svm(cand)
+        cnn = [c for c in cands if not c.is_svm]
+        if any(c.needs_pretrain for c in cnn):
+            self.pretrain(max(1.0, PRETRAIN_FRACTION * self.left()))
+        jobs: dict[str, Job] = {}
+        started: dict[str, tuple[Candidate, float]] = {}
+        for cand in cnn:
+            if cand.needs_pretrain and self.pretrained is None:
+                self.rows.append(_row(cand, "failed", error="pretraining failed: "
                                       + str(self.pre_info.get("error"))))
-            else:
-                self.candidate(job, share)
+                continue
+            try:
+                jobs[cand.name] = self.start(cand)
+            except ValueError as exc:
+                self.log(f"recipe {cand.name}: failed: {exc}")
+                self.rows.append(_row(cand, "failed", error=str(exc)))
+                continue
+            started[cand.name] = (cand, time.perf_counter())
+        if not jobs:
+            return
+        others = {n: r.meta["provenance"]["metrics"]["val"] for n, r in self.results.items()}
+        winner, self.rounds, self.rest = successive_halving(
+            jobs, max(1.0, self.left()), others=others, log=self.log)
+        resumed = {r["name"] for r in self.rest}
+        stopped_in = {n: r["round"] for r in self.rounds for n in r["stopped"]
+                      if n not in resumed}
+        for name, job in jobs.items():
+            cand, t = started[name]
+            res = job.result(f"halved in round {stopped_in[name]}" if name in stopped_in
+                             else "time_budget")
+            self.results[name] = res
+            self.rows.append(_row(cand, "ok", res, train_s=round(job.train_time_s, 1),
+                                  wall_s=round(time.perf_counter() - t, 1),
+                                  survived=name == winner))
 
     def pretrain(self, share: float) -> None:
         """The pretraining the pretrained candidates share (on the whole robot-induced set's
@@ -255,32 +292,32 @@ class _Jobs:
         self.pre_info.update(wall_s=round(time.perf_counter() - t, 1),
                              val=self.pretrained.meta["provenance"]["metrics"]["val"])
 
-    def candidate(self, cand: Candidate, share: float) -> None:
-        t = time.perf_counter()
-        c = _job_config(self.cfg, cand, share)
+    def start(self, cand: Candidate) -> Job:
+        """The candidate's job, built (features, calibration, network) but not trained."""
+        c = _job_config(self.cfg, cand, self.budget_s)
         kw = self.cnn_kw
-        self.log(f"recipe {cand.name}: training"
-                 + (f" ({share:.0f} s budget)" if cand.recipe != "svm" else ""))
+        self.log(f"recipe {cand.name}: starting")
+        if cand.start is not None:
+            return cand.start(c)
+        if cand.needs_pretrain:
+            return CnnJob(self.ds, c, init=self.pretrained, cache_dir=kw["cache_dir"],
+                          log=self.log)
+        return CnnJob(self.ds, c, **kw)
+
+    def svm(self, cand: Candidate) -> None:
+        t = time.perf_counter()
+        c = _job_config(self.cfg, cand, self.budget_s)
+        kw = self.cnn_kw
+        self.log(f"recipe {cand.name}: training")
         try:
-            if cand.trainer is not None:
-                res = cand.trainer(c)
-            elif cand.recipe == "svm":
-                res = train_svm(self.ds, c, feature_config=kw["feature_config"],
-                                svm_config=self.svm_config, channels=kw["channels"],
-                                log=self.log)
-            elif cand.recipe == "scratch":
-                res = train_cnn(self.ds, c, **kw)
-            else:
-                res = train_cnn(self.ds, c, init=self.pretrained, cache_dir=kw["cache_dir"],
-                                log=self.log)
+            res = train_svm(self.ds, c, feature_config=kw["feature_config"],
+                            svm_config=self.svm_config, channels=kw["channels"], log=self.log)
         except ValueError as exc:
             self.log(f"recipe {cand.name}: failed: {exc}")
             self.rows.append(_row(cand, "failed", error=str(exc)))
             return
         self.results[cand.name] = res
-        self.rows.append(_row(cand, "ok", res,
-                              budget_s=None if cand.recipe == "svm" else round(share, 1),
-                              wall_s=round(time.perf_counter() - t, 1)))
+        self.rows.append(_row(cand, "ok", res, wall_s=round(time.perf_counter() - t, 1)))
 
 
 def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | None = None,
@@ -293,27 +330,34 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
                    cache_dir: str | os.PathLike | None = None,
                    log: Callable[[str], None] = print) -> TrainResult:
     """Train the candidates within ``budget_s`` and return the one best on the validation
-    trials; its ``meta["provenance"]["selection"]`` holds the comparison and the reason.
-    ``cfg`` carries the shared settings (split seed, filters, calibration, device...); its
-    stage, seed and time budget are set per candidate. ValueError when the validation trials
-    are too few or no candidate finished."""
+    trials; its ``meta["provenance"]["selection"]`` holds the comparison, the rounds of the
+    allocator and the reason. ``cfg`` carries the shared settings (split seed, filters,
+    calibration, device...); its stage, seed and time budget are set per candidate.
+    ValueError when the validation trials are too few or no candidate finished."""
     tr, va = validation_split(ds, cfg)
-    cands, skipped = plan(recipes, seeds, pretrain_ds is not None, log)
+    cands, skipped = plan(recipes, seeds, pretrain_ds is not None, log, cfg.calibration)
     run = _Jobs(ds, cfg, pretrain_ds, budget_s,
                 dict(feature_config=feature_config, model_options=model_options,
                      channels=channels, cache_dir=cache_dir, log=log), svm_config)
-    # The SVM first: its fit is not budgeted, so the CNN shares are cut from what it leaves.
-    svm = [c for c in cands if c.recipe == "svm" and c.trainer is None]
-    rest = [c for c in cands if c not in svm]
-    run.run(svm + (["pretrain"] if any(c.needs_pretrain for c in cands) else []) + rest)
+    run.run(cands)
     winner, scores, why = select({n: r.meta["provenance"]["metrics"]["val"]
                                   for n, r in run.results.items()})
     for row in run.rows:
         sc = scores.get(row["name"])
         row["score"] = sc if sc is not None and np.isfinite(sc) else None
+    winner, kept_calibrated = prefer_calibrated(ds, va, run.results, winner)
+    if kept_calibrated:
+        why = kept_calibrated
+        log(f"choice: {kept_calibrated}")
+    rivals = sorted((s, n) for n, s in scores.items() if n != winner and np.isfinite(s))
+    value = worth(ds, va, run.results, winner, rivals[0][1] if rivals else None)
     selection = {
         "winner": winner, "reason": why, "criterion": CRITERION, "candidates": run.rows,
+        "worth": value,
         "skipped": skipped, "pretraining": run.pre_info or None, "budget_s": budget_s,
+        "allocation": {"method": "successive halving", "early_fraction": EARLY_FRACTION,
+                       "pretrain_fraction": PRETRAIN_FRACTION, "rounds": run.rounds,
+                       "rest": run.rest},
         "wall_s": round(time.perf_counter() - run.t0, 1), "dataset": str(ds.root),
         "split_seed": cfg.split_seed, "device": cfg.device,
         "train_trials": _trial_names(ds, tr), "val_trials": _trial_names(ds, va),
@@ -332,8 +376,9 @@ def _fmt(v: Any, scale: float = 1.0, nd: int = 1) -> str:
 
 
 def comparison_markdown(sel: dict[str, Any]) -> str:
-    """The comparison as a markdown table with the winner and the reason."""
-    lines = ["| candidate | status | det. % | dir. MAE deg | mag. RMSE mm | score | budget s "
+    """The comparison as a markdown table with the allocator's rounds, the winner and the
+    reason."""
+    lines = ["| candidate | status | det. % | dir. MAE deg | mag. RMSE mm | score | trained s "
              "| wall s | stop |", "|---|---|---|---|---|---|---|---|---|"]
     for r in sel["candidates"]:
         v = r.get("val", {})
@@ -342,11 +387,23 @@ def comparison_markdown(sel: dict[str, Any]) -> str:
             f"| {mark}{r['name']}{mark} | {r['status']} | "
             f"{_fmt(v.get('detection_accuracy'), 100)} | {_fmt(v.get('direction_mae_deg'))} | "
             f"{_fmt(v.get('magnitude_rmse_mm'), nd=2)} | {_fmt(r.get('score'), nd=3)} | "
-            f"{_fmt(r.get('budget_s'), nd=0)} | {_fmt(r.get('wall_s'), nd=0)} | "
+            f"{_fmt(r.get('train_s'), nd=0)} | {_fmt(r.get('wall_s'), nd=0)} | "
             f"{r.get('stop_reason') or r.get('error', '-')} |")
     for s in sel["skipped"]:
         lines.append(f"| {s['name']} | skipped | | | | | | | {s['reason']} |")
+    rounds = (sel.get("allocation") or {}).get("rounds") or []
+    if rounds:
+        lines += ["", "Successive halving (validation score after each round, lower is "
+                  "better):", ""]
+        for r in rounds:
+            lines.append(f"- round {r['round']} ({r['slice_s']:.0f} s each): "
+                         + ", ".join(f"{n} {v:.3f}" for n, v in r["scores"].items())
+                         + f"; went on: {', '.join(r['kept'])}")
+        for r in (sel.get("allocation") or {}).get("rest") or []:
+            lines.append(f"- then {r['name']} trained on for {r['seconds']:.0f} s")
+    worth_text = worth_line(sel.get("worth") or {})
     return ("\n".join(lines) + f"\n\nChosen: **{sel['winner']}**. {sel['reason']}.\n\n"
+            + (worth_text + "\n\n" if worth_text else "") +
             f"Validation trials ({len(sel['val_trials'])}): {', '.join(sel['val_trials'])}; "
             f"training trials: {len(sel['train_trials'])}; test trials, not looked at: "
             f"{len(sel['test_trials_untouched'])}. Whole call: {sel['wall_s']:.0f} s "

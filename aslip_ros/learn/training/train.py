@@ -20,6 +20,7 @@ its checkpoint document with ``checkpoint.checkpoint_meta``.
 
 from __future__ import annotations
 
+import copy
 import datetime as _dt
 import os
 import time
@@ -43,7 +44,7 @@ from aslip_ros.learn.models.svm import SvmConfig, SvmFeaturizer, fit_svm
 from aslip_ros.learn.training.data import Batches, feature_cache, split_windows
 from aslip_ros.learn.inference.predictor import Predictor
 from aslip_ros.learn.training.config import TrainConfig, TrainResult
-from aslip_ros.learn.training.loop import evaluate_loss, resolve_device, run_epochs
+from aslip_ros.learn.training.loop import EpochRun, evaluate_loss, resolve_device
 
 
 # --- steps -------------------------------------------------------------------------------
@@ -117,6 +118,102 @@ def _cnn_meta(ds: WindowSet, cfg: TrainConfig, model: SlipNet, fcfg: FeatureConf
         loss_weights=weights.to_dict(), train_config=cfg.to_dict())
 
 
+class CnnJob:
+    """One CNN training run that can be paused: ``advance(seconds)`` trains whole epochs
+    for about that long, ``val_metrics()`` scores the best epoch so far on the validation
+    trials, ``result()`` ends the run with the best epoch's weights. ``train_cnn`` is one
+    uninterrupted job; ``aslip train --stage auto`` resumes the candidates that survive
+    each round of its budget allocator (learn/training/recipes.py)."""
+
+    def __init__(self, ds: WindowSet, cfg: TrainConfig, *,
+                 feature_config: FeatureConfig | None = None,
+                 model_options: dict[str, Any] | None = None,
+                 channels: Sequence[str] | None = None,
+                 init: str | os.PathLike | Checkpoint | None = None,
+                 weights: LossWeights = LossWeights(),
+                 cache_dir: str | os.PathLike | None = None,
+                 log: Callable[[str], None] = print) -> None:
+        torch.set_num_threads(max(1, cfg.threads))
+        self.device = resolve_device(cfg.device)
+        _seed_everything(cfg.seed)
+        rng = np.random.default_rng(cfg.seed)
+        init_ckpt = _open_init(ds, cfg, init)
+        if init_ckpt is not None:   # the init's channels and features: its weights read those
+            channels = init_ckpt.channel_names
+            feature_config = FeatureConfig.from_dict(init_ckpt.meta["feature_config"])
+        self.channels = list(channels or ds.channel_names)
+        self.fcfg = feature_config or FeatureConfig()
+        self.ds, self.cfg, self.weights, self.init = ds, cfg, weights, init
+        self.init_ckpt = init_ckpt
+
+        t0 = time.perf_counter()
+        feats = feature_cache(ds, self.fcfg, self.channels, cache_dir, progress=cfg.progress)
+        self.tr, self.va = split_windows(ds, cfg)
+        reuse = None if init_ckpt is None else init_ckpt.meta.get("calibration")
+        self.cal, offsets = training_calibration(ds, cfg.calibration, self.channels, self.fcfg,
+                                                 self.tr, self.va, reuse, log)
+        self.feature_time_s = time.perf_counter() - t0
+        self.data = Batches(feats, ds, offsets)
+        self.model = _build_model(ds, init_ckpt, feats, self.tr, self.channels, self.fcfg,
+                                  model_options, rng)
+        if cfg.stage == "finetune":
+            self.model.freeze_encoder(cfg.finetune_trainable)
+        self.model.to(self.device)
+        self.run = EpochRun(self.model, self.data, self.tr, self.va, cfg, weights, rng, log)
+
+    @property
+    def done(self) -> bool:
+        return self.run.done
+
+    @property
+    def train_time_s(self) -> float:
+        return self.run.train_time_s
+
+    def advance(self, seconds: float) -> None:
+        self.run.advance(seconds)
+
+    def _predict_val(self) -> dict[str, np.ndarray]:
+        _, pred = evaluate_loss(self.model, self.data, self.va, self.weights)
+        return pred
+
+    def val_metrics(self) -> dict[str, Any]:
+        """The best epoch's validation metrics; training resumes from the current weights."""
+        current = copy.deepcopy(self.model.state_dict())
+        self.model.load_state_dict(self.run.best_state())
+        pred = self._predict_val()
+        self.model.load_state_dict(current)
+        return compute_metrics(pred["prob"], pred["v"], self.data.v[self.va],
+                               self.data.slip[self.va], self.ds.window_s)
+
+    def result(self, stop_reason: str = "time_budget") -> TrainResult:
+        """End the run: the best epoch's weights, its metrics and the checkpoint document."""
+        fit = self.run.finish(stop_reason)
+        ds, cfg, data, va = self.ds, self.cfg, self.data, self.va
+        pred = self._predict_val()
+        model = self.model.to("cpu")
+        val_metrics = compute_metrics(pred["prob"], pred["v"], data.v[va], data.slip[va],
+                                      ds.window_s)
+        prov = _provenance(ds, cfg, _init_name(self.init))
+        prov["device"] = str(self.device)
+        if self.init_ckpt is not None:
+            prov["init_provenance"] = {k: self.init_ckpt.meta.get("provenance", {}).get(k)
+                                       for k in ("dataset", "stage", "seed", "git_revision")}
+        prov.update(metrics={"val": val_metrics, "best_val_loss": fit.best_loss},
+                    training={"best_epoch": fit.best_epoch, "epochs_run": len(fit.history),
+                              "stop_reason": fit.stop_reason,
+                              "train_time_s": fit.train_time_s,
+                              "feature_time_s": self.feature_time_s,
+                              "n_train_windows": int(self.tr.size),
+                              "n_val_windows": int(va.size)})
+        meta = _cnn_meta(ds, cfg, model, self.fcfg, self.channels, self.weights, self.cal,
+                         prov)
+        meta.update(checkpoint_fields(pred["prob"], pred["v"], data.v[va], data.slip[va]))
+        model.eval()
+        tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        return TrainResult(meta=meta, tensors=tensors, history=fit.history, model=model,
+                           val_pred=pred)
+
+
 def train_cnn(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig | None = None,
               model_options: dict[str, Any] | None = None,
               channels: Sequence[str] | None = None,
@@ -124,52 +221,12 @@ def train_cnn(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
               weights: LossWeights = LossWeights(), cache_dir: str | os.PathLike | None = None,
               log: Callable[[str], None] = print) -> TrainResult:
     """Train (pretrain / scratch) or finetune (``init`` given, a path or a loaded checkpoint;
-    encoder frozen but for ``cfg.finetune_trainable``) the CNN on ``cfg.device``."""
-    torch.set_num_threads(max(1, cfg.threads))
-    device = resolve_device(cfg.device)
-    _seed_everything(cfg.seed)
-    rng = np.random.default_rng(cfg.seed)
-    init_ckpt = _open_init(ds, cfg, init)
-    if init_ckpt is not None:     # the init's channels and features: its weights read those
-        channels = init_ckpt.channel_names
-        feature_config = FeatureConfig.from_dict(init_ckpt.meta["feature_config"])
-    channels = list(channels or ds.channel_names)
-    fcfg = feature_config or FeatureConfig()
-
-    t0 = time.perf_counter()
-    feats = feature_cache(ds, fcfg, channels, cache_dir, progress=cfg.progress)
-    tr, va = split_windows(ds, cfg)
-    reuse = None if init_ckpt is None else init_ckpt.meta.get("calibration")
-    cal, offsets = training_calibration(ds, cfg.calibration, channels, fcfg, tr, va, reuse,
-                                        log)
-    t_feat = time.perf_counter() - t0
-    data = Batches(feats, ds, offsets)
-
-    model = _build_model(ds, init_ckpt, feats, tr, channels, fcfg, model_options, rng)
-    if cfg.stage == "finetune":
-        model.freeze_encoder(cfg.finetune_trainable)
-    model.to(device)
-    fit = run_epochs(model, data, tr, va, cfg, weights, rng, log)
-
-    _, pred = evaluate_loss(model, data, va, weights)
-    model.to("cpu")
-    val_metrics = compute_metrics(pred["prob"], pred["v"], data.v[va], data.slip[va],
-                                  ds.window_s)
-    prov = _provenance(ds, cfg, _init_name(init))
-    prov["device"] = str(device)
-    if init_ckpt is not None:
-        prov["init_provenance"] = {k: init_ckpt.meta.get("provenance", {}).get(k)
-                                   for k in ("dataset", "stage", "seed", "git_revision")}
-    prov.update(metrics={"val": val_metrics, "best_val_loss": fit.best_loss},
-                training={"best_epoch": fit.best_epoch, "epochs_run": len(fit.history),
-                          "stop_reason": fit.stop_reason, "train_time_s": fit.train_time_s,
-                          "feature_time_s": t_feat, "n_train_windows": int(tr.size),
-                          "n_val_windows": int(va.size)})
-    meta = _cnn_meta(ds, cfg, model, fcfg, channels, weights, cal, prov)
-    meta.update(checkpoint_fields(pred["prob"], pred["v"], data.v[va], data.slip[va]))
-    model.eval()
-    tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
-    return TrainResult(meta=meta, tensors=tensors, history=fit.history, model=model)
+    encoder frozen but for ``cfg.finetune_trainable``) the CNN on ``cfg.device``, within
+    ``cfg.time_budget_s``."""
+    job = CnnJob(ds, cfg, feature_config=feature_config, model_options=model_options,
+                 channels=channels, init=init, weights=weights, cache_dir=cache_dir, log=log)
+    job.advance(cfg.time_budget_s)
+    return job.result()
 
 
 # --- SVM ----------------------------------------------------------------------------------
@@ -217,7 +274,8 @@ def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
         normalization={"mean": arrays.mean.tolist(), "std": arrays.std.tolist(),
                        "scope": "per handcrafted feature over training windows"})
     meta.update(checkpoint_fields(prob, v, ds.velocity(va), ds.slip(va)))
-    return TrainResult(meta=meta, tensors=arrays.to_tensors(), history=[], model=arrays)
+    return TrainResult(meta=meta, tensors=arrays.to_tensors(), history=[], model=arrays,
+                       val_pred={"prob": prob, "v": v})
 
 
 # --- a model type's own stage --------------------------------------------------------------
