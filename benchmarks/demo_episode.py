@@ -216,14 +216,13 @@ class StallProbe:
         self._last = now
 
     def summary(self) -> dict:
-        """Gaps and pauses in ms: p99, p99.9, max, and what exceeded 50 ms."""
+        """Gaps and pauses in ms: p50, p99, p99.9, max (the live bench's ``tail_stats``),
+        and what exceeded 50 ms."""
+        from aslip_ros.nodes.bench import tail_stats
         g = np.asarray(self.gaps, dtype=float) * 1e3
         pauses = np.asarray([d for _, d in self.gc_pauses], dtype=float) * 1e3
         full = [d * 1e3 for gen, d in self.gc_pauses if gen == 2]
-        return {"spin_gaps": int(g.size),
-                "spin_gap_p99_ms": float(np.percentile(g, 99)) if g.size else None,
-                "spin_gap_p999_ms": float(np.percentile(g, 99.9)) if g.size else None,
-                "spin_gap_max_ms": float(g.max()) if g.size else None,
+        return {"spin_gaps": int(g.size), **tail_stats(g, "spin_gap"),
                 "spin_gaps_over_50ms": int(np.sum(g > 50.0)),
                 "gc_pauses": int(pauses.size),
                 "gc_pause_max_ms": float(pauses.max()) if pauses.size else 0.0,

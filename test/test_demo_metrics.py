@@ -247,3 +247,18 @@ def test_onset_to_stop_is_the_first_stop_command_after_the_onset():
     cell = dm.summarize(rows)["slip_stop"]["aslip"]["overall"]
     assert cell["onset_to_stop_median_ms"] == pytest.approx(40.0)
     assert "| 40 |" in dm.methods_table(dm.summarize(rows))
+
+
+def test_the_worker_stall_probe_reports_the_tail_like_the_live_bench():
+    from benchmarks.demo_episode import StallProbe
+    probe = StallProbe()
+    probe.gaps = [0.001] * 998 + [0.030, 0.060]      # seconds: one gap over the watchdog
+    probe.gc_pauses = [(0, 0.0002), (2, 0.004)]
+    s = probe.summary()
+    assert s["spin_gaps"] == 1000 and s["spin_gaps_over_50ms"] == 1
+    assert s["spin_gap_p50_ms"] == pytest.approx(1.0)
+    assert s["spin_gap_max_ms"] == pytest.approx(60.0)
+    assert 30.0 <= s["spin_gap_p999_ms"] <= 60.0
+    assert s["gc_full_collections"] == 1 and s["gc_full_max_ms"] == pytest.approx(4.0)
+    empty = StallProbe().summary()
+    assert empty["spin_gap_max_ms"] is None and empty["spin_gaps_over_50ms"] == 0
