@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-KEYS = ("detection_accuracy", "direction_mae_deg", "magnitude_rmse_mm")
+from aslip_ros.learn.stats import KEYS
 
 
 def train_once(ds_path: Path, device: str, seed: int, epochs: int, threads: int

@@ -24,11 +24,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from aslip_ros.learn.stats import KEYS
 from aslip_ros.util import read_json, write_json, write_text
 
 #: Whole-call budgets [s]: 4, 8, 16 (the default) and 32 min.
 BUDGETS = (240.0, 480.0, 960.0, 1920.0)
-KEYS = ("detection_accuracy", "direction_mae_deg", "magnitude_rmse_mm")
 CANDIDATE_KEYS = ("name", "status", "val", "score", "train_s", "stop_reason")
 #: The recording (the scene's seeds 11 and 12, as results/recipes/README.md gives it).
 SIMULATE = {

@@ -244,7 +244,7 @@ class _Jobs:
         if any(c.needs_pretrain for c in cnn):
             self.pretrain(max(1.0, PRETRAIN_FRACTION * self.left()))
         jobs: dict[str, Job] = {}
-        started: dict[str, tuple[Candidate, float]] = {}
+        started: dict[str, Candidate] = {}
         for cand in cnn:
             if cand.needs_pretrain and self.pretrained is None:
                 self.rows.append(_row(cand, "failed", error="pretraining failed: "
@@ -256,7 +256,7 @@ class _Jobs:
                 self.log(f"recipe {cand.name}: failed: {exc}")
                 self.rows.append(_row(cand, "failed", error=str(exc)))
                 continue
-            started[cand.name] = (cand, time.perf_counter())
+            started[cand.name] = cand
         if not jobs:
             return
         others = {n: r.meta["provenance"]["metrics"]["val"] for n, r in self.results.items()}
@@ -266,12 +266,10 @@ class _Jobs:
         stopped_in = {n: r["round"] for r in self.rounds for n in r["stopped"]
                       if n not in resumed}
         for name, job in jobs.items():
-            cand, t = started[name]
             res = job.result(f"halved in round {stopped_in[name]}" if name in stopped_in
                              else "time_budget")
             self.results[name] = res
-            self.rows.append(_row(cand, "ok", res, train_s=round(job.train_time_s, 1),
-                                  wall_s=round(time.perf_counter() - t, 1),
+            self.rows.append(_row(started[name], "ok", res, train_s=round(job.train_time_s, 1),
                                   survived=name == winner))
 
     def pretrain(self, share: float) -> None:

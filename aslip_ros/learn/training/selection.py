@@ -20,12 +20,13 @@ import numpy as np
 
 from aslip_ros.learn.data_io import WindowSet
 from aslip_ros.learn.metrics import compute_metrics
-from aslip_ros.learn.stats import bootstrap_metrics, paired_difference
+from aslip_ros.learn.stats import KEYS, bootstrap_metrics, paired_difference
 from aslip_ros.learn.training.config import TrainResult
 
 DETECTION_ERROR_FLOOR = 0.01
 N_BOOT = 1000
-METRICS = ("detection_accuracy", "direction_mae_deg", "magnitude_rmse_mm")
+#: The three figures the criterion weighs (the paper's metrics, ``learn.stats``).
+METRICS = KEYS
 CRITERION = ("sum over direction MAE, magnitude RMSE and detection error (1 - accuracy, "
              f"floored at {DETECTION_ERROR_FLOOR}) of the candidate's value over the best "
              "candidate's; lowest wins (3.0: best at all three)")
