@@ -18,7 +18,7 @@ PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/p
 BENCHMARK := $(ROS) PYTHONPATH="$$PYTHONPATH:$(CURDIR)" $(VENV)/bin/python -P -m
 
 .PHONY: help setup build test test-fast demo datasets ablation bench stability transfer lint clean
-.PHONY: ablation-baselines magnitude flake-hunt soak-recording latency recipe-budget
+.PHONY: ablation-baselines magnitude flake-hunt soak-recording latency recipe-budget rotation
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
@@ -35,6 +35,7 @@ help:
 	@echo "make stability  accuracy under stressors (results/stability/)"
 	@echo "make transfer   train on the default scene, test on held-out variants (results/transfer/)"
 	@echo "make recipe-budget  the default aslip train at 4, 8, 16 and 32 min (results/recipes/)"
+	@echo "make rotation   rotational slip per microphone layout, planar kept (results/rotation/)"
 	@echo "                (the benchmark targets run benchmarks/ from this checkout; ARGS=\"...\" adds options)"
 
 setup:
@@ -96,6 +97,9 @@ transfer: setup
 
 recipe-budget: setup
 	$(BENCHMARK) benchmarks.recipe_budget --out results/recipes $(ARGS)
+
+rotation: setup
+	$(BENCHMARK) benchmarks.rotation --out results/rotation $(ARGS)
 
 lint: setup
 	$(VENV)/bin/python -m flake8 --max-line-length 99 aslip_ros benchmarks test || true

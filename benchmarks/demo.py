@@ -9,12 +9,16 @@ Both tasks run through the real nodes and topics: ``scene_sim`` audio -> ``slip_
   stopped before pushing past the object's length; error: travel past the wall contact.
 - slip-track: an agent drags the object in the grasp; the arm follows the predicted slip.
   Metric: RMSE of the gripper-object relative position in the grasp plane.
+- pivot-stop (issue #21): the object, held by one end, is lowered onto a surface that meets
+  it off the grasp axis, so it turns between the pads; slip-stop must stop on the rotation.
+  Metric: the angle turned before the arm is at rest [deg], for the package's estimator
+  with an arm that acts on rotation and one that ignores it (same seeds, paired).
 
 Five objects x ``--trials`` trials per task and method: the package's estimator (``aslip``:
 the causal streaming model with the live per-grasp calibration, an estimate per 10 ms hop),
 the 200 ms window CNN with that calibration (``aslip_window``) and without it
 (``aslip_uncalibrated``), and the SVM baseline (calibrated); the scene couples every
-microphone differently in every grasp (scene version 3). Episodes
+microphone differently in every grasp (since scene version 3). Episodes
 run in real time, so a small pool of worker processes each runs many of them in sequence
 (:mod:`benchmarks.demo_episode`: fresh context and domain per episode, the node
 classes composed in the worker). Results: ``<out>/summary.json``, ``<out>/table.md`` (beside
@@ -44,8 +48,8 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 from benchmarks import demo_metrics as dm
-from benchmarks.demo_episode import (TASKS, Episode, StopSettings, TrackSettings,
-                                     save_trace)
+from benchmarks.demo_episode import (TASKS, Episode, PivotSettings, StopSettings,
+                                     TrackSettings, save_trace)
 from benchmarks import demo_models
 from benchmarks.demo_models import OBJECTS
 
@@ -55,7 +59,7 @@ DEFAULT_METHODS = ("aslip", "aslip_window", "aslip_uncalibrated", "svm")
 #: Repeats of a trial that a watchdog ended on stale input (a stalled machine).
 MAX_RERUNS = 2
 #: Seeds are disjoint from the training set's (simulate derives those from seed 0).
-SEED_BASE = {"slip_stop": 1000, "slip_track": 2000}
+SEED_BASE = {"slip_stop": 1000, "slip_track": 2000, "pivot_stop": 3000}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -92,6 +96,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stop-set", action="append", default=[], metavar="NAME=VALUE",
                    help="any other slip-stop setting (a StopSettings field, e.g. "
                         "debounce_count=2); repeatable")
+    p.add_argument("--pivot-methods", default="",
+                   help="pivot-stop: comma-separated estimators (default: the first of "
+                        "--methods); each runs both arms, acting on rotation and ignoring it")
+    p.add_argument("--pivot-arms", default=",".join(dm.PIVOT_ARMS),
+                   help=f"pivot-stop arms out of {','.join(dm.PIVOT_ARMS)}")
+    p.add_argument("--pivot-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="any pivot-stop setting (a PivotSettings field, e.g. "
+                        "pivot_lever_m=0.08); repeatable")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -169,16 +181,23 @@ def settings_overrides(cls, items: list[str]) -> dict:
 
 
 def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
-                  stop: StopSettings, track: TrackSettings) -> list[Episode]:
-    """Every (task, method, object, trial); both methods see the same seeds."""
+                  stop: StopSettings, track: TrackSettings,
+                  pivot: PivotSettings = PivotSettings(), pivot_methods=None,
+                  arms=dm.PIVOT_ARMS) -> list[Episode]:
+    """Every (task, method, object, trial); every method sees the same seeds. Pivot-stop
+    runs ``pivot_methods`` (default: the first method) with each of ``arms`` on the same
+    seeds, so its arms are paired trial by trial."""
+    pivot_methods = list(pivot_methods or methods[:1])
     eps = []
     for trial in range(trials):
         for task in tasks:
             for obj in objects:
-                for method in methods:
-                    seed = SEED_BASE[task] + 100 * OBJECTS.index(obj) + trial
+                seed = SEED_BASE[task] + 100 * OBJECTS.index(obj) + trial
+                runs = [(m, a) for m in pivot_methods for a in arms] \
+                    if task == "pivot_stop" else [(m, dm.PIVOT_ARMS[0]) for m in methods]
+                for method, arm in runs:
                     eps.append(Episode(task, method, str(checkpoints[method]), obj, trial,
-                                       seed, stop=stop, track=track))
+                                       seed, stop=stop, track=track, pivot=pivot, arm=arm))
     return eps
 
 
@@ -233,6 +252,10 @@ def run_episodes(episodes: list[Episode], workers: int, trace_dir: Path,
 def _postfix(r: dict) -> str:
     if "error" in r:
         return f"{r['task']} {r['method']} ERROR"
+    if r["task"] == "pivot_stop":
+        a = r.get("angle_deg")
+        return (f"pivot {r['method']} {r.get('arm', '')} {r['object']} "
+                f"{r.get('controller_reason')} {'n/a' if a is None else f'{a:.1f} deg'}")
     if r["task"] == "slip_stop":
         e = r.get("stopping_error_m")
         return (f"stop {r['method']} {r['object']} {'ok' if r.get('success') else 'FAIL'} "
@@ -249,20 +272,28 @@ def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True
                "units": "mm", "paper_table3": dm.PAPER_TABLE3,
                "table": dm.summarize(ok), "episodes": results,
                "errors": [r for r in results if "error" in r]}
-    table = dm.format_table(summary["table"]) + dm.methods_table(summary["table"]) \
-        + dm.calibration_table(ok) + dm.tail_table(ok)
+    table = tables_md(summary["table"], ok)
     head = (f"# Table III in the scene ({meta['command']})\n\n"
             f"Slip-stop cells: successes/trials, |Delta x| mean ± std [mm] over all trials "
             f"(failures included); slip-track: pose RMSE mean ± std [mm]. A trial that was "
             f"run again after a watchdog stop on stale input counts as a failure "
             f"(`reruns` in summary.json). Paper columns from the A-SLIP paper, Table III "
-            f"(real hardware).\n\n")
+            f"(real hardware). Pivot-stop (issue #21, no paper column): the angle the "
+            f"object turned before the arm came to rest [deg], over all trials, with the "
+            f"95 % bootstrap interval of the mean.\n\n")
     write_json(out / "summary.json", summary)
     write_text(out / "table.md", head + table + _notes(summary))
     if plots:
         from benchmarks.demo_plots import make_plots
         summary["plots"] = make_plots(out, ok)
     return summary
+
+
+def tables_md(table: dict, ok: list[dict]) -> str:
+    """Every markdown table of a run: Table III, the methods, pivot-stop, the calibration
+    and the tail."""
+    return dm.format_table(table) + dm.methods_table(table) + dm.pivot_table(table) \
+        + dm.calibration_table(ok) + dm.tail_table(ok)
 
 
 def _notes(summary: dict) -> str:
@@ -296,14 +327,21 @@ def run(args: argparse.Namespace) -> int:
     tasks = [t for t in args.tasks.split(",") if t]
     methods = [m for m in args.methods.split(",") if m]
     objects = [o for o in args.objects.split(",") if o]
-    bad = [t for t in tasks if t not in TASKS] + [m for m in methods if m not in METHODS] + \
-        [o for o in objects if o not in OBJECTS]
+    pivot_methods = [m for m in args.pivot_methods.split(",") if m] or methods[:1]
+    arms = [a for a in args.pivot_arms.split(",") if a]
+    bad = [t for t in tasks if t not in TASKS] + [m for m in methods + pivot_methods
+                                                  if m not in METHODS] + \
+        [o for o in objects if o not in OBJECTS] + [a for a in arms if a not in dm.PIVOT_ARMS]
     if bad or args.trials < 1:
-        print(f"benchmarks.demo: unknown task/method/object {bad} or --trials < 1",
+        print(f"benchmarks.demo: unknown task/method/object/arm {bad} or --trials < 1",
               file=sys.stderr)
         return 2
-    models = resolve_models(args, methods)
-    missing = [m for m in methods if m not in models or not Path(models[m]).is_file()]
+    # The methods whose checkpoints the run needs: pivot-stop runs only its own.
+    used = list(methods) if set(tasks) - {"pivot_stop"} else []
+    if "pivot_stop" in tasks:
+        used += [m for m in pivot_methods if m not in used]
+    models = resolve_models(args, used)
+    missing = [m for m in used if m not in models or not Path(models[m]).is_file()]
     if missing:
         print(f"benchmarks.demo: no checkpoint for {missing}: "
               f"{[str(models.get(m)) for m in missing]}",
@@ -315,10 +353,12 @@ def run(args: argparse.Namespace) -> int:
                        **settings_overrides(StopSettings, args.stop_set))
         track = replace(TrackSettings(), duration_s=args.track_duration, gain=args.gain,
                         **settings_overrides(TrackSettings, args.track_set))
+        pivot = replace(PivotSettings(), **settings_overrides(PivotSettings, args.pivot_set))
     except (TypeError, ValueError) as exc:
-        print(f"benchmarks.demo: --stop-set/--track-set: {exc}", file=sys.stderr)
+        print(f"benchmarks.demo: --stop-set/--track-set/--pivot-set: {exc}", file=sys.stderr)
         return 2
-    eps = plan_episodes(tasks, methods, objects, args.trials, models, stop, track)
+    eps = plan_episodes(tasks, methods, objects, args.trials, models, stop, track, pivot,
+                        pivot_methods, arms)
     out = Path(args.out)
     load0 = _load()
     print(f"[demo] {len(eps)} real-time episodes on {args.workers} workers; models: "
@@ -328,7 +368,8 @@ def run(args: argparse.Namespace) -> int:
     meta = {"command": _command_line(), "tasks": tasks, "methods": methods, "objects": objects,
             "trials": args.trials, "workers": args.workers, "cpus": os.cpu_count(),
             "stop_settings": asdict(stop), "track_settings": asdict(track),
-            "checkpoints": {m: str(models[m]) for m in methods},
+            "pivot_settings": asdict(pivot), "pivot_methods": pivot_methods,
+            "pivot_arms": arms, "checkpoints": {m: str(models[m]) for m in used},
             "models_source": models["source"], "model_test_metrics": models.get("test_metrics"),
             "scene_version": demo_models.scene_version(), "host": platform.node(),
             "episodes_s": round(time.perf_counter() - t_run, 1),
@@ -337,9 +378,7 @@ def run(args: argparse.Namespace) -> int:
             "episodes_behind": sum(1 for r in results if r.get("skipped_blocks", 0) > 0),
             "reruns": sum(len(r.get("reruns", [])) for r in results)}
     summary = write_outputs(out, results, meta, plots=not args.no_plots)
-    print(dm.format_table(summary["table"]) + dm.methods_table(summary["table"])
-          + dm.calibration_table([r for r in results if "error" not in r])
-          + dm.tail_table([r for r in results if "error" not in r]))
+    print(tables_md(summary["table"], [r for r in results if "error" not in r]))
     print(f"results: {out / 'summary.json'}, {out / 'table.md'}")
     if summary.get("plots"):
         print("plots: " + ", ".join(str(p) for p in summary["plots"]))

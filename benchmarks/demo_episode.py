@@ -3,9 +3,12 @@
 Per episode: a ROS_DOMAIN_ID of its own (``domain_coordinator``, discovery on localhost), a
 fresh rclpy context on it, and the package's real node classes (``scene_sim``,
 ``slip_inference``, ``slip_stop`` or ``slip_track``) plus a small recorder on one
-MultiThreadedExecutor. Every message still goes through DDS topics exactly as between the
-separate executables (composing the nodes in one process changes only that); only the process
-start-up (importing torch and rclpy costs seconds) is shared between episodes.
+executor. The pivot-stop task (issue #21) runs ``slip_stop`` on the scene's pivot: a wall
+push downwards (``push_dir_xz`` (0, -1)) whose surface meets the object ``pivot_lever_m``
+off the grasp axis, so it turns between the pads instead of sliding. Every message still goes
+through DDS topics exactly as between the separate executables (composing the nodes in one
+process changes only that); only the process start-up (importing torch and rclpy costs
+seconds) is shared between episodes.
 
 Node parameters go in as ``parameter_overrides`` of each node's constructor (its
 ``**kwargs`` reach ``rclpy.node.Node``, as in a composed rclpy process), checked by the same
@@ -32,7 +35,7 @@ from benchmarks import demo_metrics as dm
 from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 from aslip_ros.scene.scenario import Scenario
 
-TASKS = ("slip_stop", "slip_track")
+TASKS = ("slip_stop", "slip_track", "pivot_stop")
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,29 @@ class StopSettings:
     # A missed slip must be able to push past the object's length (a failure by the
     # paper's rule) before the controller's own travel limit ends the approach.
     overshoot_limit_m: float = 0.15
+    settle_result_s: float = 0.3
+
+
+@dataclass(frozen=True)
+class PivotSettings:
+    """Pivot-stop: the slip-stop state machine lowers the object, held by one end, onto a
+    surface below that meets it ``pivot_lever_m`` off the grasp axis (the scene's
+    ``wall_push(push_dir_xz=(0, -1), pivot_lever_m=...)``): it turns instead of sliding.
+    Retract and settle as in slip-stop; the approach turns the object at about
+    ``approach_speed_m_s / pivot_lever_m`` (0.8 rad/s, 1.6 times the rotation threshold: at
+    slip-stop's 3 cm/s it would turn at 0.3 rad/s, below the 0.5 rad/s that counts as
+    rotating). The travel limit lets an arm that ignores rotation push
+    ``overshoot_limit_m`` past the surface contact (the object then turns by about 25
+    degrees) before it stops on its own."""
+
+    pivot_lever_m: float = 0.1
+    retract_distance_m: float = SlipStopConfig.retract_distance_m
+    retract_speed_m_s: float = 0.08
+    settle_s: float = 0.3
+    approach_speed_m_s: float = 0.08
+    debounce_count: int = SlipStopConfig.debounce_count
+    rotation_threshold_rad_s: float = SlipStopConfig.rotation_threshold_rad_s
+    overshoot_limit_m: float = 0.05
     settle_result_s: float = 0.3
 
 
@@ -96,10 +122,19 @@ class Episode:
     stop: StopSettings = field(default_factory=StopSettings)
     track: TrackSettings = field(default_factory=TrackSettings)
     wall_s_limit: float = 30.0     # wall-clock guard per episode [s]
+    pivot: PivotSettings = field(default_factory=PivotSettings)
+    #: pivot_stop: ``rotation_aware`` (stop_on_rotation) or ``ignores_rotation``.
+    arm: str = dm.PIVOT_ARMS[0]
+
+    def __post_init__(self) -> None:
+        if self.arm not in dm.PIVOT_ARMS:
+            raise ValueError(f"arm must be one of {dm.PIVOT_ARMS}, got {self.arm!r}")
 
     @property
     def key(self) -> str:
-        """File-name key of the episode."""
+        """File-name key of the episode (pivot-stop episodes name their arm)."""
+        if self.task == "pivot_stop":
+            return f"{self.task}-{self.method}-{self.arm}-{self.object}-{self.trial:02d}"
         return f"{self.task}-{self.method}-{self.object}-{self.trial:02d}"
 
 
@@ -122,12 +157,35 @@ def node_params(ep: Episode, length_m: float) -> dict:
                + s.overshoot_limit_m,
                "debounce_count": int(s.debounce_count),
                "settle_result_s": s.settle_result_s}
+    elif ep.task == "pivot_stop":
+        scene.update(pivot_scene(ep.pivot))
+        ctl = pivot_controller(ep.pivot, ep.arm)
     else:
         scene.update(scenario="drag", drag_speed_m_s=ep.track.drag_speed_m_s,
                      drag_hold_s=ep.track.agent_hold_s)
         ctl = ep.track.law()
     return {"scene_sim": scene, "slip_inference": {"checkpoint": str(ep.checkpoint)},
             ep.task: ctl}
+
+
+def pivot_scene(s: PivotSettings) -> dict:
+    """scene_sim's parameters of the pivot: a wall push down onto a surface met off the
+    grasp axis, starting in contact (scene_sim's ``pivot`` scenario)."""
+    return {"scenario": "pivot", "wall_distance_m": 0.0,
+            "pivot_lever_m": float(s.pivot_lever_m)}
+
+
+def pivot_controller(s: PivotSettings, arm: str) -> dict:
+    """slip_stop's parameters of one pivot arm: the same state machine, acting on the
+    rotation estimate or ignoring it (planar slip and its travel limit only)."""
+    return {"approach_speed_m_s": s.approach_speed_m_s,
+            "retract_distance_m": s.retract_distance_m,
+            "retract_speed_m_s": s.retract_speed_m_s, "settle_s": s.settle_s,
+            "max_approach_distance_m": s.retract_distance_m + s.overshoot_limit_m,
+            "debounce_count": int(s.debounce_count),
+            "stop_on_rotation": arm == dm.PIVOT_ARMS[0],
+            "rotation_threshold_rad_s": float(s.rotation_threshold_rad_s),
+            "settle_result_s": s.settle_result_s}
 
 
 class _Recorder:
@@ -149,7 +207,7 @@ class _Recorder:
     def _on_slip(self, msg) -> None:
         st = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         self.slip.append((st, msg.velocity.x, msg.velocity.z, msg.probability,
-                          bool(msg.slipping)))
+                          bool(msg.slipping), float(getattr(msg, "angular_velocity", 0.0))))
 
     def _on_result(self, msg) -> None:
         try:
@@ -243,7 +301,7 @@ def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
     from aslip_ros.nodes.scene_sim import SceneSim
     from aslip_ros.nodes.slip_inference import SlipInference
     from aslip_ros.scene.layouts import get_object
-    if ep.task == "slip_stop":
+    if ep.task in ("slip_stop", "pivot_stop"):
         from aslip_ros.nodes.slip_stop import SlipStopNode as Controller
     elif ep.task == "slip_track":
         from aslip_ros.nodes.slip_track import SlipTrackNode as Controller
@@ -323,6 +381,8 @@ def _spin(ep: Episode, executor, sim, ctl, rec, t_wall0: float, probe: StallProb
             continue
         if rec.result is not None and rec.result.get("final"):
             return "controller_result"
+        if ep.task == "pivot_stop":
+            continue               # the controller's travel limit bounds the turn
         contact = world.wall_contact_tcp_position
         if contact is not None and (world.tcp_pose()[:3] - contact) @ n > length + 0.01:
             # Already past the object's length: the trial has failed whatever follows.
@@ -346,13 +406,15 @@ def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:
         out["controller_distance_m"] = res.get("stopping_distance_m")
         out["onset_to_stop_s"] = dm.onset_to_stop_s(world.slip_onset_time,
                                                     world.arm.stop_times)
+    elif ep.task == "pivot_stop":
+        out.update(_score_pivot(ep, world, traj, rec))
     else:
         out["pose_rmse_m"] = dm.pose_rmse(traj["t"], traj["rel"],
                                           t_from_s=ep.track.agent_hold_s)
         rel = traj["rel"]
         out["max_excursion_m"] = float(np.max(np.linalg.norm(rel - rel[0], axis=1))) \
             if len(rel) else math.nan
-    slip = np.array(rec.slip, dtype=float).reshape(-1, 5)
+    slip = np.array(rec.slip, dtype=float).reshape(-1, 6)
     out["lag_curve"] = dm.lag_curve(traj["t"], traj["v_rel"], (slip[:, 0] - start_ns) / 1e9,
                                     slip[:, 1:3])
     out["trace"] = {
@@ -361,7 +423,22 @@ def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:
         "v_rel": traj["v_rel"].astype(np.float32),
         "pred_t": ((slip[:, 0] - start_ns) / 1e9).astype(np.float32),
         "pred_v": slip[:, 1:3].astype(np.float32), "pred_p": slip[:, 3].astype(np.float32),
+        "pred_w": slip[:, 5].astype(np.float32),
         "push_dir": world.wall_normal().astype(np.float32)}
+    for k in ("angle", "w_rel"):        # the scene's rotation (scene version 4)
+        if k in traj:
+            out["trace"][k] = np.asarray(traj[k]).astype(np.float32)
+    return out
+
+
+def _score_pivot(ep: Episode, world, traj: dict, rec) -> dict:
+    """The pivot-stop trial: the angle turned before the arm came to rest, from the truth."""
+    o = dm.pivot_outcome(traj["t"], traj["tcp"], world.angle_turned(),
+                         world.rotation_onset_time, world.arm.stop_times)
+    res = rec.result or {}
+    out = {"arm": ep.arm, **o.to_dict(), "controller_reason": res.get("reason"),
+           "controller_distance_m": res.get("stopping_distance_m")}
+    out["success"] = dm.pivot_success(out)
     return out
 
 

@@ -9,6 +9,12 @@ Slip-track (Task 2): the error is the gripper-object relative position in the gr
 against its reference (the median over the first 0.1 s, as in the paper's draft), and the
 metric is its RMSE over the whole trajectory.
 
+Pivot-stop (issue #21): the object, held by one end, is lowered onto a surface that meets it
+off the grasp axis, so it turns between the pads instead of sliding. The measure is the angle
+the object turned (relative to the finger, about the pad normal) before the arm came to
+rest, in degrees; the same seeds run an arm that acts on the rotation estimate and one that
+ignores it (planar slip or its travel limit only), so the two are paired trial by trial.
+
 Inputs are the scene's true trajectory (``World.trajectory()`` or the ``trajectory_out``
 ``.npz`` of ``scene_sim``): ``t`` (N,), ``tcp`` (N, 3) world positions, ``rel`` (N, 2)
 object position in the grasp plane relative to the grasp centre.
@@ -130,6 +136,156 @@ def stop_outcome(t, tcp, push_dir, contacts, object_length_m: float,
     return StopOutcome(success, touched, at_rest, err, t_c, speed)
 
 
+#: The pivot-stop arms: the slip-stop controller with ``stop_on_rotation`` true and false.
+PIVOT_ARMS = ("rotation_aware", "ignores_rotation")
+#: The controller's stop reasons that mean it stopped on its estimate.
+ESTIMATE_REASONS = ("slip", "rotation")
+
+
+@dataclass(frozen=True)
+class PivotOutcome:
+    """One pivot-stop trial: the angle turned [deg] when the episode ended, whether the arm
+    was at rest then (otherwise the angle is only how far it had turned so far), and the
+    time from the true rotation onset to the first stop command the arm received."""
+
+    angle_deg: float
+    turned: bool                   # the scene reports a rotation onset
+    at_rest: bool
+    final_speed_m_s: float
+    rotation_onset_s: float        # NaN without an onset
+    onset_to_stop_s: float         # NaN without an onset or a stop after it
+
+    def to_dict(self) -> dict:
+        """JSON-friendly dict (NaN becomes None)."""
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in asdict(self).items()}
+
+
+def pivot_outcome(t, tcp, angle_rad: float, rotation_onset_s: Optional[float],
+                  stop_times: Sequence[float]) -> PivotOutcome:
+    """Score one pivot-stop trial from the true trajectory (``t``, ``tcp``), the angle the
+    object turned by the end (``World.angle_turned()`` [rad], either sense), the scene's
+    rotation onset and the arm's stop commands (scene times [s])."""
+    t = np.asarray(t, dtype=float)
+    tcp = np.asarray(tcp, dtype=float)
+    speed = _final_speed(t, tcp)
+    onset = math.nan if rotation_onset_s is None else float(rotation_onset_s)
+    to_stop = onset_to_stop_s(onset, stop_times)
+    angle = abs(float(angle_rad)) if angle_rad is not None else math.nan
+    return PivotOutcome(angle_deg=math.degrees(angle), turned=math.isfinite(onset),
+                        at_rest=bool(math.isfinite(speed) and speed < REST_SPEED_M_S),
+                        final_speed_m_s=speed, rotation_onset_s=onset,
+                        onset_to_stop_s=math.nan if to_stop is None else to_stop)
+
+
+def pivot_row(r: dict) -> str:
+    """The pivot table's row of one episode: ``<method>/<arm>``."""
+    return f"{r['method']}/{r.get('arm', PIVOT_ARMS[0])}"
+
+
+def pivot_success(r: dict) -> bool:
+    """A pivot-stop trial stopped on the estimate: the object turned, the controller
+    stopped on slip or rotation and the arm came to rest; a rerun trial is a failure, as in
+    the other tasks (:func:`succeeded`)."""
+    return bool(not r.get("reruns") and r.get("turned") and r.get("at_rest")
+                and r.get("controller_reason") in ESTIMATE_REASONS)
+
+
+def _pivot_cell(rows: Sequence[dict]) -> dict:
+    angles = np.asarray([r["angle_deg"] for r in rows if r.get("angle_deg") is not None
+                         and math.isfinite(r["angle_deg"])], dtype=float)
+    m, s, n = mean_std(angles)
+    lo, hi = mean_interval(angles)
+    reasons: dict = {}
+    for r in rows:
+        key = str(r.get("controller_reason") or "none")
+        reasons[key] = reasons.get(key, 0) + 1
+    stops = [r["onset_to_stop_s"] * 1e3 for r in rows if r.get("onset_to_stop_s") is not None]
+    return {"trials": len(rows), "successes": sum(pivot_success(r) for r in rows),
+            "at_rest": sum(bool(r.get("at_rest")) for r in rows),
+            "turned": sum(bool(r.get("turned")) for r in rows),
+            "reasons": dict(sorted(reasons.items())),
+            "angle_mean_deg": _num(m), "angle_std_deg": _num(s), "n_angle": n,
+            "angle_ci95_deg": [_num(lo), _num(hi)],
+            "angle_median_deg": _num(float(np.median(angles))) if n else None,
+            "angle_p90_deg": _num(float(np.percentile(angles, 90))) if n else None,
+            "onset_to_stop_median_ms": _num(float(np.median(stops))) if stops else None,
+            "n_onset_to_stop": len(stops), **_reruns(rows)}
+
+
+def summarize_pivot(results: Sequence[dict]) -> dict:
+    """The pivot-stop cells: ``{<method>/<arm>: {object: cell, "overall": cell}}``, and
+    per method with both arms ``"<method>/paired"``: the angle the rotation-aware arm saved
+    against the one that ignores rotation, per trial on the same seed (mean and its 95 %
+    bootstrap interval, degrees)."""
+    rows = [r for r in results if r.get("task") == "pivot_stop"]
+    out: dict = {}
+    for label in sorted({pivot_row(r) for r in rows}):
+        mine = [r for r in rows if pivot_row(r) == label]
+        method, arm = label.split("/", 1)
+        cells = {obj: _pivot_cell([r for r in mine if r["object"] == obj])
+                 for obj in sorted({r["object"] for r in mine})}
+        cells["overall"] = _pivot_cell(mine)
+        for c in cells.values():
+            c.update(method=method, arm=arm)
+        out[label] = cells
+    for method in sorted({r["method"] for r in rows}):
+        saved = paired_angle_saved([r for r in rows if r["method"] == method])
+        if saved is not None:
+            out[f"{method}/paired"] = {"overall": saved}
+    return out
+
+
+def paired_angle_saved(rows: Sequence[dict]) -> Optional[dict]:
+    """Angle [deg] of the arm that ignores rotation minus that of the rotation-aware arm,
+    per (object, trial) run by both (None without such pairs)."""
+    by = {}
+    for r in rows:
+        if r.get("angle_deg") is not None and math.isfinite(r["angle_deg"]):
+            by[(r.get("arm", PIVOT_ARMS[0]), r["object"], r.get("trial"))] = r["angle_deg"]
+    d = np.asarray([by[(PIVOT_ARMS[1], o, k)] - a for (arm, o, k), a in sorted(by.items())
+                    if arm == PIVOT_ARMS[0] and (PIVOT_ARMS[1], o, k) in by], dtype=float)
+    if d.size == 0:
+        return None
+    lo, hi = mean_interval(d)
+    return {"pairs": int(d.size), "saved_mean_deg": _num(float(d.mean())),
+            "saved_ci95_deg": [_num(lo), _num(hi)],
+            "aware_smaller": int(np.sum(d > 0))}
+
+
+def pivot_table(table: dict) -> str:
+    """Markdown: one row per estimator and arm (overall), and the paired difference."""
+    cells = table.get("pivot_stop") or {}
+    rows = [(k, v["overall"]) for k, v in cells.items() if not k.endswith("/paired")]
+    if not rows:
+        return ""
+    lines = ["", "| pivot-stop | arm | stopped on the estimate | stop reasons | angle turned "
+                 "before rest deg: mean ± std | 95 % interval of the mean | median, p90 | "
+                 "rotation onset to stop ms (median) |", "|---|---|---|---|---|---|---|---|"]
+    for label, c in rows:
+        lo, hi = c["angle_ci95_deg"]
+        ci = "-" if lo is None or hi is None else f"[{lo:.1f}, {hi:.1f}]"
+        spread = "-" if c["angle_median_deg"] is None else \
+            f"{c['angle_median_deg']:.1f}, {c['angle_p90_deg']:.1f}"
+        onset = c["onset_to_stop_median_ms"]
+        reasons = ", ".join(f"{k} {v}" for k, v in c["reasons"].items())
+        lines.append(f"| {c['method']} | {c['arm'].replace('_', ' ')} | "
+                     f"{c['successes']}/{c['trials']} | {reasons} | "
+                     f"{_fmt(c['angle_mean_deg'], c['angle_std_deg'])} | {ci} | {spread} | "
+                     + ("-" if onset is None else f"{onset:.0f}") + " |")
+    for label, v in cells.items():
+        if label.endswith("/paired"):
+            p = v["overall"]
+            lo, hi = p["saved_ci95_deg"]
+            ci = "" if lo is None or hi is None else f" [{lo:.1f}, {hi:.1f}]"
+            lines.append("")
+            saved = round(p["saved_mean_deg"], 1) + 0.0          # never "-0.0"
+            lines.append(f"{label.split('/')[0]}: acting on rotation saved {saved:.1f} deg"
+                         f"{ci} of turn per trial (paired over {p['pairs']} seeds; smaller "
+                         f"in {p['aware_smaller']}).")
+    return "\n".join(lines) + "\n"
+
+
 def pose_rmse(t, rel, t_ref_s: float = TRACK_REFERENCE_S, t_from_s: float = 0.0) -> float:
     """RMSE [m] of the grasp-plane relative position against its initial reference (the
     median over the first ``t_ref_s``), over the samples from ``t_from_s`` on (the task's
@@ -205,7 +361,8 @@ def summarize(results: Sequence[dict]) -> dict:
     Each result: ``task`` (``slip_stop``/``slip_track``), ``method``, ``object`` and, for
     slip-stop, ``success`` and ``stopping_error_m`` (its absolute value is averaged, over
     all trials that have one, failures included, as the paper's spread includes them);
-    for slip-track, ``pose_rmse_m``. Values reported in millimetres.
+    for slip-track, ``pose_rmse_m``. Values reported in millimetres. Pivot-stop episodes
+    (``angle_deg``, ``arm``) add ``pivot_stop`` (:func:`summarize_pivot`, degrees).
     """
     out: dict = {}
     for task in ("slip_stop", "slip_track"):
@@ -219,6 +376,9 @@ def summarize(results: Sequence[dict]) -> dict:
                 groups[obj] = [r for r in mine if r["object"] == obj]
             groups["overall"] = mine
             out[task][method] = {g: _cell(task, rs) for g, rs in groups.items()}
+    pivot = summarize_pivot(results)
+    if pivot:
+        out["pivot_stop"] = pivot
     return out
 
 
@@ -378,7 +538,7 @@ def calibration_table(results: Sequence[dict]) -> str:
     lines = ["", f"| task | method | calibration converged | within {CONVERGE_BOUND_S:g} s "
                  "of the grasp | time to converge s (median, max) | gain error dB | "
                  "uncorrected gain error dB |", "|---|---|---|---|---|---|---|"]
-    for task in ("slip_stop", "slip_track"):
+    for task in ("slip_stop", "slip_track", "pivot_stop"):
         for method in sorted({r["method"] for r in rows if r["task"] == task}):
             cal = [r["calibration"] for r in rows
                    if r["task"] == task and r["method"] == method]

@@ -5,13 +5,17 @@ the 200 ms window CNN with and without that calibration (``aslip_window``,
 
 ``python -m benchmarks.demo --train-models`` runs this: simulate externally induced slip on
 the five objects with the scene's microphones (4mic, 200 ms windows), mostly with the arm
-moving, export it, train the four models on the same trials, evaluate them on the held-out
-test trials and write ``models/aslip_stream.pt``, ``models/aslip_cnn.pt``,
-``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt`` and ``models/manifest.json`` (scene
-version, commands, metrics). A set is used only when every model in it was trained for the
-current scene version; otherwise all are retrained, never mixed.
+moving and with a share of the agent's pushes twisting the object about the pad normal
+(``twist_fraction``), plus a few trials of an object held off its centre of mass that
+gravity turns in the grasp (``gravity_pivot``), so every model learns the rotational output
+the pivot-stop task acts on (issue #21); export it, train the four models on the same
+trials, evaluate them on the held-out test trials and write ``models/aslip_stream.pt``,
+``models/aslip_cnn.pt``, ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt`` and
+``models/manifest.json`` (scene version, recipe, commands, metrics). A set is used only when
+every model in it was trained for the current scene version with the current recipe
+(manifest version 4); otherwise all are retrained, never mixed.
 
-The scene couples every microphone differently in every grasp (scene version 3), so the
+The scene couples every microphone differently in every grasp (since scene version 3), so the
 uncalibrated CNN is the control that shows what the live calibration buys in closed loop.
 
 Why this set and not the paper's pretrain-then-finetune pair: in the closed-loop tasks the
@@ -39,10 +43,18 @@ SVM_NAME = "svm.pt"
 STREAM_NAME = "aslip_stream.pt"
 MANIFEST = "manifest.json"
 COMMAND = "python -m benchmarks.demo --train-models"
-#: Trials per object and condition, seconds per trial, export hop (the recipe).
-RECIPE = {"robot_moving": 12, "robot_stationary": 6, "duration_s": 10.0, "hop_s": 0.05,
+#: Trials per object and condition (externally induced; ``gravity_pivot``: held off the
+#: centre of mass, arm still), the share of twisting pushes, seconds per trial, export hop
+#: (the recipe).
+RECIPE = {"robot_moving": 12, "robot_stationary": 6, "gravity_pivot": 2,
+          "twist_fraction": 0.3, "duration_s": 10.0, "hop_s": 0.05,
           "window_s": 0.2, "seed": 0, "time_budget_s": 480.0, "epochs": 40,
           "svm_max_train": 1500, "stream_epochs": 60, "stream_time_budget_s": 600.0}
+#: The manifest's format. 4: the models estimate rotation (trained on twisting pushes and
+#: gravity pivots); a set of an older format is retrained, whatever its scene version.
+MANIFEST_VERSION = 4
+#: The condition of the gravity-pivot trials (the arm holds still).
+PIVOT_CONDITION = "robot_stationary"
 #: Demo method -> (checkpoint file, ``aslip train`` stage, per-grasp calibration).
 MODELS = {"aslip": (STREAM_NAME, "stream", "background"),
           "aslip_window": (CNN_NAME, "scratch", "background"),
@@ -65,13 +77,15 @@ def scene_version() -> str:
 
 def shipped_models(models_dir: str | Path) -> dict | None:
     """The manifest when every model of :data:`MODELS` is listed, exists and was trained for
-    the current scene, else None (a stale or partial set is retrained, never mixed)."""
+    the current scene with the current recipe (:data:`MANIFEST_VERSION`), else None (a
+    stale or partial set is retrained, never mixed)."""
     d = Path(models_dir)
     try:
         man = json.loads((d / MANIFEST).read_text())
     except (OSError, ValueError):
         return None
-    if not isinstance(man, dict) or man.get("scene_version") != scene_version():
+    if not isinstance(man, dict) or man.get("scene_version") != scene_version() \
+            or man.get("version") != MANIFEST_VERSION:
         return None
     files = man.get("files")
     if not isinstance(files, dict) or any(
@@ -91,18 +105,25 @@ def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True) -> P
     """Simulate and export the training set of the current scene; returns the dataset dir.
 
     Bags are reused when present (simulate resumes), so each scene version gets its own
-    folder: audio from an older scene must never reach a model for the new one."""
+    folder: audio from an older scene must never reach a model for the new one. The same
+    bags come from ``aslip simulate --kind external --twist-fraction 0.3`` (each condition)
+    and ``aslip simulate --kind pivot --conditions robot_stationary``."""
     from aslip_ros.data.export import ExportConfig, export
     from aslip_ros.data.simulate import simulate
 
     r = RECIPE
     data = Path(data_dir) / f"scene-{scene_version()}"
     bags, ds = data / "bags", data / "dataset"
+    common = dict(objects=list(OBJECTS), duration_s=r["duration_s"], seed=r["seed"],
+                  layout=DEFAULT_LAYOUT, progress=progress)
     for cond in ("robot_moving", "robot_stationary"):
-        _log(f"simulating {r[cond]} x {len(OBJECTS)} externally induced trials, {cond}")
-        simulate(bags, "external", objects=list(OBJECTS), conditions=[cond], trials=r[cond],
-                 duration_s=r["duration_s"], seed=r["seed"], layout=DEFAULT_LAYOUT,
-                 progress=progress)
+        _log(f"simulating {r[cond]} x {len(OBJECTS)} externally induced trials, {cond}, "
+             f"{r['twist_fraction']:.0%} of the slipping pushes twisting")
+        simulate(bags, "external", conditions=[cond], trials=r[cond],
+                 twist_fraction=r["twist_fraction"], **common)
+    _log(f"simulating {r['gravity_pivot']} x {len(OBJECTS)} gravity-pivot trials, "
+         f"{PIVOT_CONDITION}")
+    simulate(bags, "pivot", conditions=[PIVOT_CONDITION], trials=r["gravity_pivot"], **common)
     _log("exporting")
     export([bags], ds, ExportConfig(window_s=r["window_s"], hop_s=r["hop_s"], overwrite=True,
                                     progress=progress))
@@ -154,8 +175,12 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
                            ("n_windows", "detection_accuracy", "precision", "recall",
                             "direction_mae_deg", "direction_std_deg", "magnitude_rmse_mm",
                             "magnitude_std_mm")}
+        # The rotational figures, under whatever names the evaluation gives them.
+        metrics[method].update({k: v for k, v in overall.items()
+                                if "rotation" in k and isinstance(v, (int, float))})
     files = {m: v[0] for m, v in MODELS.items()}
-    man = {"format": "aslip-demo-models", "version": 3, "scene_version": scene_version(),
+    man = {"format": "aslip-demo-models", "version": MANIFEST_VERSION,
+           "scene_version": scene_version(),
            "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
            "layout": DEFAULT_LAYOUT, "files": files,
            "calibration": {m: v[2] for m, v in MODELS.items()},

@@ -1,4 +1,5 @@
-"""PNG plots of the demo: arm and object trajectories, predicted against true slip.
+"""PNG plots of the demo: arm and object trajectories, predicted against true slip, and the
+pivot-stop's angle turned by each arm.
 
 Reads the per-episode traces (``<out>/episodes/<key>.npz``) of the first trial of each
 object and method. Every figure is written atomically (temporary file, then rename).
@@ -69,9 +70,58 @@ def make_plots(out: Path, results: list[dict]) -> list[Path]:
         path = _prediction_figure(plt, eps, task)
         if path is not None:
             written.append(path)
+    if eps.has("pivot_stop"):
+        path = _pivot_figure(plt, eps)
+        if path is not None:
+            written.append(path)
     if any(isinstance(r.get("worker_timing"), dict) for r in results):
         written.append(_tail_figure(plt, eps))
     return written
+
+
+def _pivot_figure(plt, eps: _Episodes) -> Path | None:
+    """Pivot-stop, one column per arm (the first estimator that ran it): the angle the
+    object turned over time, and the estimated against the true rotation rate, for the
+    first trial of each object. None when no trace carries the scene's angle."""
+    from benchmarks.demo_metrics import PIVOT_ARMS
+    rows = [r for r in eps.results if r["task"] == "pivot_stop"]
+    method = rows[0]["method"]
+    arms = [a for a in PIVOT_ARMS if any(r.get("arm") == a for r in rows)]
+    traces = {}
+    for arm in arms:
+        for obj in eps.objects:
+            mine = sorted((r for r in rows if r["method"] == method and r.get("arm") == arm
+                           and r["object"] == obj), key=lambda r: r["trial"])
+            tr = _load(eps.out, f"pivot_stop-{method}-{arm}-{obj}-{mine[0]['trial']:02d}") \
+                if mine else None
+            if tr is not None and "angle" in tr:
+                traces[(arm, obj)] = tr
+    if not traces:
+        return None
+    fig, axes = plt.subplots(2, len(arms), figsize=(6 * len(arms), 7), squeeze=False,
+                             sharey="row", constrained_layout=True)
+    for j, arm in enumerate(arms):
+        for obj in eps.objects:
+            tr = traces.get((arm, obj))
+            if tr is None:
+                continue
+            line, = axes[0][j].plot(tr["t"], np.degrees(np.abs(tr["angle"])), label=obj)
+            if "w_rel" in tr:
+                axes[1][j].plot(tr["t"], tr["w_rel"], color=line.get_color(), lw=1)
+            if "pred_w" in tr:
+                axes[1][j].plot(tr["pred_t"], tr["pred_w"], color=line.get_color(), lw=1,
+                                ls=":")
+        axes[0][j].set_title(f"pivot-stop, {method}, {arm.replace('_', ' ')}")
+        axes[0][j].set_ylabel("angle turned [deg]")
+        axes[1][j].set_title("rotation rate: true (solid), estimated (dotted)")
+        axes[1][j].set_ylabel("angular velocity [rad/s]")
+        for ax in axes[:, j]:
+            ax.set_xlabel("time [s]")
+            ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    path = _save(fig, eps.out / "pivot_stop_angle.png")
+    plt.close(fig)
+    return path
 
 
 def _tail_figure(plt, eps: _Episodes) -> Path:

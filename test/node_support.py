@@ -136,8 +136,9 @@ class Bus:
 
 def make_checkpoint(path, channel_names=SCENE_NAMES, sample_rate: float = 48000.0,
                     window_s: float = 0.05, slip_logit: float | None = None,
-                    velocity=(0.02, 0.0), seed: int = 0) -> Path:
-    """A tiny untrained CNN checkpoint through the learn package's own save path.
+                    velocity=(0.02, 0.0), seed: int = 0, angular: bool = False) -> Path:
+    """A tiny untrained CNN checkpoint through the learn package's own save path (with
+    ``angular``: with the rotational head, whose untrained rate is not zero).
 
     With ``slip_logit`` the slip head ignores the audio and says ``sigmoid(slip_logit)``, and
     the speed and direction heads output ``velocity`` (grasp plane x, z): a model whose
@@ -151,7 +152,7 @@ def make_checkpoint(path, channel_names=SCENE_NAMES, sample_rate: float = 48000.
     fc = FeatureConfig(n_mels=16, n_fft=256, hop=160)
     mc = ModelConfig(n_channels=len(channel_names), n_mels=fc.n_mels, width=4, depth=2,
                      temporal_layers=1, temporal_channels=8, gate_hidden=4, head_hidden=8,
-                     speed_scale=0.02)
+                     speed_scale=0.02, angular=angular)
     torch.manual_seed(seed)
     net = SlipNet(mc)
     net.set_normalization(np.full(fc.n_mels, -10.0), np.full(fc.n_mels, 5.0))
@@ -170,5 +171,8 @@ def make_checkpoint(path, channel_names=SCENE_NAMES, sample_rate: float = 48000.
             "layout": "4mic", "sample_rate": float(sample_rate), "window_s": window_s,
             "window_samples": int(round(window_s * sample_rate)), "epsilon_m_s": 0.005,
             "threshold": 0.5, "provenance": {"stage": "test fixture, untrained"}}
+    if angular:
+        from aslip_ros.learn.checkpoint import KNOWN_OUTPUTS
+        meta["outputs"] = list(KNOWN_OUTPUTS)
     return save_checkpoint(path, meta, {k: v.detach().clone()
                                         for k, v in net.state_dict().items()})

@@ -66,7 +66,7 @@ def _degenerate_dataset(path, mode: str, n_trials: int = 6, seconds: float = 1.0
                     v, slip = ((0.02, 0.0) if j % 2 == 0 else (-0.02, 0.0)), True
                 else:  # zero magnitude
                     v, slip = (0.0, 0.0), True
-                rows.append((k, s, v[0], v[1], float(np.hypot(*v)), slip))
+                rows.append((k, s, v[0], v[1], 0.0, float(np.hypot(*v)), slip))
             w.end_trial({"id": f"d-{k}", "object": "box", "pad": "textured", "layout": "4mic",
                          "condition": "robot_off", "induced": "external", "source_bag": "",
                          "label_source": "synthetic"}, np.array(rows, dtype=WINDOW_DTYPE))

@@ -35,7 +35,7 @@ def test_write_read_memory_mapped(tmp_path):
     ds = make_dataset(tmp_path / "ds")
     assert len(ds.trials) == 36 and len(ds) == 180 and ds.n_window_samples == 400
     m = json.loads((tmp_path / "ds" / "manifest.json").read_text())
-    assert m["format"] == "aslip-dataset" and m["version"] == 1 and m["n_windows"] == 180
+    assert m["format"] == "aslip-dataset" and m["version"] == 2 and m["n_windows"] == 180
     assert m["trials"][0]["file"] == "audio/0.npy" and m["trials"][0]["n_samples"] == 2000
     assert isinstance(ds.windows, np.memmap)
     a = ds.audio(5)

@@ -25,6 +25,9 @@ INTENTIONAL = {
     ("scene_sim", "wall_distance_m"): "0 = the object starts in contact with the wall",
     ("scene_sim", "duration_s"): "0 = a live scene runs until shut down (a trial: 30 s)",
     ("audio_capture", "sim.wall_distance_m"): "as scene_sim's",
+    ("scene_sim", "pivot_lever_m"): "read by the pivot scenario only, which needs a lever "
+                                    "(Scenario's 0 = the wall push that slides)",
+    ("audio_capture", "sim.pivot_lever_m"): "as scene_sim's",
 }
 #: Core fields that no parameter sets (the node keeps the core's default).
 NOT_PARAMETERS = {"SweepConfig": {"max_acc_m_s2"}}

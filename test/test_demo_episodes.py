@@ -141,11 +141,17 @@ def test_slip_stop_episode_with_the_streaming_model(rclpy_context, ros_env, tmp_
 def _track_episode(checkpoint: str) -> dict:
     """One 4 s slip-track episode (cracker box, seed 2401) through the composed demo path,
     repeated as the demo repeats it after a stale-input stop or skipped scene blocks."""
-    from benchmarks.demo import MAX_RERUNS
-    from benchmarks.demo_episode import Episode, TrackSettings, run_episode
+    from benchmarks.demo_episode import Episode, TrackSettings
 
-    ep = Episode("slip_track", "aslip", checkpoint, "cracker_box", 0, 2401,
-                 track=TrackSettings(duration_s=4.0))
+    return _run_as_the_demo_does(Episode("slip_track", "aslip", checkpoint, "cracker_box", 0,
+                                         2401, track=TrackSettings(duration_s=4.0)))
+
+
+def _run_as_the_demo_does(ep) -> dict:
+    """``ep`` run, repeated as the demo repeats it after a stale-input stop or skipped scene
+    blocks."""
+    from benchmarks.demo import MAX_RERUNS
+    from benchmarks.demo_episode import run_episode
     for _ in range(1 + MAX_RERUNS):
         r = run_episode(ep)
         if not str(r.get("controller_reason", "")).startswith("stale") and \
@@ -217,3 +223,32 @@ def test_a_demo_worker_logs_to_its_file_not_to_the_progress_bar(tmp_path):
     logs = list(tmp_path.glob("worker-*.log"))
     assert len(logs) == 1
     assert set(logs[0].read_text().splitlines()) == {"python line", "stderr line", "C line"}
+
+
+def test_pivot_stop_episode_composed_in_one_process():
+    """The pivot-stop task through the composed demo path, the rotation-aware arm with the
+    package's estimator: the arm lowers the object onto the surface, the object turns, the
+    slip-stop controller stops the arm and the episode scores the angle turned before the
+    arm came to rest from the scene's truth. With a checkpoint that estimates rotation the
+    stop is on rotation, within a few degrees (a planar-only checkpoint may run on to the
+    travel limit, about 25 degrees)."""
+    import math
+
+    from benchmarks.demo_episode import Episode
+    from aslip_ros.learn.checkpoint import estimates_rotation, load_checkpoint
+
+    assert STREAM.is_file(), STREAM
+    assert estimates_rotation(load_checkpoint(STREAM).meta), "the shipped model is planar"
+    r = _run_as_the_demo_does(Episode("pivot_stop", "aslip", str(STREAM), "cracker_box", 0,
+                                      3201))
+    brief = {k: v for k, v in r.items() if k != "trace"}
+    assert r["ended"] == "controller_result" and r["arm"] == "rotation_aware", brief
+    assert r["turned"] and r["at_rest"], brief
+    tr = r["trace"]
+    # The score is the scene's angle at the end, the arm at rest, in degrees.
+    assert r["angle_deg"] == pytest.approx(math.degrees(abs(tr["angle"][-1])), abs=0.2)
+    assert 0.0 < r["angle_deg"] < 30.0, brief
+    assert r["controller_reason"] in ("rotation", "slip", "max_travel"), brief
+    assert tr["pred_w"].shape == tr["pred_t"].shape and tr["w_rel"].shape == tr["t"].shape
+    assert r["controller_reason"] == "rotation" and r["success"], brief
+    assert r["angle_deg"] < 10.0, brief

@@ -262,3 +262,75 @@ def test_the_worker_stall_probe_reports_the_tail_like_the_live_bench():
     assert s["gc_full_collections"] == 1 and s["gc_full_max_ms"] == pytest.approx(4.0)
     empty = StallProbe().summary()
     assert empty["spin_gap_max_ms"] is None and empty["spin_gaps_over_50ms"] == 0
+
+
+# --- pivot-stop (issue #21) -------------------------------------------------------------
+
+def _lowering(stop_s: float, rest: bool = True):
+    """The arm lowers the object at 30 mm/s and stops at ``stop_s`` (or keeps going)."""
+    t = np.arange(0.0, 6.0, 0.01)
+    z = -0.03 * np.minimum(t, stop_s) if rest else -0.03 * t
+    tcp = np.zeros((t.size, 3))
+    tcp[:, 2] = z
+    return t, tcp
+
+
+def test_pivot_outcome_is_the_angle_turned_in_degrees_and_the_onset_to_stop():
+    t, tcp = _lowering(3.0)
+    o = dm.pivot_outcome(t, tcp, -math.radians(4.0), 2.95, [0.5, 3.0, 5.0])
+    assert o.angle_deg == pytest.approx(4.0)          # either sense of turn, in degrees
+    assert o.turned and o.at_rest
+    assert o.rotation_onset_s == pytest.approx(2.95)
+    assert o.onset_to_stop_s == pytest.approx(0.05)
+    d = o.to_dict()
+    assert d["angle_deg"] == pytest.approx(4.0) and d["onset_to_stop_s"] == pytest.approx(0.05)
+
+
+def test_pivot_outcome_without_a_turn_or_a_rest():
+    t, tcp = _lowering(3.0, rest=False)
+    o = dm.pivot_outcome(t, tcp, 0.0, None, [])
+    assert not o.turned and not o.at_rest and o.angle_deg == 0.0
+    assert o.to_dict()["rotation_onset_s"] is None and o.to_dict()["onset_to_stop_s"] is None
+
+
+def _pivot_rows():
+    rows = []
+    for k in range(10):
+        for arm, angle, reason in (("rotation_aware", 2.0 + 0.1 * k, "rotation"),
+                                   ("ignores_rotation", 20.0 + k, "max_travel")):
+            rows.append({"task": "pivot_stop", "method": "aslip", "arm": arm,
+                         "object": "chips_can" if k < 5 else "pla_rod", "trial": k % 5,
+                         "angle_deg": angle, "turned": True, "at_rest": True,
+                         "controller_reason": reason, "onset_to_stop_s": 0.05,
+                         "reruns": []})
+    return rows
+
+
+def test_pivot_summary_per_arm_with_an_interval_and_the_paired_saving():
+    rows = _pivot_rows()
+    rows[0]["reruns"] = ["stale_slip"]                # a rerun trial fails, as elsewhere
+    t = dm.summarize(rows)["pivot_stop"]
+    aware, ign = t["aslip/rotation_aware"]["overall"], t["aslip/ignores_rotation"]["overall"]
+    assert (aware["successes"], aware["trials"]) == (9, 10)
+    assert aware["reasons"] == {"rotation": 10} and ign["reasons"] == {"max_travel": 10}
+    assert ign["successes"] == 0                      # never stopped on its estimate
+    assert aware["angle_mean_deg"] == pytest.approx(2.45)
+    lo, hi = ign["angle_ci95_deg"]
+    assert ign["angle_mean_deg"] == pytest.approx(24.5) and lo < 24.5 < hi
+    assert aware["onset_to_stop_median_ms"] == pytest.approx(50.0)
+    assert set(t["aslip/rotation_aware"]) == {"chips_can", "pla_rod", "overall"}
+    paired = t["aslip/paired"]["overall"]
+    assert paired["pairs"] == 10 and paired["aware_smaller"] == 10
+    assert paired["saved_mean_deg"] == pytest.approx(24.5 - 2.45)
+    md = dm.pivot_table(dm.summarize(rows))
+    assert "| aslip | rotation aware | 9/10 | rotation 10 | 2.5 ± 0.3 |" in md
+    assert "| aslip | ignores rotation | 0/10 | max_travel 10 | 24.5 ± 2.9 |" in md
+    assert "saved 22.1 deg" in md and "paired over 10 seeds" in md
+    assert dm.pivot_table(dm.summarize(rows[:0])) == ""
+
+
+def test_the_pivot_rows_leave_the_other_tables_alone():
+    rows = _pivot_rows()
+    s = dm.summarize(rows)
+    assert s["slip_stop"] == {} and s["slip_track"] == {}
+    assert "aslip" not in dm.methods_table(s).split("\n", 3)[-1]

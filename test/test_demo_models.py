@@ -44,7 +44,8 @@ def _write_set(d: Path, version: str, skip: str | None = None) -> dict:
     for m, f in files.items():
         if m != skip:
             (d / f).write_bytes(b"x")
-    man = {"scene_version": version, "files": files, "test_metrics": {}}
+    man = {"scene_version": version, "version": demo_models.MANIFEST_VERSION, "files": files,
+           "test_metrics": {}}
     (d / demo_models.MANIFEST).write_text(json.dumps(man))
     return man
 
@@ -63,6 +64,45 @@ def test_a_set_for_another_scene_version_is_refused(tmp_path):
 def test_a_partial_set_is_refused(tmp_path, missing):
     _write_set(tmp_path, demo_models.scene_version(), skip=missing)
     assert demo_models.shipped_models(tmp_path) is None
+
+
+def test_a_set_from_before_the_rotational_recipe_is_refused(tmp_path):
+    """Manifest version 3 (planar-only models) is retrained even for this scene version."""
+    _write_set(tmp_path, demo_models.scene_version())
+    man = json.loads((tmp_path / demo_models.MANIFEST).read_text())
+    assert demo_models.MANIFEST_VERSION == 4
+    man["version"] = 3
+    (tmp_path / demo_models.MANIFEST).write_text(json.dumps(man))
+    assert demo_models.shipped_models(tmp_path) is None
+    del man["version"]
+    (tmp_path / demo_models.MANIFEST).write_text(json.dumps(man))
+    assert demo_models.shipped_models(tmp_path) is None
+
+
+def test_the_recipe_trains_on_twisting_pushes_and_gravity_pivots(tmp_path, monkeypatch):
+    """The models must hear rotation to estimate it: the externally induced trials twist a
+    share of their pushes, and gravity-pivot trials join the set, in the scene-version
+    folder the export reads."""
+    import aslip_ros.data.export as export
+    import aslip_ros.data.simulate as simulate
+    r = demo_models.RECIPE
+    assert 0.0 < r["twist_fraction"] < 1.0 and r["gravity_pivot"] >= 1
+    calls, exported = [], []
+    monkeypatch.setattr(simulate, "simulate",
+                        lambda out, kind, **kw: calls.append((Path(out), kind, kw)) or {})
+    monkeypatch.setattr(export, "export", lambda bags, ds, cfg: exported.append(bags))
+    demo_models.prepare_data(tmp_path, progress=False)
+    ext = [kw for _, kind, kw in calls if kind == "external"]
+    assert sorted(c for kw in ext for c in kw["conditions"]) == ["robot_moving",
+                                                                 "robot_stationary"]
+    assert all(kw["twist_fraction"] == r["twist_fraction"] for kw in ext)
+    pivot = [kw for _, kind, kw in calls if kind == "pivot"]
+    assert len(pivot) == 1 and pivot[0]["trials"] == r["gravity_pivot"]
+    assert pivot[0]["conditions"] == [demo_models.PIVOT_CONDITION]
+    assert "twist_fraction" not in pivot[0]
+    bags = {out for out, _, _ in calls}
+    assert len(bags) == 1 and exported == [[bags.pop()]]
+    assert f"scene-{demo_models.scene_version()}" in str(exported[0][0])
 
 
 def test_a_manifest_from_before_the_uncalibrated_model_is_refused(tmp_path):
@@ -120,6 +160,8 @@ def test_the_shipped_models_belong_to_this_scene_with_their_calibration():
     assert man is not None, "models/ is stale or partial: make demo ARGS=--train-models"
     for method, (name, _, calibration) in demo_models.MODELS.items():
         meta = load_checkpoint(ROOT / "models" / man["files"][method]).meta
+        # Every model estimates rotation, which the pivot-stop task acts on (issue #21).
+        assert "wy" in meta.get("outputs", []), method
         if calibration == "off":
             assert "calibration" not in meta, method
         else:
@@ -147,6 +189,8 @@ def test_retraining_trains_every_model_and_records_its_scene(tmp_path, monkeypat
     man = demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
     assert sorted(trained) == ["scratch", "scratch", "stream", "svm"]
     assert man["scene_version"] == demo_models.scene_version()
+    assert man["version"] == demo_models.MANIFEST_VERSION
+    assert man["recipe"]["twist_fraction"] == demo_models.RECIPE["twist_fraction"]
     assert man["calibration"] == {"aslip": "background", "aslip_window": "background",
                                   "aslip_uncalibrated": "off", "svm": "background"}
     assert demo_models.shipped_models(tmp_path)["files"]["aslip"] == demo_models.STREAM_NAME

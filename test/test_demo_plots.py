@@ -73,3 +73,22 @@ def test_no_text_of_the_slip_track_figure_overlaps_another(figures):
     for i in range(len(boxes)):
         for j in range(i + 1, len(boxes)):
             assert not _overlaps(boxes[i], boxes[j]), (texts[i].get_text(), texts[j].get_text())
+
+
+def test_the_pivot_figure_shows_each_arms_angle(tmp_path):
+    """One column per arm, the angle turned in degrees; no figure without the scene's angle."""
+    (tmp_path / "episodes").mkdir()
+    t = np.linspace(0.0, 6.0, 601)
+    results = []
+    for arm, final_deg in (("rotation_aware", 3.0), ("ignores_rotation", 30.0)):
+        angle = np.radians(np.clip((t - 4.0) * 40.0, 0.0, final_deg))
+        np.savez(tmp_path / "episodes" / f"pivot_stop-aslip-{arm}-chips_can-00.npz",
+                 t=t, angle=angle, w_rel=np.gradient(angle, t), pred_t=t,
+                 pred_w=np.gradient(angle, t))
+        results.append({"task": "pivot_stop", "method": "aslip", "arm": arm,
+                        "object": "chips_can", "trial": 0})
+    written = demo_plots.make_plots(tmp_path, results)
+    assert [p.name for p in written] == ["pivot_stop_angle.png"] and written[0].is_file()
+    for f in (tmp_path / "episodes").glob("*.npz"):
+        f.unlink()
+    assert demo_plots.make_plots(tmp_path, results) == []

@@ -201,6 +201,7 @@ def _by_exe(ev: Evaluated) -> dict:
 LAUNCHES = [
     ("slip_stop.launch.py", {}),
     ("slip_stop.launch.py", {"rviz": "true", "direction": "[1.0, 0.0, 0.0]"}),
+    ("slip_stop.launch.py", {"scenario": "pivot"}),
     ("slip_stop.launch.py", {"sim": "false", "audio_device": "0", "autostart": "false",
                              "checkpoint": "my_model.pt"}),
     ("slip_track.launch.py", {}),
@@ -250,6 +251,13 @@ def test_closed_loop_defaults_use_the_shipped_model(launch_file):
     assert Path(ckpt).is_file(), f"{ckpt} is not installed"
     assert {"scene_sim", "slip_inference", "mocap_bridge", launch_file.split(".")[0]} == \
         set(nodes)
+
+
+@needs_launch
+def test_slip_stop_runs_the_pivot_scene_on_request():
+    assert _by_exe(evaluate("slip_stop.launch.py", {}))["scene_sim"]["scenario"] == "wall_push"
+    assert _by_exe(evaluate("slip_stop.launch.py",
+                            {"scenario": "pivot"}))["scene_sim"]["scenario"] == "pivot"
 
 
 @needs_launch

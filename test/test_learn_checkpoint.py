@@ -88,14 +88,15 @@ def test_svm_arrays_match_sklearn_and_survive_checkpoint(tmp_path):
     z = (x - arrays.mean) / arrays.std
     np.testing.assert_allclose(arrays.slip(z), est["svc"].decision_function(z), atol=1e-6)
     np.testing.assert_allclose(arrays.velocity["vx"](z), est["svr_vx"].predict(z), atol=1e-6)
-    prob, vel = arrays.predict(x)
+    prob, vel, rate = arrays.predict(x)
+    assert rate is None                       # no angular labels: no rate regressor
     np.testing.assert_array_equal(prob >= 0.5, est["svc"].predict(z) == 1)
     save_checkpoint(tmp_path / "svm.pt", {**cnn_meta(ModelConfig(), FeatureConfig()),
                                           "model_type": "svm",
                                           "model_config": SvmConfig().to_dict()},
                     arrays.to_tensors())
     back = SvmArrays.from_tensors(torch.load(tmp_path / "svm.pt", weights_only=True)["tensors"])
-    p2, v2 = back.predict(x)
+    p2, v2, _ = back.predict(x)
     np.testing.assert_allclose(p2, prob)
     np.testing.assert_allclose(v2, vel)
 

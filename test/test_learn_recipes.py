@@ -67,6 +67,23 @@ def test_select_picks_the_better_candidate_and_says_why():
     assert selection.select({"x": good, "y": dict(good)})[0] == "x"
 
 
+def test_rotating_validation_windows_add_the_rotational_error_to_the_criterion():
+    planar = {"detection_accuracy": 0.95, "direction_mae_deg": 20.0, "magnitude_rmse_mm": 1.0}
+    # Planar metrics alone: the criterion is as before (3.0 for the best at all three).
+    assert selection.score({"a": planar})["a"] == pytest.approx(3.0)
+    # Equal on the planar metrics, one hears the rotation at half the other's error.
+    deaf = dict(planar, rotation_mae_deg_s=80.0)
+    hears = dict(planar, rotation_mae_deg_s=40.0)
+    for order in (("deaf", "hears"), ("hears", "deaf")):
+        cands = {n: {"deaf": deaf, "hears": hears}[n] for n in order}
+        winner, scores, _ = selection.select(cands)
+        assert winner == "hears"
+        assert scores == pytest.approx({"hears": 4.0, "deaf": 5.0})
+    # A candidate 10 % better in direction but twice the rotational error loses.
+    assert selection.select({"sharp": dict(deaf, direction_mae_deg=18.0),
+                             "hears": hears})[0] == "hears"
+
+
 def test_candidate_missing_a_metric_cannot_win():
     good = {"detection_accuracy": 0.9, "direction_mae_deg": 40.0, "magnitude_rmse_mm": 2.0}
     blind = {"detection_accuracy": 0.99}
@@ -226,7 +243,8 @@ def test_selection_on_data_picks_the_trained_candidate(data):
 
 
 class _ValSet:
-    """The few fields of a WindowSet that selection reads: trials, labels, window length."""
+    """The few fields of a WindowSet that selection reads: trials, labels (planar only: no
+    angular label), window length."""
 
     window_s = 0.2
 
@@ -240,6 +258,9 @@ class _ValSet:
 
     def slip(self, idx):
         return np.ones(len(idx), bool)
+
+    def has_angular(self, idx=None):
+        return False
 
 
 def _result(angles_deg):

@@ -44,16 +44,20 @@ def blocks(audio, n=480, start_index=1000, start_ns=5_000_000_000):
             for i in range(0, audio.shape[0], n)]
 
 
-def make_checkpoint(path, seed=0, **meta_changes):
+def make_checkpoint(path, seed=0, angular=False, **meta_changes):
+    """A tiny untrained streaming checkpoint (with ``angular``: its rotational output)."""
     torch.manual_seed(seed)
     fcfg = FeatureConfig()
-    cfg = StreamConfig(n_channels=2, n_mels=fcfg.n_mels, embed=16, hidden=8)
+    cfg = StreamConfig(n_channels=2, n_mels=fcfg.n_mels, embed=16, hidden=8, angular=angular)
     net = StreamNet(cfg)
     net.set_normalization(np.full(fcfg.n_mels, -8.0), np.full(fcfg.n_mels, 3.0))
     meta = {"model_type": "aslip_stream", "model_config": cfg.to_dict(),
             "feature_config": fcfg.to_dict(), "channel_names": NAMES, "sample_rate": RATE,
             "window_s": 0.032, "window_samples": 1536, "hop_s": 0.01, "epsilon_m_s": 0.005,
             "threshold": 0.0, "label": {"kind": "slip_velocity_now"}}
+    if angular:
+        from aslip_ros.learn.checkpoint import KNOWN_OUTPUTS
+        meta["outputs"] = list(KNOWN_OUTPUTS)
     meta.update(meta_changes)
     return save_checkpoint(path, meta, net.state_dict())
 
@@ -86,7 +90,8 @@ def test_gru_step_equals_the_batched_forward():
     torch.manual_seed(1)
     net = StreamNet(StreamConfig(n_channels=3, n_mels=10, embed=12, hidden=7)).eval()
     x = np.random.default_rng(0).standard_normal((50, 3, 10)).astype(np.float32)
-    p, v = offline_outputs(net, x)
+    p, v, w = offline_outputs(net, x)
+    assert w is None                             # no rotational output in this config
     step = GruStepper(net.cfg, net.state_dict())
     got = [step.step(f) for f in x]
     np.testing.assert_allclose([g[0] for g in got], p, atol=1e-5)
@@ -99,7 +104,9 @@ def test_streaming_over_a_recorded_stream_equals_offline(tmp_path):
     pred = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "s.pt"))
     a = audio()
     ests = [e for b in blocks(a, 480) for e in pred.push(b)]
-    p_off, v_off = pred.offline(stream_logmel(a, pred.feature_config, RATE))
+    p_off, v_off, w_off = pred.offline(stream_logmel(a, pred.feature_config, RATE))
+    assert w_off is None and all(e.prediction.angular_velocity == 0.0
+                                 and e.prediction.angular_sigma == -1.0 for e in ests)
     p, v = outputs(ests)
     assert p.size == p_off.size == 97
     np.testing.assert_allclose(p, p_off, atol=1e-5)
@@ -214,7 +221,7 @@ def test_export_stores_tracks_that_give_the_slip_velocity(dataset):
     ds = open_dataset(dataset)
     for k, trial in enumerate(ds.trials):
         tr = load_track(dataset, k)
-        assert tr.shape[1] == 4 and tr[0, 0] <= 48000 * 0.2
+        assert tr.shape[1] in (4, 7) and tr[0, 0] <= 48000 * 0.2
         lab = frame_labels(tr, np.array([24000, 48000]), 48000.0, 0.005)
         w = ds.windows[ds.windows["trial"] == k][0]
         np.testing.assert_allclose(lab["v"][:, 0], w["vx"], atol=2e-3)
@@ -278,7 +285,7 @@ def test_a_calibrated_streaming_checkpoint_live_equals_offline_and_converges(tmp
     live = StreamingPredictor.from_checkpoint(path)
     assert live.calibrated and not live.calibration_converged
     ests = [e for b in blocks(x, n=441) for e in live.push(b)]
-    ends, p, v = StreamingPredictor.from_checkpoint(path).trial_outputs(x)
+    ends, p, v, _ = StreamingPredictor.from_checkpoint(path).trial_outputs(x)
     assert len(ests) == len(ends) > 50
     lp, lv = outputs(ests)
     np.testing.assert_allclose(lp, p, atol=2e-5)
@@ -289,7 +296,7 @@ def test_a_calibrated_streaming_checkpoint_live_equals_offline_and_converges(tmp
     assert gain["m1"] - gain["m0"] == pytest.approx(20 * np.log10(3.0), abs=1.5)
     # The calibration changes what the model reads: without it the outputs differ.
     plain = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "plain.pt"))
-    _, p0, _ = plain.trial_outputs(x)
+    _, p0, _, _ = plain.trial_outputs(x)
     assert np.abs(p0 - p).max() > 1e-4
     live.reset_calibration()
     assert not live.calibration_converged

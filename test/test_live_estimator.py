@@ -45,7 +45,7 @@ def recorded_stream(names, seconds: float = 0.6, seed: int = 0, gap_at: int | No
 
 @pytest.fixture(scope="module")
 def window_ckpt(tmp_path_factory):
-    return make_checkpoint(tmp_path_factory.mktemp("live") / "cnn.pt")
+    return make_checkpoint(tmp_path_factory.mktemp("live") / "cnn.pt", angular=True)
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def stream_cal_ckpt(tmp_path_factory):
     from test_learn_streaming_model import calibration_doc
     from test_learn_streaming_model import make_checkpoint as make_stream
     return make_stream(tmp_path_factory.mktemp("live") / "stream_cal.pt", threshold=0.5,
-                       calibration=calibration_doc(converge_frames=10))
+                       calibration=calibration_doc(converge_frames=10), angular=True)
 
 
 def _core(ckpt, blocks, **config):
@@ -218,5 +218,16 @@ def test_the_node_publishes_exactly_what_the_core_estimates(kind, window_ckpt, s
         assert m.probability == pytest.approx(p.probability, abs=1e-6)
         assert m.slipping == p.slipping
         assert (m.velocity.x, m.velocity.z) == pytest.approx((p.vx, p.vz), abs=1e-7)
-        assert m.direction_sigma == pytest.approx(e.direction_sigma, abs=1e-6)
+        # The message gives no direction (sigma -1) for an estimate that does not slip.
+        assert m.direction_sigma == pytest.approx(e.direction_sigma if p.slipping else -1.0,
+                                                  abs=1e-6)
         assert m.threshold == pytest.approx(p.threshold)
+        assert m.angular_velocity == pytest.approx(p.angular_velocity, abs=1e-6)
+        assert m.angular_velocity_sigma == pytest.approx(p.angular_sigma, abs=1e-6)
+    # The rotational estimate goes out where the checkpoint has one (the planar stream
+    # checkpoint publishes 0 with sigma -1: "the source gives none").
+    rates = [m.angular_velocity for m in got]
+    if kind == "stream":
+        assert set(rates) == {0.0} and {m.angular_velocity_sigma for m in got} == {-1.0}
+    else:
+        assert any(abs(w) > 1e-4 for w in rates)

@@ -29,13 +29,15 @@ TCP = "/aslip/robot/tcp_pose"
 
 
 class SlipSource:
-    """Publishes SlipVector at 100 Hz with a velocity the test sets (None = silence)."""
+    """Publishes SlipVector at 100 Hz with a velocity the test sets (None = silence) and,
+    when ``angular`` is set, that angular velocity [rad/s] about the pad normal."""
 
-    def __init__(self, bus, velocity=(0.02, 0.0)) -> None:
+    def __init__(self, bus, velocity=(0.02, 0.0), angular=None) -> None:
         from aslip_ros.msg import SlipVector
         from aslip_ros.nodes import common as c
         self.pub = bus.node.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
         self.velocity = velocity
+        self.angular = angular
         self.last_sent = None
         self.alive = True
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -44,12 +46,13 @@ class SlipSource:
     def _run(self) -> None:
         from aslip_ros.nodes import convert
         while self.alive:
-            v = self.velocity
+            v, w = self.velocity, self.angular
             if v is not None:
                 slipping = bool(np.hypot(*v) > 0)
+                rot = {} if w is None else {"angular_velocity": w}
                 self.pub.publish(convert.slip_to_msg(v[0], v[1], 0.9 if slipping else 0.1,
                                                      slipping, 0.5, time.time_ns(), 0.1,
-                                                     "test"))
+                                                     "test", **rot))
                 self.last_sent = time.monotonic()
             time.sleep(0.01)
 
@@ -212,6 +215,86 @@ def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env):
     assert meta["stopping_distance_m"] is not None
 
 
+def _wall_push_result(rclpy_context, ros_env, extra: dict) -> dict:
+    """slip_stop on the scene's wall push with a SlipVector stream that never says
+    ``slipping`` but turns at 1 rad/s from the retract on; the final result."""
+    from std_msgs.msg import String
+
+    from aslip_ros.nodes import common as c
+    bus = Bus(rclpy_context)
+    _listen(bus)
+    bus.listen(String, "/aslip/slip_stop/result", c.LATCHED_QOS)
+    src = SlipSource(bus, velocity=(0.0, 0.0), angular=0.0)
+    params = {"retract_distance_m": 0.01, "retract_speed_m_s": 0.05, "settle_s": 0.1,
+              "approach_speed_m_s": 0.05, "max_approach_distance_m": 0.03,
+              "debounce_count": 2, "settle_result_s": 0.2, "pose_timeout_s": POSE_TIMEOUT_S,
+              "slip_timeout_s": SLIP_TIMEOUT_S, **extra}
+
+    def final():
+        return [json.loads(m.data) for m in bus.messages("/aslip/slip_stop/result")
+                if json.loads(m.data)["final"]]
+    try:
+        with NodeProcess("scene_sim", ros_env, {"scenario": "wall_push", "seed": 1}) as sim, \
+                NodeProcess("slip_stop", ros_env, params) as ctl:
+            sim.wait_ready()
+            ctl.wait_ready()
+            assert ctl.wait_for("retracting", 20), ctl.output
+            src.angular = -1.0              # rotation only: planar slip 0, not slipping
+            assert bus.wait(lambda: bool(final()), 10), ctl.output
+            n_cmds = len(bus.messages(CMD))
+            # Latched: more rotation and now planar slip too, and no command follows the
+            # stop over 0.3 s of the scene's own time.
+            src.velocity = (-0.02, 0.0)
+            assert bus.wait(lambda: len(bus.messages(TCP)) > 0, 20), "no TCP pose"
+            m0 = bus.messages(TCP)[-1]
+            assert bus.wait(lambda: _stamp(bus.messages(TCP)[-1]) - _stamp(m0) > 0.3, 30)
+            assert len(bus.messages(CMD)) == n_cmds
+            return final()[-1]
+    finally:
+        src.close()
+        bus.close()
+
+
+def test_slip_stop_stops_on_rotation_through_the_scene(rclpy_context, ros_env):
+    """The node reads SlipVector.angular_velocity: rotation alone stops the approach, and
+    the result says it was rotation."""
+    res = _wall_push_result(rclpy_context, ros_env, {})
+    assert res["reason"] == "rotation" and res["success"] is True, res
+
+
+def test_slip_stop_ignores_rotation_when_told_to(rclpy_context, ros_env):
+    res = _wall_push_result(rclpy_context, ros_env, {"stop_on_rotation": False})
+    assert res["reason"] == "max_travel" and res["success"] is False, res
+
+
+def test_slip_stop_hands_the_angular_velocity_to_its_task_and_zero_without_one():
+    """feed_slip: SlipData's angular_velocity, or 0.0 from a decoder that has none."""
+    from types import SimpleNamespace
+
+    from aslip_ros.nodes.slip_stop import SlipStopNode
+    got = []
+    node = SimpleNamespace(task=SimpleNamespace(
+        on_slip=lambda slipping, now, w: got.append((slipping, now, w))))
+    SlipStopNode.feed_slip(node, SimpleNamespace(slipping=False, angular_velocity=-0.7), 1.0)
+    SlipStopNode.feed_slip(node, SimpleNamespace(slipping=True), 2.0)
+    assert got == [(False, 1.0, -0.7), (True, 2.0, 0.0)]
+
+
+def test_slip_stop_declares_the_rotation_parameters_with_their_ranges():
+    from aslip_ros.nodes.introspect import declared_by_name
+    from aslip_ros.nodes.params import descriptor
+    from aslip_ros.slip import ROTATION_EPSILON_RAD_S
+    declared = declared_by_name("slip_stop")
+    on, thr = declared["stop_on_rotation"], declared["rotation_threshold_rad_s"]
+    assert on.default is True and not on.read_only
+    assert thr.default == ROTATION_EPSILON_RAD_S
+    rng = descriptor(thr).floating_point_range[0]
+    assert rng.from_value > 0.0 and rng.to_value >= 10.0
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        assert thr.check(bad) is not None, bad
+    assert thr.check(ROTATION_EPSILON_RAD_S) is None
+
+
 def test_unreachable_xarm_is_reported_and_the_node_stays_safe(rclpy_context, ros_env):
     bus = Bus(rclpy_context)
     _listen(bus)
@@ -242,6 +325,9 @@ def test_controller_parameters_validated_at_start_and_at_run_time(rclpy_context,
     proc = NodeProcess("slip_track", ros_env, {"slip_timeout_s": 5.0})
     assert proc.proc.wait(30) == 2
     assert "slip_timeout_s" in proc.stop()
+    proc = NodeProcess("slip_stop", ros_env, {"rotation_threshold_rad_s": 0.0})
+    assert proc.proc.wait(30) == 2
+    assert "rotation_threshold_rad_s" in proc.stop()
     bus = Bus(rclpy_context)
     with NodeProcess("slip_track", ros_env) as ctl:
         ctl.wait_ready()
@@ -251,4 +337,11 @@ def test_controller_parameters_validated_at_start_and_at_run_time(rclpy_context,
             assert not res[0].successful, bad
         ok = bus.set_params("slip_track", {"gain": 0.5})
         assert ok[0].successful
+    with NodeProcess("slip_stop", ros_env) as ctl:
+        ctl.wait_ready()
+        for bad in ({"rotation_threshold_rad_s": -1.0}, {"rotation_threshold_rad_s": 0.0},
+                    {"stop_on_rotation": "yes"}):
+            assert not bus.set_params("slip_stop", bad)[0].successful, bad
+        for good in ({"rotation_threshold_rad_s": 1.5}, {"stop_on_rotation": False}):
+            assert bus.set_params("slip_stop", good)[0].successful, good
     bus.close()

@@ -121,7 +121,8 @@ def test_marker_arrow_follows_slip_and_color_follows_probability():
     from aslip_ros.nodes import convert
     slip = convert.slip_to_msg(0.02, 0.01, 0.9, True, 0.5, 0, 0.1, "aslip_cnn")
     arr = convert.slip_markers(slip, scale_s=10.0)
-    arrow, dot = arr.markers
+    arrow, dot, arc, head = arr.markers
+    assert arc.action == head.action == arc.DELETE          # no rotation estimated
     assert arrow.action == arrow.ADD and arrow.header.frame_id == "aslip_grasp_plane"
     assert (arrow.points[1].x, arrow.points[1].z) == pytest.approx((0.2, 0.1))
     assert dot.color.r > dot.color.g                        # high probability: red

@@ -103,6 +103,36 @@ def test_known_motion_gives_known_slip_then_stale_gives_silence(rclpy_context, r
     bus.close()
 
 
+def _turning(t):
+    """Finger yawed 90 deg about z; the object turns at 1.5 rad/s about the pad normal
+    (grasp-plane +y) through the pad centre, its own origin 3 cm off it."""
+    from scipy.spatial.transform import Rotation
+    q = Rotation.from_euler("z", 90, degrees=True)
+    turn = Rotation.from_rotvec([0.0, 1.5 * t, 0.0])
+    p_f = np.array([0.4, 0.0, 0.3])
+    p_o = p_f + q.apply(turn.apply([0.03, 0.0, 0.0]))
+    return np.concatenate([p_f, q.as_quat()]), np.concatenate([p_o, (q * turn).as_quat()])
+
+
+def test_turning_object_publishes_its_angular_velocity(rclpy_context, ros_env):
+    """A pure rotation: the truth carries angular_velocity (rad/s about +y of the grasp
+    plane) while the planar decision says not slipping."""
+    from aslip_ros.msg import SlipVector
+    from aslip_ros.nodes import common as c
+    bus = Bus(rclpy_context)
+    bus.listen(SlipVector, TRUTH, c.RELIABLE_QOS)
+    with NodeProcess("mocap_bridge", ros_env, {"window_s": 0.1}) as node:
+        node.wait_ready()
+        streamer = PoseStreamer(bus, _turning)
+        assert bus.wait(lambda: len(bus.messages(TRUTH)) >= 15, 20), node.output
+    streamer.close()
+    bus.close()
+    for m in bus.messages(TRUTH)[5:]:
+        assert m.angular_velocity == pytest.approx(1.5, abs=1e-5)
+        assert m.angular_velocity_sigma == -1.0
+        assert not m.slipping and m.speed == 0.0
+
+
 def test_still_object_is_not_slipping_and_bad_params_refused(rclpy_context, ros_env):
     from aslip_ros.msg import SlipVector
     from aslip_ros.nodes import common as c

@@ -48,6 +48,8 @@ def _as_rosbags(store, ros_msg):
                velocity=t["geometry_msgs/msg/Vector3"](x=v.x, y=v.y, z=v.z),
                speed=ros_msg.speed, direction=ros_msg.direction,
                direction_sigma=ros_msg.direction_sigma,
+               angular_velocity=ros_msg.angular_velocity,
+               angular_velocity_sigma=ros_msg.angular_velocity_sigma,
                window_length=ros_msg.window_length, source=ros_msg.source)
 
 

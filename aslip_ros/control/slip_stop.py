@@ -7,6 +7,14 @@ soon as slip is detected. The figure of merit is the stopping distance: how far 
 initial contact pose the arm came to rest, along the approach direction (the paper's
 ``Delta x``).
 
+Rotational slip (issue #21): an object held off its centre, or pushed off its axis, may turn
+between the pads about the pad normal (+y of ``aslip_grasp_plane``) while it hardly slides.
+The estimate's ``slipping`` decision stays planar (``aslip_ros.slip``), so the task also reads
+the estimated angular velocity: with ``stop_on_rotation`` an estimate whose
+``|angular_velocity|`` reaches ``rotation_threshold_rad_s`` counts as a slipping estimate in
+the same debounce, and a stop that planar slip alone would not have made is reported as
+:attr:`StopReason.ROTATION`.
+
 The class only computes commands. The caller feeds it slip estimates and TCP poses (from
 any thread), calls :meth:`SlipStop.step` at the control rate and hands the returned
 :class:`~aslip_ros.control.command.VelocityCommand` to the arm with
@@ -31,6 +39,7 @@ import numpy as np
 from aslip_ros.control.command import DEFAULT_DURATION_S, VelocityCommand
 from aslip_ros.control.frames import as_pose, as_vector3
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, Watchdog
+from aslip_ros.slip import ROTATION_EPSILON_RAD_S
 
 
 class State(enum.Enum):
@@ -44,15 +53,22 @@ class State(enum.Enum):
 
 
 class StopReason(str, enum.Enum):
-    """Why the task ended. Only :attr:`SLIP` is a successful trial."""
+    """Why the task ended. :attr:`SLIP` and :attr:`ROTATION` are successful trials (the
+    object met the wall and the arm stopped on what the estimator heard); the rest are not.
+    """
 
     SLIP = 'slip'
+    ROTATION = 'rotation'
     MAX_TRAVEL = 'max_travel'
     TIMEOUT = 'timeout'
     STALE_SLIP = 'stale_slip'
     STALE_POSE = 'stale_pose'
     ERROR = 'error'
     SHUTDOWN = 'shutdown'
+
+
+#: The stop reasons of a successful trial.
+SUCCESS_REASONS = frozenset({StopReason.SLIP, StopReason.ROTATION})
 
 
 def _positive(name: str, value: float) -> float:
@@ -80,6 +96,11 @@ class SlipStopConfig:
     :param command_duration_s: validity of each velocity command; the arm stops by itself
         when no newer command arrives in this time.
     :param time_margin: each moving phase may take at most ``margin * distance / speed + 1 s``.
+    :param stop_on_rotation: an estimate with ``|angular_velocity|`` at or above
+        ``rotation_threshold_rad_s`` counts as a slipping estimate (False: only the planar
+        decision counts, the task ignores rotation).
+    :param rotation_threshold_rad_s: the rotation rate that counts as slip [rad/s]; default
+        the label's own threshold, :data:`aslip_ros.slip.ROTATION_EPSILON_RAD_S`.
     """
 
     direction: Sequence[float] = (1.0, 0.0, 0.0)
@@ -93,6 +114,8 @@ class SlipStopConfig:
     pose_timeout_s: float = DEFAULT_TIMEOUT_S
     command_duration_s: float = DEFAULT_DURATION_S
     time_margin: float = 2.0
+    stop_on_rotation: bool = True
+    rotation_threshold_rad_s: float = ROTATION_EPSILON_RAD_S
 
     def __post_init__(self) -> None:
         d = as_vector3(self.direction, 'direction')
@@ -103,8 +126,10 @@ class SlipStopConfig:
         object.__setattr__(self, 'direction', tuple(float(x) for x in d / n))
         for name in ('approach_speed_m_s', 'retract_distance_m', 'retract_speed_m_s',
                      'max_approach_distance_m', 'slip_timeout_s', 'pose_timeout_s',
-                     'command_duration_s'):
+                     'command_duration_s', 'rotation_threshold_rad_s'):
             _positive(name, getattr(self, name))
+        if not isinstance(self.stop_on_rotation, (bool, np.bool_)):
+            raise ValueError(f'stop_on_rotation must be a bool, got {self.stop_on_rotation!r}')
         if not math.isfinite(self.settle_s) or self.settle_s < 0.0:
             raise ValueError(f'settle_s must be finite and >= 0, got {self.settle_s}')
         if self.max_approach_distance_m <= self.retract_distance_m:
@@ -148,7 +173,8 @@ class SlipStop:
     Typical use from a node::
 
         task = SlipStop(SlipStopConfig(direction=(0, 1, 0)))
-        # subscriptions:            task.on_slip(msg_is_slipping); task.on_tcp_pose(pose7)
+        # subscriptions:            task.on_slip(msg.slipping, angular_velocity=msg_wy)
+        #                           task.on_tcp_pose(pose7)
         # after the first pose:     task.start()
         # control timer (100 Hz):   apply_command(arm, task.step())
         # on shutdown:              task.shutdown(); apply_command(arm, task.step())
@@ -169,18 +195,43 @@ class SlipStop:
 
     # -- inputs -------------------------------------------------------------------------
 
-    def on_slip(self, slipping: bool, now: Optional[float] = None) -> None:
-        """Feed one slip estimate (the model's slip/no-slip decision for one window)."""
+    def on_slip(self, slipping: bool, now: Optional[float] = None,
+                angular_velocity: float = 0.0) -> bool:
+        """Feed one slip estimate: the model's planar slip/no-slip decision for one window
+        and its angular velocity about the pad normal [rad/s] (0.0: none estimated).
+
+        Returns False (and counts it in ``rejected_inputs``) for a non-finite angular
+        velocity: the estimate is neither acted on nor taken as a sign of life (the
+        watchdog is not fed), so a stream of them stops the arm as stale input.
+        """
+        try:
+            w = float(angular_velocity)
+        except (TypeError, ValueError):
+            w = math.nan
         with self._lock:
+            if not math.isfinite(w):
+                self.rejected_inputs += 1
+                return False
             t = self._now(now)
             self._slip_wd.feed(t)
             if self._state is not State.APPROACHING:
                 # Slip while retracting or settling is arm noise or the object leaving the
                 # wall; only the approach may end on slip, and its count starts from zero.
-                return
-            self._consecutive = self._consecutive + 1 if slipping else 0
+                return True
+            planar = bool(slipping)
+            rotating = self._cfg.stop_on_rotation and abs(w) >= self._cfg.rotation_threshold_rad_s
+            self._consecutive = self._consecutive + 1 if planar or rotating else 0
+            self._planar_consecutive = self._planar_consecutive + 1 if planar else 0
             if self._consecutive >= self._cfg.debounce_count:
-                self._stop(StopReason.SLIP, t, f'{self._consecutive} consecutive slip estimates')
+                if self._planar_consecutive >= self._cfg.debounce_count:
+                    self._stop(StopReason.SLIP, t,
+                               f'{self._consecutive} consecutive slip estimates')
+                else:
+                    # Planar slip alone would not have stopped the arm: rotation did.
+                    self._stop(StopReason.ROTATION, t,
+                               f'{self._consecutive} consecutive slip or rotation estimates '
+                               f'(last |angular_velocity| {abs(w):.3f} rad/s)')
+            return True
 
     def on_tcp_pose(self, pose: Sequence[float], now: Optional[float] = None) -> bool:
         """Feed the TCP pose in ``link_base``. Returns False (and counts it) if it is invalid."""
@@ -297,7 +348,7 @@ class SlipStop:
                 approach = self._along(stop_pose, self._approach_start)
             return SlipStopResult(
                 reason=self._reason,
-                success=self._reason is StopReason.SLIP,
+                success=self._reason in SUCCESS_REASONS,
                 stopping_distance_m=(self._along(final, self._contact)
                                      if final is not None else math.nan),
                 command_distance_m=(self._along(stop_pose, self._contact)
@@ -319,6 +370,7 @@ class SlipStop:
         self._detail = ''
         self._halt_sent = True
         self._consecutive = 0
+        self._planar_consecutive = 0
         self._contact: Optional[np.ndarray] = None
         self._approach_start: Optional[np.ndarray] = None
         self._approach_t0: Optional[float] = None
@@ -331,6 +383,7 @@ class SlipStop:
         if state is State.APPROACHING:
             self._approach_t0 = t
             self._consecutive = 0
+            self._planar_consecutive = 0
 
     def _stop(self, reason: StopReason, t: float, detail: str) -> None:
         if self._state is State.STOPPED:

@@ -29,12 +29,15 @@ class BagWriter:
 
     Use as a context manager. The bag directory appears at ``path`` only when the block
     exits without an exception. Times are seconds relative to ``start_ns`` (ROS time of
-    t = 0); the log time of each message equals its header stamp.
+    t = 0); the log time of each message equals its header stamp. ``store``: a ``rosbags``
+    typestore whose definitions the bag records instead of the project's (``bag_format.
+    typestore()``).
     """
 
     def __init__(self, path: str | os.PathLike, *, metadata: Mapping | None = None,
                  topics: Topics = DEFAULT_TOPICS, start_ns: int = 0,
-                 overwrite: bool = False, audio_frame_id: str = frames.GRIPPER):
+                 overwrite: bool = False, audio_frame_id: str = frames.GRIPPER,
+                 store=None):
         self.path = Path(path)
         if self.path.exists() and not overwrite:
             raise BagError(f"{self.path} exists already (pass overwrite=True to replace it)")
@@ -44,7 +47,9 @@ class BagWriter:
         self.start_ns = int(start_ns)
         self.audio_frame_id = audio_frame_id
         self._metadata = dict(metadata) if metadata is not None else None
-        self._store = typestore()
+        # The message definitions recorded with each topic: the project's own, or another
+        # typestore's (a recording of an older definition, e.g. in tests).
+        self._store = typestore() if store is None else store
         self._writer = None
         self._conns: dict[str, Any] = {}
         self._stack: contextlib.ExitStack | None = None
@@ -163,8 +168,10 @@ class BagWriter:
         self.write(getattr(self.topics, which), POSE_TYPE, msg, ns, qos="sensor")
 
     def write_slip_truth(self, t_end: float, vx: float, vz: float, window_s: float,
-                         threshold_m_s: float, frame_id: str = frames.GRASP_PLANE) -> None:
-        """A ``SlipVector`` from ground truth (source ``mocap_truth``) ending at ``t_end``."""
+                         threshold_m_s: float, frame_id: str = frames.GRASP_PLANE,
+                         wy: float = 0.0) -> None:
+        """A ``SlipVector`` from ground truth (source ``mocap_truth``) ending at ``t_end``;
+        ``wy`` [rad/s] is its ``angular_velocity`` (not gated by the planar decision)."""
         T = self._T
         speed = float(np.hypot(vx, vz))
         slipping = speed > threshold_m_s
@@ -176,5 +183,6 @@ class BagWriter:
                 x=float(vx) if slipping else 0.0, y=0.0, z=float(vz) if slipping else 0.0),
             speed=speed if slipping else 0.0,
             direction=float(np.arctan2(vz, vx)) if slipping else 0.0,
-            direction_sigma=-1.0, window_length=float(window_s), source="mocap_truth")
+            direction_sigma=-1.0, angular_velocity=float(wy), angular_velocity_sigma=-1.0,
+            window_length=float(window_s), source="mocap_truth")
         self.write(self.topics.slip_truth, SLIP_TYPE, msg, ns)

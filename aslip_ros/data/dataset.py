@@ -2,14 +2,16 @@
 
 ::
 
-    <dataset>/manifest.json   format "aslip-dataset" v1 (see :func:`Dataset` attributes)
+    <dataset>/manifest.json   format "aslip-dataset" v2 (see :func:`Dataset` attributes)
     <dataset>/audio/<k>.npy   float32 (n_samples, n_channels) of trial k, memory-mappable
     <dataset>/windows.npy     structured array WINDOW_DTYPE, one row per window
 
 A window row names its trial (index into ``manifest["trials"]``) and the first sample of
 the window in that trial's audio file; the window is the next ``n_window_samples`` frames.
-Labels are the mean slip velocity over the window in the grasp plane (m/s) and
-``slip = speed > epsilon_m_s``.
+Labels are the mean slip velocity over the window in the grasp plane (m/s), the mean
+rotational slip ``wy`` about the pad normal (rad/s) and ``slip = speed > epsilon_m_s``
+(planar). Version 1 datasets (no ``wy`` column) still load: their rows are read into the
+current dtype with ``wy`` NaN, "no angular label".
 
 :class:`DatasetWriter` builds a dataset in a temporary directory beside the target and
 renames it into place only when everything succeeded, so a failed export leaves nothing.
@@ -27,16 +29,20 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from aslip_ros.slip import VELOCITY_COMPONENTS
+from aslip_ros.slip import ANGULAR_COMPONENT, VELOCITY_COMPONENTS
 from aslip_ros.util import atomic_path, read_json, write_json
 
 FORMAT = "aslip-dataset"
-VERSION = 1
+VERSION = 2
 #: One row per window: its trial and first sample, the slip velocity label (one column per
-#: component of ``aslip_ros.slip.VELOCITY_COMPONENTS``, m/s), its speed and slip flag.
+#: component of ``aslip_ros.slip.VELOCITY_COMPONENTS``, m/s), the rotational slip label
+#: (``aslip_ros.slip.ANGULAR_COMPONENT``, rad/s; NaN: none), the planar speed and slip flag.
 WINDOW_DTYPE = np.dtype([("trial", "<i4"), ("start", "<i8")]
                         + [(c, "<f4") for c in VELOCITY_COMPONENTS]
+                        + [(ANGULAR_COMPONENT, "<f4")]
                         + [("speed", "<f4"), ("slip", "u1")])
+#: The window rows of a version 1 dataset (before the rotational label).
+WINDOW_DTYPE_V1 = np.dtype([d for d in WINDOW_DTYPE.descr if d[0] != ANGULAR_COMPONENT])
 TRIAL_KEYS = ("id", "file", "n_samples", "object", "pad", "layout", "condition", "induced",
               "source_bag", "label_source")
 
@@ -44,6 +50,22 @@ TRIAL_KEYS = ("id", "file", "n_samples", "object", "pad", "layout", "condition",
 # data 64-byte aligned and leaves room for any shape, so the header can be rewritten in
 # place once the number of frames is known, without copying the data.
 _NPY_HEADER_LEN = 128
+
+
+def upgrade_windows(rows: np.ndarray) -> np.ndarray:
+    """Window rows of any version as a new WINDOW_DTYPE array: columns copied by name, a
+    rotational label the rows lack set to NaN."""
+    rows = np.asarray(rows)
+    if rows.dtype == WINDOW_DTYPE:
+        return rows
+    if rows.dtype != WINDOW_DTYPE_V1:
+        raise ValueError(f"window rows have dtype {rows.dtype}, expected {WINDOW_DTYPE} "
+                         f"(or version 1's {WINDOW_DTYPE_V1})")
+    out = np.zeros(rows.shape, dtype=WINDOW_DTYPE)
+    for name in WINDOW_DTYPE_V1.names:
+        out[name] = rows[name]
+    out[ANGULAR_COMPONENT] = np.nan
+    return out
 
 
 class DatasetWriteError(OSError):
@@ -178,7 +200,8 @@ class DatasetWriter:
             self._pending = None
 
     def end_trial(self, info: Mapping[str, Any], windows: np.ndarray) -> int:
-        """Close the open trial; ``windows`` is a WINDOW_DTYPE array (trial field ignored)."""
+        """Close the open trial; ``windows`` is a WINDOW_DTYPE array (trial field ignored;
+        rows of version 1's dtype get ``wy`` NaN)."""
         audio = self._pending
         if audio is None:
             raise RuntimeError("end_trial without begin_trial")
@@ -188,7 +211,9 @@ class DatasetWriter:
         with _writing(self.path):
             os.replace(audio.path, final)
         self._pending = None
-        rows = np.asarray(windows, dtype=WINDOW_DTYPE).copy()
+        rows = windows if isinstance(windows, np.ndarray) and windows.dtype.names else \
+            np.asarray(windows, dtype=WINDOW_DTYPE)
+        rows = upgrade_windows(rows).copy()
         rows["trial"] = k
         n_win = int(rows.size)
         if n_win and (rows["start"].min() < 0):
@@ -230,9 +255,10 @@ def _load_array(path: Path, what: str) -> np.ndarray:
 class Dataset:
     """A dataset opened read-only with memory-mapped audio and windows.
 
-    Attributes: ``manifest`` (dict), ``trials`` (list of dict), ``windows`` (structured
-    array, memory-mapped), ``sample_rate``, ``channel_names``, ``layout``, ``window_s``,
-    ``hop_s``, ``epsilon_m_s``, ``n_window_samples``.
+    Attributes: ``manifest`` (dict), ``version`` (of the format on disk), ``trials`` (list
+    of dict), ``windows`` (structured array of WINDOW_DTYPE, memory-mapped; a version 1
+    table is read into memory with ``wy`` NaN), ``sample_rate``, ``channel_names``,
+    ``layout``, ``window_s``, ``hop_s``, ``epsilon_m_s``, ``n_window_samples``.
     """
 
     def __init__(self, path: str | os.PathLike):
@@ -246,9 +272,14 @@ class Dataset:
             raise ValueError(f"{mf}: not valid JSON ({exc})") from None
         if self.manifest.get("format") != FORMAT:
             raise ValueError(f"{mf}: format {self.manifest.get('format')!r} is not {FORMAT!r}")
-        if int(self.manifest.get("version", 0)) > VERSION:
-            raise ValueError(f"{mf}: version {self.manifest.get('version')} is newer than "
-                             f"this reader ({VERSION})")
+        try:
+            self.version = int(self.manifest.get("version", 1))
+        except (TypeError, ValueError):
+            raise ValueError(f"{mf}: version {self.manifest.get('version')!r} is not a "
+                             "number") from None
+        if self.version > VERSION:
+            raise ValueError(f"{mf}: version {self.version} is newer than this reader "
+                             f"({VERSION})")
         try:
             self.trials: list[dict] = [dict(t) for t in self.manifest["trials"]]
             self.sample_rate = float(self.manifest["sample_rate"])
@@ -266,9 +297,12 @@ class Dataset:
         except (TypeError, ValueError, AttributeError) as exc:
             raise ValueError(f"{mf}: malformed ({exc})") from None
         self.windows = _load_array(self.path / "windows.npy", "window table")
-        if self.windows.dtype != WINDOW_DTYPE:
+        stored = WINDOW_DTYPE if self.version >= 2 else WINDOW_DTYPE_V1
+        if self.windows.dtype != stored:
             raise ValueError(f"{self.path}/windows.npy has dtype {self.windows.dtype}, "
-                             f"expected {WINDOW_DTYPE}")
+                             f"expected {stored} (version {self.version})")
+        if stored != WINDOW_DTYPE:      # read into memory with the rotational label NaN
+            self.windows = upgrade_windows(self.windows)
         self._audio: dict[int, np.ndarray] = {}
 
     def __len__(self) -> int:

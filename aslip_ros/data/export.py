@@ -15,6 +15,10 @@ has a label; otherwise it is dropped and counted under one reason:
 - ``label_gap``: a pose stream has a dropout longer than ``max_gap_s`` over the window;
 - ``label_coverage``: the window is outside the pose streams' time span.
 
+Labels (``data.labels``): the planar slip velocity (``vx``, ``vz``: the pad centre's, m/s),
+the rotational slip ``wy`` about the pad normal (rad/s), the planar speed and
+``slip = speed > epsilon``.
+
 Audio time: the block stamps (time of each block's first sample) are fitted by a line in
 the sample index, which averages out host-clock jitter and follows a slightly off nominal
 rate. Labels use header stamps (log time where a stamp is zero).
@@ -37,7 +41,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from aslip_ros.slip import VELOCITY_COMPONENTS
+from aslip_ros.slip import ANGULAR_COMPONENT, VELOCITY_COMPONENTS
 from aslip_ros.data.bags import (CUSTOM_DATA_KEY, DEFAULT_TOPICS, POSE_TOPICS, BagDamaged,
                                  BagError, BagReader, Topics, find_bags)
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
@@ -200,6 +204,7 @@ def _window_rows(labels, grid: WindowGrid, cfg: ExportConfig) -> tuple[np.ndarra
     rows["start"] = grid.file_pos[keep]
     for name, column in zip(VELOCITY_COMPONENTS, labels.slip_velocity.T):
         rows[name] = column[keep]
+    rows[ANGULAR_COMPONENT] = labels.angular[keep]
     speed = labels.speed[keep]
     rows["speed"] = speed
     rows["slip"] = speed > cfg.epsilon_m_s

@@ -1,20 +1,31 @@
-"""Slip ground truth: mean slip velocity of the object relative to the finger per window.
+"""Slip ground truth: mean slip of the object relative to the finger per window.
 
 Frames (docs/design.md): poses are ``(x, y, z, qx, qy, qz, qw)`` in metres. The grasp-plane
 frame ``G`` is the finger (or TCP) rigid-body pose composed with a fixed calibration,
-``G(t) = F(t) * grasp_plane_in_finger``. Slip is the velocity of the object relative to
-the finger, expressed in ``G``; its y component (normal to the pads) is dropped.
+``G(t) = F(t) * grasp_plane_in_finger``. Slip is the motion of the object relative to the
+finger, expressed in ``G``: a planar velocity (its y component, normal to the pads, is
+dropped) and an angular velocity about the pad normal +y (``aslip_ros.slip``).
 
-Motion capture (``mocap_window_velocity``): the object's position in the grasp plane,
-``r(t) = R_G(t)^T (p_O(t) - p_G(t))``, is what a camera rigidly attached to the finger would
-see, so the mean relative velocity over a window [t0, t1] is exactly
-``(r(t1) - r(t0)) / (t1 - t0)``, whatever happens inside the window.
+Motion capture (``mocap_window_velocity``): the object's pose in the grasp plane,
+``r(t) = R_G(t)^T (p_O(t) - p_G(t))`` and ``Q(t) = R_G(t)^T R_O(t)``, is what a camera
+rigidly attached to the finger would see. Over a window [t0, t1] the relative motion
+``(Q(t1), r(t1)) (Q(t0), r(t0))^-1`` is a rotation ``dQ`` and a translation
+``d = r(t1) - dQ r(t0)``; its logarithm is the constant twist that carries the object from
+the pose at t0 to the pose at t1 (:func:`mean_twist`). Its rotation vector over the window
+length is the mean angular velocity ``w`` (the label ``wy`` is its y component: the
+object's turn about the pad normal), and its translation part is the mean velocity of the
+object's material point at the grasp-plane origin, the pad centre:
+``v_c = dr/dt - w x r``. Without rotation (``w = 0``) that is exactly
+``(r(t1) - r(t0)) / (t1 - t0)``, whatever happens inside the window; a pure rotation about
+the pad centre gives ``v_c = 0`` wherever the object's own origin lies.
 
 Robot state (``robot_window_velocity``, robot-induced data): the probe is fixed in the
-world and its pose is not recorded, so the relative velocity is minus the grasp-plane
-origin's velocity, expressed in the grasp plane at the window's middle:
-``-R_G(t_mid)^T (p_G(t1) - p_G(t0)) / (t1 - t0)``. This equals the motion-capture value
-whenever the gripper does not rotate during the window (the sweeps are translations).
+world and its pose is not recorded; its motion relative to the grasp plane is the inverse
+of the grasp plane's own, ``G(t1)^-1 G(t0)``, read by the same :func:`mean_twist`. The
+planar label is minus the grasp-plane origin's velocity in the grasp plane (for a
+gripper that does not rotate, ``-R_G^T (p_G(t1) - p_G(t0)) / (t1 - t0)``) and ``wy`` is
+minus the gripper's angular velocity about its grasp-plane y (0 for the sweeps, which are
+translations).
 
 Dropouts: poses are interpolated (position linearly, orientation by Slerp) between
 neighbouring samples. A window is dropped (reason ``label_gap``) when either stream has a
@@ -31,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from aslip_ros.slip import VELOCITY_AXES
+from aslip_ros.slip import ANGULAR_AXIS, VELOCITY_AXES
 from aslip_ros.poses import IDENTITY_POSE, as_pose, compose, invert, quat_ok
 
 DEFAULT_MAX_GAP_S = 0.05
@@ -161,12 +172,46 @@ def _window_times(t0, t1):
     return t0, t1
 
 
+def mean_twist(r0: np.ndarray, q0: Rotation, r1: np.ndarray, q1: Rotation,
+               dt) -> tuple[np.ndarray, np.ndarray]:
+    """The constant twist that carries poses ``(q0, r0)`` to ``(q1, r1)`` in ``dt`` seconds.
+
+    Poses of a rigid body in a reference frame (rotations and positions, ``(M, 3)``). Returns
+    ``(v, w)``, each ``(M, 3)`` in the reference frame: ``w`` the angular velocity [rad/s]
+    and ``v`` the velocity [m/s] of the body's material point at the frame's origin, the
+    logarithm of the relative motion ``(q1, r1) (q0, r0)^-1`` over ``dt`` (exact for a
+    motion of constant twist; ``v = (r1 - r0) / dt`` when the body does not turn).
+    """
+    dq = q1 * q0.inv()
+    phi = dq.as_rotvec().reshape(-1, 3)
+    d = np.asarray(r1, dtype=np.float64).reshape(-1, 3) - dq.apply(r0).reshape(-1, 3)
+    # d = J(phi) rho, with J the left Jacobian of SO(3); rho = J(phi)^-1 d:
+    # J^-1 = I - [phi]x / 2 + c(theta) [phi]x^2, c = (1 - (theta / 2) cot(theta / 2)) / theta^2.
+    theta = np.linalg.norm(phi, axis=1)
+    small = theta < 1e-4
+    th = np.where(small, 1.0, theta)
+    c = np.where(small, 1.0 / 12.0 + theta ** 2 / 720.0,
+                 (1.0 - 0.5 * th / np.tan(0.5 * th)) / th ** 2)
+    pxd = np.cross(phi, d)
+    rho = d - 0.5 * pxd + c[:, None] * np.cross(phi, pxd)
+    dt = np.asarray(dt, dtype=np.float64).reshape(-1, 1)
+    return rho / dt, phi / dt
+
+
 @dataclass
 class WindowLabels:
-    """Per-window slip velocity in the grasp plane and why a window has none."""
+    """Per-window slip in the grasp plane (the pad centre's velocity and the angular
+    velocity) and why a window has none."""
 
     velocity: np.ndarray       # (M, 3) m/s, grasp plane, y kept for diagnostics
     reason: np.ndarray         # (M,) uint8: OK, COVERAGE or GAP
+    #: (M, 3) rad/s, grasp plane: the object's angular velocity relative to the finger
+    #: (x and z kept for diagnostics; the label is ``angular``, about +y). None: zeros.
+    omega: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.omega is None:
+            self.omega = np.zeros_like(self.velocity)
 
     @property
     def valid(self) -> np.ndarray:
@@ -191,39 +236,53 @@ class WindowLabels:
         """Planar speed |(vx, vz)| (the y component is not slip)."""
         return np.linalg.norm(self.slip_velocity, axis=1)
 
+    @property
+    def angular(self) -> np.ndarray:
+        """(M,) rad/s: the rotational slip ``wy`` about the pad normal (``aslip_ros.slip``)."""
+        return self.omega[:, ANGULAR_AXIS]
+
 
 def mocap_window_velocity(finger: PoseTrack, obj: PoseTrack, t0, t1,
                           grasp_plane_in_finger=IDENTITY_POSE,
                           max_gap_s: float = DEFAULT_MAX_GAP_S) -> WindowLabels:
-    """Mean object-relative-to-finger velocity over each window, from motion capture."""
+    """Mean motion of the object relative to the finger over each window, from motion
+    capture: the pad-centre velocity and the angular velocity (:func:`mean_twist`)."""
     t0, t1 = _window_times(t0, t1)
     calib = as_pose(grasp_plane_in_finger, "grasp_plane_in_finger")
     reason = np.maximum(finger.check(t0, t1, max_gap_s), obj.check(t0, t1, max_gap_s))
-    vel = np.zeros((t0.size, 3))
+    vel, omega = np.zeros((t0.size, 3)), np.zeros((t0.size, 3))
     if t0.size == 0 or len(finger) < 2 or len(obj) < 2:
-        return WindowLabels(vel, reason)
+        return WindowLabels(vel, reason, omega)
     ends = []
     for tq in (t0, t1):
         pg, rg = _grasp_plane(finger, tq, calib)
-        po, _ = obj.interpolate(tq)
-        ends.append(rg.inv().apply(po - pg))
-    vel = (ends[1] - ends[0]) / (t1 - t0)[:, None]
+        po, ro = obj.interpolate(tq)
+        ends.append((rg.inv().apply(po - pg), rg.inv() * ro))
+    (r0, q0), (r1, q1) = ends
+    vel, omega = mean_twist(r0, q0, r1, q1, t1 - t0)
     vel[reason != OK] = 0.0
-    return WindowLabels(vel, reason)
+    omega[reason != OK] = 0.0
+    return WindowLabels(vel, reason, omega)
 
 
 def robot_window_velocity(tcp: PoseTrack, t0, t1, grasp_plane_in_tcp=IDENTITY_POSE,
                           max_gap_s: float = DEFAULT_MAX_GAP_S) -> WindowLabels:
-    """Mean probe-relative-to-finger velocity per window for a world-fixed probe."""
+    """Mean motion of a world-fixed probe relative to the finger over each window: the
+    inverse of the grasp plane's own motion (:func:`mean_twist`)."""
     t0, t1 = _window_times(t0, t1)
     calib = as_pose(grasp_plane_in_tcp, "grasp_plane_in_tcp")
     reason = tcp.check(t0, t1, max_gap_s)
-    vel = np.zeros((t0.size, 3))
+    vel, omega = np.zeros((t0.size, 3)), np.zeros((t0.size, 3))
     if t0.size == 0 or len(tcp) < 2:
-        return WindowLabels(vel, reason)
-    p0, _ = _grasp_plane(tcp, t0, calib)
-    p1, _ = _grasp_plane(tcp, t1, calib)
-    _, rmid = _grasp_plane(tcp, 0.5 * (t0 + t1), calib)
-    vel = -rmid.inv().apply(p1 - p0) / (t1 - t0)[:, None]
+        return WindowLabels(vel, reason, omega)
+    # The probe's pose in the grasp plane, for a probe at the world origin (any world-fixed
+    # pose gives the same relative motion): (R_G^T, -R_G^T p_G).
+    ends = []
+    for tq in (t0, t1):
+        pg, rg = _grasp_plane(tcp, tq, calib)
+        ends.append((-rg.inv().apply(pg), rg.inv()))
+    (r0, q0), (r1, q1) = ends
+    vel, omega = mean_twist(r0, q0, r1, q1, t1 - t0)
     vel[reason != OK] = 0.0
-    return WindowLabels(vel, reason)
+    omega[reason != OK] = 0.0
+    return WindowLabels(vel, reason, omega)

@@ -24,7 +24,9 @@ from typing import Any, Sequence
 
 from aslip_ros.data.bags import BagError, BagReader, BagWriter
 
-KINDS = {"robot": "robot_induced", "external": "external_induced"}
+KINDS = {"robot": "robot_induced", "external": "external_induced", "pivot": "gravity_pivot"}
+#: Trial-id prefix of each kind.
+_PREFIX = {"robot": "rob", "external": "ext", "pivot": "piv"}
 DEFAULT_START_NS = 1_700_000_000_000_000_000   # a fixed ROS time so bags are reproducible
 DEFAULT_BLOCK_FRAMES = 480
 #: Scene variants (docs/scene.md, ``scene.variants.VARIANTS``): wider per-grasp coupling,
@@ -84,7 +86,7 @@ def plan_trials(kind: str, objects: Sequence[str | None], conditions: Sequence[s
     if not duration_s > 0:
         raise ValueError(f"duration must be positive, got {duration_s}")
     plan = []
-    prefix = "rob" if kind == "robot" else "ext"
+    prefix = _PREFIX[kind]
     for obj in objects:
         for cond in conditions:
             for i in range(trials):
@@ -125,10 +127,12 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
              duration_s: float = 30.0, seed: int = 0, layout: str | None = None,
              pad: str | None = None, block_frames: int = DEFAULT_BLOCK_FRAMES,
              overwrite: bool = False, progress: bool = True,
-             variant: str | None = None) -> dict:
+             variant: str | None = None, twist_fraction: float = 0.0) -> dict:
     """Simulate ``trials`` bags per (object, condition) into ``out_dir``.
 
-    ``None`` for object/condition/layout/pad means the scenario's own default. Existing bags
+    ``None`` for object/condition/layout/pad means the scenario's own default.
+    ``twist_fraction`` (external only): share of the agent's slipping pushes that twist the
+    object (``Scenario.twist_fraction``; recorded in the metadata when not 0). Existing bags
     of the same trials are kept (so an interrupted run resumes) unless ``overwrite``; an
     existing bag recorded with other parameters (duration, layout, pad, seed, scene
     version...) is refused with a ValueError before anything is recorded, since keeping it
@@ -142,12 +146,15 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
     out = Path(out_dir)
     if variant not in (None,) + VARIANTS:
         raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
+    if twist_fraction and kind != "external":
+        raise ValueError("twist_fraction applies to --kind external only")
+    twist = {"twist_fraction": float(twist_fraction)} if twist_fraction else {}
 
     def scene(kw):
-        scn = make(**kw)
+        scn = make(**kw, **twist)
         return scn if variant is None else scenarios.VARIANTS[variant](scn)
     worlds = [World(scene(kw)) for kw in plan]
-    extra = {"duration_s": float(duration_s)}
+    extra = {"duration_s": float(duration_s), **twist}
     if variant is not None:
         extra["variant"] = variant
     if not overwrite:
@@ -189,7 +196,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``aslip simulate``."""
     parser.add_argument("--kind", choices=sorted(KINDS), required=True,
                         help="robot: arm sweeps over a stationary probe (labels from robot "
-                             "state); external: an agent pushes the held object (mocap)")
+                             "state); external: an agent pushes the held object (mocap); "
+                             "pivot: gravity turns an object held off its centre of mass "
+                             "whenever the grip relaxes (mocap)")
     parser.add_argument("--objects", help="comma-separated object names (scene default if "
                                           "omitted), e.g. chips_can,pla_rod")
     parser.add_argument("--conditions", help="comma-separated: robot_off, robot_stationary, "
@@ -210,6 +219,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "of the slip one way; off-centre contact; confounders without "
                              "slip; a lab's motion capture; 44.1 kHz audio (default: the plain "
                              "scene)")
+    parser.add_argument("--twist-fraction", type=float, default=0.0,
+                        help="external only: share of the agent's slipping pushes that twist "
+                             "the object about the pad normal, half pure twists and half with "
+                             "the push (default %(default)s: none)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -222,7 +235,7 @@ def run(args: argparse.Namespace) -> int:
                            duration_s=args.duration, seed=args.seed, layout=args.layout,
                            pad=args.pad, block_frames=args.block_frames,
                            overwrite=args.overwrite, progress=not args.no_progress,
-                           variant=args.variant)
+                           variant=args.variant, twist_fraction=args.twist_fraction)
     except (ValueError, OSError) as exc:
         print(f"aslip simulate: error: {exc}", file=sys.stderr)
         return 1

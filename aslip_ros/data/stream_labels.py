@@ -4,15 +4,21 @@ A window model learns the mean slip of its window, the difference of two positio
 streaming model is asked for the velocity at one instant, and differencing motion capture
 over one 10 ms hop would give a label dominated by noise (0.15 mm per marker, ~0.2 mm
 relative: tens of mm/s at 10 ms). The label is therefore the derivative of a non-causal
-Savitzky-Golay fit to the object's position in the grasp plane; the smoother sees the
+Savitzky-Golay fit to the object's pose in the grasp plane; the smoother sees the
 future, the model does not.
 
 ``aslip export`` stores each trial's object-relative track (``tracks/<k>.npy``, rows
-``(audio file sample position, rx, ry, rz)`` in samples and metres, grasp plane) through
-:func:`relative_track` and :func:`write_track`; :func:`frame_labels` turns a track into
-per-frame labels at any smoother setting, so the smoother can be changed without exporting
-again. The chosen setting (:data:`DEFAULT_SMOOTHER`) was compared against the scene's true
-velocity with ``python -m aslip_ros.data.stream_labels`` (docs/streaming.md).
+``(audio file sample position, rx, ry, rz, ax, ay, az)``: samples, metres and radians,
+grasp plane; ``a`` is the relative rotation accumulated since the first row, whose
+derivative is the angular velocity) through :func:`relative_track` and
+:func:`write_track`; :func:`frame_labels` turns a track into per-frame labels at any
+smoother setting, so the smoother can be changed without exporting again. The planar label
+is the velocity of the object's material point at the pad centre, ``v_c = dr/dt - w x r``,
+and ``wy`` is ``w``'s component about the pad normal, as the window labels
+(``data.labels``). Tracks of datasets exported before the rotation columns (``(N, 4)``)
+give the planar velocity as before and ``wy`` NaN ("no angular label"). The chosen
+setting (:data:`DEFAULT_SMOOTHER`) was compared against the scene's true velocity with
+``python -m aslip_ros.data.stream_labels`` (docs/streaming.md).
 """
 
 from __future__ import annotations
@@ -25,6 +31,8 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
+
+from aslip_ros.slip import ANGULAR_AXIS, VELOCITY_AXES
 
 TRACK_DIR = "tracks"
 
@@ -48,12 +56,28 @@ class Smoother:
 DEFAULT_SMOOTHER = Smoother()
 
 
-def relative_track(source: str, track, calib: np.ndarray, obj=None) -> np.ndarray:
-    """Object position relative to the grasp plane at the pose stamps, ``(N, 4)``: t, r.
+#: Columns of a track: the sample position, the position r (3) and, in tracks written by
+#: this version, the accumulated rotation a (3).
+TRACK_COLUMNS = 7
+OLD_TRACK_COLUMNS = 4
 
-    ``source`` "mocap": ``r = R_G^T (p_O - p_G)`` at the finger stamps (object
-    interpolated); "robot": the world-fixed probe's position, ``-R_G^T p_G`` (exact up to a
-    constant while the gripper does not rotate, the robot labels' own assumption).
+
+def accumulated_rotation(q: Rotation) -> np.ndarray:
+    """``(N, 3)`` rad: the sum of the rotation vectors of ``q[k] q[k-1]^-1`` from the first
+    sample (0) on, so its time derivative is the angular velocity in the reference frame;
+    it does not wrap at pi."""
+    if len(q) < 2:
+        return np.zeros((len(q), 3))
+    steps = (q[1:] * q[:-1].inv()).as_rotvec().reshape(-1, 3)
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+
+
+def relative_track(source: str, track, calib: np.ndarray, obj=None) -> np.ndarray:
+    """Object pose relative to the grasp plane at the pose stamps, ``(N, 7)``: t, r, a.
+
+    ``source`` "mocap": ``r = R_G^T (p_O - p_G)``, orientation ``R_G^T R_O``, at the finger
+    stamps (object interpolated); "robot": the world-fixed probe, ``r = -R_G^T p_G`` and
+    orientation ``R_G^T``. ``a`` is the orientation's :func:`accumulated_rotation`.
     ``track``/``obj`` are ``data.labels.PoseTrack``; ``calib`` the grasp-plane pose7.
     """
     t = np.asarray(track.t, dtype=np.float64)
@@ -63,14 +87,16 @@ def relative_track(source: str, track, calib: np.ndarray, obj=None) -> np.ndarra
     r_g = rot * rc
     if source == "mocap":
         if obj is None or len(obj) < 2:
-            return np.zeros((0, 4))
+            return np.zeros((0, TRACK_COLUMNS))
         inside = (t >= obj.t[0]) & (t <= obj.t[-1])
         t, p_g, r_g = t[inside], p_g[inside], r_g[inside]
-        p_o, _ = obj.interpolate(t)
-        rel = r_g.inv().apply(p_o - p_g)
+        if t.size == 0:
+            return np.zeros((0, TRACK_COLUMNS))
+        p_o, r_o = obj.interpolate(t)
+        rel, q = r_g.inv().apply(p_o - p_g), r_g.inv() * r_o
     else:
-        rel = -r_g.inv().apply(p_g)
-    return np.column_stack([t, rel])
+        rel, q = -r_g.inv().apply(p_g), r_g.inv()
+    return np.column_stack([t, rel.reshape(-1, 3), accumulated_rotation(q)])
 
 
 def export_track(source: str, track, calib: np.ndarray, obj, intercept: float, slope: float,
@@ -90,14 +116,17 @@ def write_track(root: str | Path, k: int, track: np.ndarray) -> None:
 
 
 def load_track(dataset_root: str | Path, k: int) -> np.ndarray:
-    """Trial ``k``'s track ``(N, 4)``; ValueError naming the re-export when it is absent."""
+    """Trial ``k``'s track, ``(N, 7)`` (``(N, 4)`` from an export without the rotation
+    columns); ValueError naming the re-export when it is absent."""
     p = Path(dataset_root) / TRACK_DIR / f"{int(k)}.npy"
     if not p.is_file():
         raise ValueError(f"{dataset_root} has no {TRACK_DIR}/{k}.npy: the streaming labels "
                          f"need a dataset exported by this version of aslip export")
     a = np.load(p)
-    if a.ndim != 2 or a.shape[1] != 4 or not np.isfinite(a).all():
-        raise ValueError(f"{p}: expected finite (N, 4) track, got {a.shape}")
+    if a.ndim != 2 or a.shape[1] not in (TRACK_COLUMNS, OLD_TRACK_COLUMNS) \
+            or not np.isfinite(a).all():
+        raise ValueError(f"{p}: expected a finite (N, {TRACK_COLUMNS}) or "
+                         f"(N, {OLD_TRACK_COLUMNS}) track, got {a.shape}")
     return a
 
 
@@ -134,17 +163,41 @@ def smooth_velocity(t: np.ndarray, r: np.ndarray, tq: np.ndarray,
     return out, valid
 
 
+def track_velocity(track: np.ndarray, tq: np.ndarray,
+                   smoother: Smoother = DEFAULT_SMOOTHER
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smoothed motion of a track (times in seconds in column 0) at times ``tq`` [s]:
+    ``v`` (M, 3) the pad-centre velocity ``dr/dt - w x r`` [m/s], ``w`` (M, 3) the angular
+    velocity [rad/s] (NaN for a track without rotation columns, whose ``v`` is then
+    ``dr/dt``), and the validity mask of :func:`smooth_velocity`."""
+    track = np.asarray(track, dtype=np.float64)
+    tq = np.asarray(tq, dtype=np.float64)
+    t = track[:, 0]
+    has_rot = track.shape[1] >= TRACK_COLUMNS
+    cols = track[:, 1:TRACK_COLUMNS] if has_rot else track[:, 1:OLD_TRACK_COLUMNS]
+    d, valid = smooth_velocity(t, cols, tq, smoother)
+    if not has_rot:
+        return d, np.full((tq.size, 3), np.nan), valid
+    v, w = d[:, :3], d[:, 3:]
+    if t.size:
+        r = np.column_stack([np.interp(tq, t, track[:, 1 + j]) for j in range(3)])
+        v = v - np.cross(w, r)
+    return v, w, valid
+
+
 def frame_labels(track: np.ndarray, frame_end: np.ndarray, sample_rate: float,
                  epsilon: float, smoother: Smoother = DEFAULT_SMOOTHER) -> dict:
     """Per-frame labels at audio file positions ``frame_end`` (samples): ``v`` (M, 2) in m/s
-    (grasp-plane x, z), ``slip`` (speed > epsilon), ``valid``."""
-    t = track[:, 0] / sample_rate
-    v, valid = smooth_velocity(t, track[:, 1:], np.asarray(frame_end) / sample_rate, smoother)
-    v2 = v[:, [0, 2]].astype(np.float32)
+    (grasp-plane x, z, the pad centre's velocity), ``wy`` (M,) in rad/s (NaN for a track
+    without rotation columns), ``slip`` (planar speed > epsilon), ``valid``."""
+    track = np.asarray(track, dtype=np.float64)
+    tq = np.asarray(frame_end) / sample_rate
+    timed = np.column_stack([track[:, 0] / sample_rate, track[:, 1:]])
+    v, w, valid = track_velocity(timed, tq, smoother)
+    v2 = v[:, list(VELOCITY_AXES)].astype(np.float32)
     slip = np.hypot(v2[:, 0], v2[:, 1]) > epsilon
-    return {"v": v2, "slip": slip, "valid": valid,
-            "ambiguous": guard_band(slip, np.asarray(frame_end) / sample_rate,
-                                    smoother.guard_s)}
+    return {"v": v2, "wy": w[:, ANGULAR_AXIS].astype(np.float32), "slip": slip,
+            "valid": valid, "ambiguous": guard_band(slip, tq, smoother.guard_s)}
 
 
 def guard_band(slip: np.ndarray, t: np.ndarray, guard_s: float) -> np.ndarray:
@@ -188,10 +241,10 @@ def compare_with_truth(n_trials: int = 6, duration_s: float = 10.0, seed: int = 
         tr = relative_track("mocap", fin, np.array([0, 0, 0, 0, 0, 0, 1.0]), obj)
         tq, vt = truth["t"], truth["v_rel"]
         inner = (tq > 0.3) & (tq < duration_s - 0.3)
-        d, _ = smooth_velocity(tr[:, 0], tr[:, 1:], tq, Smoother(0.02, 1))
+        d = track_velocity(tr, tq, Smoother(0.02, 1))[0]
         err["diff_20ms"].append(d[inner][:, [0, 2]] - vt[inner])
         for s in cands:
-            v, _ = smooth_velocity(tr[:, 0], tr[:, 1:], tq, s)
+            v = track_velocity(tr, tq, s)[0]
             name = f"sg_{s.window_s * 1e3:.0f}ms_p{s.polyorder}"
             err[name].append(v[inner][:, [0, 2]] - vt[inner])
     out = {}

@@ -18,7 +18,10 @@ import numpy as np
 from aslip_ros.hw.audio_block import AudioBlock
 
 #: Task names accepted by the ``scenario`` parameter -> scene scenario builders.
-SCENARIOS = ("external_induced", "robot_induced", "wall_push", "drag")
+SCENARIOS = ("external_induced", "robot_induced", "wall_push", "drag", "pivot")
+#: The pivot's push in the grasp plane (x, z): down, onto a surface that meets the object off
+#: the grasp axis (``pivot_lever_m``), so that it turns (docs/scene.md).
+PIVOT_PUSH_DIR_XZ = (0.0, -1.0)
 CONDITIONS = ("robot_off", "robot_stationary", "robot_moving")
 
 
@@ -26,8 +29,9 @@ def build_world(values: dict, prefix: str = ""):
     """A :class:`aslip_ros.scene.World` from scene parameter values (open-ended duration).
 
     ``values`` holds ``<prefix>scenario``, ``seed``, ``object``, ``layout``, ``pad``,
-    ``condition``, ``sample_rate``, ``wall_distance_m``, ``drag_speed_m_s`` and (optional)
-    ``drag_hold_s``; an unusable combination raises ValueError.
+    ``condition``, ``sample_rate``, ``wall_distance_m``, ``drag_speed_m_s``, ``pivot_lever_m``
+    (``pivot``: a wall push down, met that far along the fingers, so the object turns) and
+    (optional) ``drag_hold_s``; an unusable combination raises ValueError.
     """
     from aslip_ros.scene import World, scenarios
     g = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
@@ -42,6 +46,10 @@ def build_world(values: dict, prefix: str = ""):
             scn = scenarios.robot_induced(duration_s=None, **common)
         elif kind == "wall_push":
             scn = scenarios.wall_push(wall_distance_m=float(g["wall_distance_m"]), **common)
+        elif kind == "pivot":
+            scn = scenarios.wall_push(wall_distance_m=float(g["wall_distance_m"]),
+                                      push_dir_xz=PIVOT_PUSH_DIR_XZ,
+                                      pivot_lever_m=float(g["pivot_lever_m"]), **common)
         else:
             hold = {"drag_hold_s": float(g["drag_hold_s"])} if "drag_hold_s" in g else {}
             scn = scenarios.external_drag(drag_speed_m_s=float(g["drag_speed_m_s"]), **hold,

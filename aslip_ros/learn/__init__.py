@@ -4,11 +4,11 @@ By role, bottom up:
 
 - ``features`` (log-mel, the one feature path), ``incremental_features`` (the same, hop by
   hop), ``compat`` (does a checkpoint fit a stream), ``data_io`` (a dataset as training and
-  evaluation read it), ``metrics`` (the paper's metrics);
+  evaluation read it), ``metrics`` (the paper's metrics and the rotational ones);
 - ``models/``: the registry of model types (``registry``) and one module per built-in type
   holding its config, network and backend (``aslip_cnn``, ``svm``, ``aslip_stream``);
 - ``calibration/``: the per-grasp microphone levels (``grasp``, ``frames``) and the
-  calibrated outputs, threshold and direction sigma (``output``);
+  calibrated outputs, threshold, direction sigma and angular sigma (``output``);
 - ``checkpoint``: the self-describing file format, checked through the registry;
 - ``inference/``: the window and streaming predictors, and the one live estimator
   (``live.LiveEstimator``) that ``slip_inference``, evaluation and the demo share;

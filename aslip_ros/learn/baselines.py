@@ -16,6 +16,12 @@ them arrays (for example features with a per-grasp calibration removed).
 - Plain SVM: the time-averaged log-mel of each channel, standardised; RBF ``SVC`` for slip
   and RBF ``SVR`` for vx and vz (slip windows), scikit-learn defaults.
 
+Rotational slip: given angular labels ``w`` (``(n,)`` rad/s, NaN: none; training windows
+with at least one label), the plain CNN gets a fifth output, the rim speed
+``wy * ROTATION_RADIUS_M`` in units of the median slip speed, trained with a Huber loss over
+every labelled window (weight 1), and the plain SVM an RBF ``SVR`` on the same target over
+the labelled windows. ``predict_rotation`` then gives the rate (rad/s), else None.
+
 Arrays: ``x`` is ``(n, C, M, T)`` log-mel, ``v`` ``(n, 2)`` m/s, ``slip`` ``(n,)`` bool.
 ``predict`` returns ``(p_slip, raw_velocity)`` as :func:`evaluate.compute_metrics` takes.
 """
@@ -30,6 +36,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.slip import ROTATION_RADIUS_M
 
 
 def baseline_features(stream_rate: float) -> FeatureConfig:
@@ -56,10 +63,20 @@ def _check(x: np.ndarray, v: np.ndarray | None = None, slip: np.ndarray | None =
     return x, v, slip
 
 
-class PlainCNN(nn.Module):
-    """The plain log-mel CNN (module docstring)."""
+def _labelled(w: np.ndarray | None, n: int) -> np.ndarray | None:
+    """The angular labels as float32 ``(n,)``, None when there are none at all."""
+    if w is None:
+        return None
+    w = np.asarray(w, dtype=np.float32).reshape(-1)
+    if w.shape[0] != n:
+        raise ValueError("angular labels and features differ in length")
+    return w if np.isfinite(w).any() else None
 
-    def __init__(self, n_channels: int) -> None:
+
+class PlainCNN(nn.Module):
+    """The plain log-mel CNN (module docstring); ``angular``: a fifth output, the rate."""
+
+    def __init__(self, n_channels: int, angular: bool = False) -> None:
         super().__init__()
         blocks, c_in = [], n_channels
         for c_out in (32, 32, 48):
@@ -68,7 +85,7 @@ class PlainCNN(nn.Module):
             c_in = c_out
         self.conv = nn.Sequential(*blocks)
         self.temporal = nn.Conv1d(48, 48, 3, padding=1)
-        self.out = nn.Linear(48, 4)
+        self.out = nn.Linear(48, 5 if angular else 4)
         self.register_buffer("mean", torch.zeros(n_channels))
         self.register_buffer("std", torch.ones(n_channels))
 
@@ -76,18 +93,23 @@ class PlainCNN(nn.Module):
         x = (x - self.mean[None, :, None, None]) / self.std[None, :, None, None]
         h = self.conv(x).mean(dim=2)                       # (B, 48, T)
         h = F.relu(self.temporal(h)).mean(dim=2)           # (B, 48)
-        return self.out(h)                                 # logit, magnitude, dx, dz
+        return self.out(h)                             # logit, magnitude, dx, dz[, rim speed]
 
 
 def plain_cnn_loss(out: torch.Tensor, v: torch.Tensor, slip: torch.Tensor,
-                   speed_scale: float) -> torch.Tensor:
-    """BCE + 2 x (1 - cos) + 0.5 x Huber + 0.2 x MSE on the unit direction (slip only)."""
+                   speed_scale: float, w: torch.Tensor | None = None) -> torch.Tensor:
+    """BCE + 2 x (1 - cos) + 0.5 x Huber + 0.2 x MSE on the unit direction (slip only),
+    + Huber on the rim speed over the windows with an angular label ``w`` (NaN: none)."""
     loss = F.binary_cross_entropy_with_logits(out[:, 0], slip.float())
+    if w is not None and out.shape[1] > 4:
+        lab = torch.isfinite(w)
+        if lab.any():
+            loss = loss + F.huber_loss(out[lab, 4], w[lab] * ROTATION_RADIUS_M / speed_scale)
     speed = torch.linalg.norm(v, dim=1)
     m = slip & (speed > 0)
     if m.any():
         d_true = v[m] / speed[m, None]
-        d = out[m, 2:]
+        d = out[m, 2:4]
         cos = F.cosine_similarity(d, d_true, dim=1, eps=1e-8)
         loss = loss + 2.0 * (1.0 - cos).mean() \
             + 0.5 * F.huber_loss(out[m, 1], speed[m] / speed_scale) \
@@ -100,6 +122,17 @@ class PlainCnnModel:
     net: PlainCNN
     speed_scale: float
 
+    def predict_rotation(self, x: np.ndarray, batch: int = 512) -> np.ndarray | None:
+        """The rate wy [rad/s] per window, None for a model trained without angular labels."""
+        if self.net.out.out_features < 5:
+            return None
+        x = _check(x)
+        self.net.eval()
+        with torch.no_grad():
+            out = [self.net(torch.from_numpy(x[s:s + batch]))[:, 4].numpy()
+                   for s in range(0, x.shape[0], batch)]
+        return np.concatenate(out).astype(np.float64) * (self.speed_scale / ROTATION_RADIUS_M)
+
     def predict(self, x: np.ndarray, batch: int = 512) -> tuple[np.ndarray, np.ndarray]:
         x = _check(x)
         self.net.eval()
@@ -107,7 +140,7 @@ class PlainCnnModel:
         with torch.no_grad():
             for s in range(0, x.shape[0], batch):
                 out = self.net(torch.from_numpy(x[s:s + batch]))
-                d = F.normalize(out[:, 2:], dim=1, eps=1e-8)
+                d = F.normalize(out[:, 2:4], dim=1, eps=1e-8)
                 mag = torch.clamp(out[:, 1], min=0.0) * self.speed_scale
                 probs.append(torch.sigmoid(out[:, 0]).numpy())
                 vels.append((d * mag[:, None]).numpy())
@@ -115,18 +148,22 @@ class PlainCnnModel:
 
 
 def fit_plain_cnn(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, epochs: int = 25,
-                  batch: int = 64, lr: float = 1e-3, seed: int = 0) -> PlainCnnModel:
-    """Train the plain CNN on all given windows (no validation, no early stopping)."""
+                  batch: int = 64, lr: float = 1e-3, seed: int = 0,
+                  w: np.ndarray | None = None) -> PlainCnnModel:
+    """Train the plain CNN on all given windows (no validation, no early stopping); with
+    angular labels ``w`` (rad/s, NaN: none) its rotational output too."""
     x, v, slip = _check(x, v, slip)
+    w = _labelled(w, x.shape[0])
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    net = PlainCNN(x.shape[1])
+    net = PlainCNN(x.shape[1], angular=w is not None)
     net.mean.copy_(torch.from_numpy(x.mean(axis=(0, 2, 3))))
     net.std.copy_(torch.from_numpy(np.maximum(x.std(axis=(0, 2, 3)), 1e-3)))
     speed = np.linalg.norm(v, axis=1)
     scale = float(np.median(speed[slip])) if np.any(speed[slip] > 0) else 1.0
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     xt, vt, st = torch.from_numpy(x), torch.from_numpy(v), torch.from_numpy(slip)
+    wt = None if w is None else torch.from_numpy(w)
     net.train()
     for _ in range(epochs):
         order = torch.from_numpy(rng.permutation(x.shape[0]))
@@ -135,7 +172,8 @@ def fit_plain_cnn(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, epochs: int
             if b.numel() < 2:          # batch norm needs two samples
                 continue
             opt.zero_grad()
-            loss = plain_cnn_loss(net(xt[b]), vt[b], st[b], scale)
+            loss = plain_cnn_loss(net(xt[b]), vt[b], st[b], scale,
+                                  None if wt is None else wt[b])
             loss.backward()
             opt.step()
     return PlainCnnModel(net.eval(), scale)
@@ -148,12 +186,20 @@ class PlainSvmModel:
     svr_x: object
     svr_z: object
     speed_scale: float
+    svr_w: object = None        # the rim speed / speed_scale; None: no angular labels
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         f = self.scaler.transform(svm_features(x))
         p = 1.0 / (1.0 + np.exp(-self.svc.decision_function(f)))
         vel = np.stack([self.svr_x.predict(f), self.svr_z.predict(f)], axis=1)
         return p.astype(np.float64), vel * self.speed_scale
+
+    def predict_rotation(self, x: np.ndarray) -> np.ndarray | None:
+        """The rate wy [rad/s] per window, None for a model trained without angular labels."""
+        if self.svr_w is None:
+            return None
+        f = self.scaler.transform(svm_features(x))
+        return self.svr_w.predict(f) * (self.speed_scale / ROTATION_RADIUS_M)
 
 
 def svm_features(x: np.ndarray) -> np.ndarray:
@@ -163,8 +209,9 @@ def svm_features(x: np.ndarray) -> np.ndarray:
 
 
 def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: int = 4000,
-                  seed: int = 0) -> PlainSvmModel:
-    """RBF SVC (slip) and SVRs (vx, vz on slip windows) on time-averaged log-mel.
+                  seed: int = 0, w: np.ndarray | None = None) -> PlainSvmModel:
+    """RBF SVC (slip) and SVRs (vx, vz on slip windows; wy on windows with an angular label
+    ``w``, when given) on time-averaged log-mel.
 
     At most ``max_train`` windows (a random subset) keep the kernel fits to minutes.
     """
@@ -172,6 +219,7 @@ def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: 
     from sklearn.svm import SVC, SVR
 
     x, v, slip = _check(x, v, slip)
+    w = _labelled(w, x.shape[0])
     rng = np.random.default_rng(seed)
     idx = np.arange(x.shape[0])
     if idx.size > max_train:
@@ -186,7 +234,11 @@ def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: 
     tv = v[idx][s] / scale
     svr_x = SVR(kernel="rbf").fit(f[s], tv[:, 0])
     svr_z = SVR(kernel="rbf").fit(f[s], tv[:, 1])
-    return PlainSvmModel(scaler, svc, svr_x, svr_z, scale)
+    svr_w = None
+    if w is not None and np.isfinite(w[idx]).sum() >= 2:
+        lab = np.isfinite(w[idx])
+        svr_w = SVR(kernel="rbf").fit(f[lab], w[idx][lab] * ROTATION_RADIUS_M / scale)
+    return PlainSvmModel(scaler, svc, svr_x, svr_z, scale, svr_w)
 
 
 def run_on_dataset(ds, kinds=("cnn", "svm"), *, split_seed: int = 0, test_split: str = "test",
@@ -208,16 +260,20 @@ def run_on_dataset(ds, kinds=("cnn", "svm"), *, split_seed: int = 0, test_split:
                          f"{test_split} trials; use more trials")
     x_tr = np.asarray(feats[tr], dtype=np.float32)
     x_te = np.asarray(feats[te], dtype=np.float32)
+    w_tr = ds.angular(tr) if ds.has_angular(tr) else None
     out = {}
     for kind in kinds:
         if kind == "cnn":
-            model = fit_plain_cnn(x_tr, ds.velocity(tr), ds.slip(tr), epochs=epochs, seed=seed)
+            model = fit_plain_cnn(x_tr, ds.velocity(tr), ds.slip(tr), epochs=epochs, seed=seed,
+                                  w=w_tr)
         elif kind == "svm":
-            model = fit_plain_svm(x_tr, ds.velocity(tr), ds.slip(tr), seed=seed)
+            model = fit_plain_svm(x_tr, ds.velocity(tr), ds.slip(tr), seed=seed, w=w_tr)
         else:
             raise ValueError(f"unknown baseline {kind!r}; choose cnn or svm")
         p, vel = model.predict(x_te)
+        rot = {"angular": model.predict_rotation(x_te), "true_angular": ds.angular(te)} \
+            if ds.has_angular(te) else {}
         out[f"plain_{kind}"] = bootstrap_metrics(ds.windows["trial"][te], p, vel,
                                                  ds.velocity(te), ds.slip(te), ds.window_s,
-                                                 n_boot=n_boot, seed=seed)
+                                                 n_boot=n_boot, seed=seed, **rot)
     return out

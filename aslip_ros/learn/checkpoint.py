@@ -11,7 +11,9 @@ The JSON document (``meta``, built by ``checkpoint_meta``) holds ``model_type`` 
 ``model_config``,
 ``feature_config``, ``normalization`` (per-mel-bin mean/std, also inside the CNN's state
 dict as buffers), ``channel_names``, ``layout``, ``sample_rate`` (Hz, the stream's rate),
-``window_s``, ``window_samples``, ``epsilon_m_s``, ``threshold``, optionally
+``window_s``, ``window_samples``, ``epsilon_m_s``, ``threshold``, ``outputs`` (what the model
+estimates: ``"slip"``, the velocity components and ``"wy"`` for a model with a rotational
+output; a checkpoint without the key is planar), optionally
 ``output_calibration`` (the threshold's fit and the direction-sigma model, from the
 validation windows: learn/calibration/output.py; older checkpoints have none and report no
 sigma) and ``provenance``
@@ -37,16 +39,21 @@ from aslip_ros.learn.calibration.output import meta_problems as output_problems
 from aslip_ros.learn.compat import CheckpointMismatch, check_compatible
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.registry import model_backend
-from aslip_ros.slip import DEFAULT_THRESHOLD
+from aslip_ros.slip import ANGULAR_COMPONENT, DEFAULT_THRESHOLD, VELOCITY_COMPONENTS
 from aslip_ros.util import atomic_path
 
 __all__ = ["Checkpoint", "CheckpointFacts", "CheckpointMismatch", "check_compatible",
-           "checkpoint_meta", "load_checkpoint", "save_checkpoint", "validate_meta"]
+           "checkpoint_meta", "estimates_rotation", "load_checkpoint", "model_outputs",
+           "save_checkpoint", "validate_meta"]
 
 FORMAT = "aslip-checkpoint"
 VERSION = 1
 _REQUIRED = ("model_type", "model_config", "feature_config", "channel_names", "sample_rate",
              "window_s", "window_samples", "epsilon_m_s")
+#: What every model estimates: p(slip) and the planar velocity components, in order.
+PLANAR_OUTPUTS = ("slip",) + VELOCITY_COMPONENTS
+#: Every output a checkpoint's ``outputs`` may name.
+KNOWN_OUTPUTS = PLANAR_OUTPUTS + (ANGULAR_COMPONENT,)
 _TYPES = {"int": (int,), "float": (int, float), "str": (str,), "None": (type(None),),
           "bool": (bool,)}
 
@@ -70,6 +77,39 @@ class Checkpoint:
 
     def check_compatible(self, sample_rate: float, channel_names: Sequence[str]) -> None:
         check_compatible(self.meta, sample_rate, channel_names)
+
+
+def model_outputs(meta: dict[str, Any]) -> list[str]:
+    """What the checkpoint's model estimates (``outputs``; planar when the key is absent,
+    as in every checkpoint written before the rotational output existed)."""
+    outputs = meta.get("outputs")
+    return list(PLANAR_OUTPUTS) if outputs is None else list(outputs)
+
+
+def estimates_rotation(meta: dict[str, Any]) -> bool:
+    """Whether the model estimates the rotational slip rate ``wy``."""
+    return ANGULAR_COMPONENT in model_outputs(meta)
+
+
+def angular_problems(meta: dict[str, Any], has_output: bool) -> list[str]:
+    """A model type's check that ``outputs`` names ``wy`` exactly when its model has a
+    rotational output (a document without ``outputs`` is planar)."""
+    if estimates_rotation(meta) == bool(has_output):
+        return []
+    return [f"outputs {model_outputs(meta)!r} {'lack' if has_output else 'name'} "
+            f"{ANGULAR_COMPONENT!r} but the model {'has' if has_output else 'has no'} "
+            "rotational output"]
+
+
+def _outputs_problems(outputs: Any) -> list[str]:
+    if outputs is None:
+        return []
+    if not isinstance(outputs, list) or not all(isinstance(o, str) for o in outputs) \
+            or len(set(outputs)) != len(outputs) or not set(PLANAR_OUTPUTS) <= set(outputs) \
+            or not set(outputs) <= set(KNOWN_OUTPUTS):
+        return [f"outputs must list {list(PLANAR_OUTPUTS)} and optionally "
+                f"{ANGULAR_COMPONENT!r}, each once, got {outputs!r}"]
+    return []
 
 
 def _number(meta: dict, key: str, low: float, *, strict: bool = True,
@@ -137,6 +177,7 @@ def validate_meta(meta: Any) -> list[str]:
     for key in ("layout",):
         if meta.get(key) is not None and not isinstance(meta[key], str):
             problems.append(f"{key} must be a string, got {meta[key]!r}")
+    problems += _outputs_problems(meta.get("outputs"))
     if problems:
         return problems
     want = round(meta["window_s"] * meta["sample_rate"])
@@ -174,11 +215,13 @@ def checkpoint_meta(model_type: str, model_config: Any, feature_config: Any, ds:
                     channels: Sequence[str], *, normalization: dict[str, Any] | None,
                     provenance: dict[str, Any], threshold: float = DEFAULT_THRESHOLD,
                     calibration: Any = None, window_s: float | None = None,
-                    window_samples: int | None = None, **extra: Any) -> dict[str, Any]:
+                    window_samples: int | None = None, angular: bool = False,
+                    **extra: Any) -> dict[str, Any]:
     """The checkpoint document of a model trained on dataset ``ds`` (a ``WindowSet``).
 
     ``model_config`` and ``feature_config`` are config objects (``to_dict``), as is
-    ``calibration`` when given. Rate, epsilon and, unless given (a streaming model reads one
+    ``calibration`` when given; ``angular``: the model estimates ``wy`` too (``outputs``).
+    Rate, epsilon and, unless given (a streaming model reads one
     frame, not the dataset's window), window length come from the dataset; ``extra``
     keys (``train_config``, ``loss_weights``, ``hop_s``, ``label``...) are added as they are.
     Every trainer builds its document here; ``save_checkpoint`` validates it.
@@ -192,6 +235,7 @@ def checkpoint_meta(model_type: str, model_config: Any, feature_config: Any, ds:
         "window_samples": int(ds.window_samples if window_samples is None
                               else window_samples),
         "epsilon_m_s": float(ds.epsilon), "threshold": float(threshold),
+        "outputs": list(KNOWN_OUTPUTS if angular else PLANAR_OUTPUTS),
     }
     meta.update(extra)
     meta["provenance"] = provenance

@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from aslip_ros.data.dataset import Dataset
-from aslip_ros.slip import VELOCITY_COMPONENTS
+from aslip_ros.slip import ANGULAR_COMPONENT, VELOCITY_COMPONENTS
 
 
 @dataclass
@@ -87,6 +87,18 @@ class WindowSet:
         """(n, N_VELOCITY) float32: the slip velocity label per component, in m/s."""
         w = self.windows[idx]
         return np.stack([w[c] for c in VELOCITY_COMPONENTS], axis=1).astype(np.float32)
+
+    def angular(self, idx: np.ndarray) -> np.ndarray:
+        """(n,) float32: the rotational slip label ``wy`` [rad/s]; NaN where a window has no
+        angular label (a version 1 dataset, or a recording without one)."""
+        if ANGULAR_COMPONENT not in (self.windows.dtype.names or ()):
+            return np.full(self.windows["trial"][idx].shape, np.nan, np.float32)
+        return self.windows[ANGULAR_COMPONENT][idx].astype(np.float32)
+
+    def has_angular(self, idx: np.ndarray | None = None) -> bool:
+        """Whether any of the windows ``idx`` (default: all) has an angular label."""
+        w = self.angular(np.arange(len(self)) if idx is None else idx)
+        return bool(np.isfinite(w).any())
 
     def slip(self, idx: np.ndarray) -> np.ndarray:
         return self.windows["slip"][idx].astype(bool)

@@ -23,6 +23,15 @@ calibrated). ``ece_ci`` and ``sigma.coverage_ci``: 95 % intervals from 1000 resa
 whole trials (``stats``: windows of one trial are not independent).
 ``--reliability PATH.png`` draws both.
 
+Rotational slip (a dataset with angular labels, ``wy``; learn/metrics.py,
+``rotation_metrics``): ``rotation_mae_deg_s`` over rotating windows (``|wy| >
+ROTATION_EPSILON_RAD_S``) with ``rotation_mean_true_deg_s`` and their ratio,
+``pure_rotation_detection``, ``false_rotation_on_translation`` and ``kind_agreement``, each
+with a 95 % trial-bootstrap interval (``<key>_ci``). A checkpoint without a rotational
+output is scored as what it publishes, a rate of 0 (``rotation_estimated`` false). Planar
+metrics are unchanged. ``output_calibration.angular_sigma``: the angular sigma coverage
+for a checkpoint with an angular sigma model.
+
 Streaming checkpoints (``aslip_stream``) are scored on the same windows and labels: the
 estimator runs over each trial's audio from its start (a zero state, as the live node after
 a reset) and each window gets the newest estimate available at its end (the last frame
@@ -52,8 +61,8 @@ from aslip_ros.learn.models.registry import model_backend
 from aslip_ros.learn.checkpoint import CheckpointMismatch
 from aslip_ros.learn.data_io import open_dataset, select_windows
 from aslip_ros.learn.calibration.output import calibration_check, plot_reliability
-from aslip_ros.learn.metrics import compute_metrics, grouped_metrics
-from aslip_ros.learn.stats import resamples
+from aslip_ros.learn.metrics import ROTATION_KEYS, compute_metrics, grouped_metrics
+from aslip_ros.learn.stats import bootstrap_metrics, resamples
 
 __all__ = ["compute_metrics", "evaluate_checkpoint", "grouped_metrics", "predict_split"]
 
@@ -68,9 +77,10 @@ def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "tes
     Dataset channels are picked by the checkpoint's channel names, so a single-microphone
     model evaluates on a 4-microphone dataset; rate and window length must match exactly
     (a streaming checkpoint: the rate; see the module docstring).
-    Returns ``prob``, ``raw_velocity``, ``true_velocity``, ``slip``, ``trial`` (per window),
-    ``index`` (window indices), ``window_s``, ``threshold`` and the ``predictor`` and
-    ``dataset`` used.
+    Returns ``prob``, ``raw_velocity``, ``true_velocity``, ``slip``, ``angular`` (the raw
+    rate wy, None for a model without a rotational output), ``true_angular`` (NaN: no
+    label), ``trial`` (per window), ``index`` (window indices), ``window_s``, ``threshold``
+    and the ``predictor`` and ``dataset`` used.
     """
     pred = predictor or _load(checkpoint, threshold)
     ds = open_dataset(dataset)
@@ -91,14 +101,17 @@ def predict_split(checkpoint: str | Path, dataset: str | Path, split: str = "tes
         from aslip_ros.learn.calibration.frames import dataset_offsets
         offsets = dataset_offsets(ds, pred.channel_names, pred.feature_config,
                                   pred.calibration, idx)
-    probs, raws = [], []
+    parts = []
     for s in range(0, idx.size, 2048):
-        b = pred.predict_batch(ds.window_audio(idx[s:s + 2048], cols), batch_size=batch_size,
-                               offsets=None if offsets is None else offsets[idx[s:s + 2048]])
-        probs.append(b.probability)
-        raws.append(b.raw_velocity)
-    return {"prob": np.concatenate(probs), "raw_velocity": np.concatenate(raws),
+        parts.append(pred.predict_batch(
+            ds.window_audio(idx[s:s + 2048], cols), batch_size=batch_size,
+            offsets=None if offsets is None else offsets[idx[s:s + 2048]]))
+    return {"prob": np.concatenate([b.probability for b in parts]),
+            "raw_velocity": np.concatenate([b.raw_velocity for b in parts]),
+            "angular": None if parts[0].angular is None else
+            np.concatenate([b.angular for b in parts]),
             "true_velocity": ds.velocity(idx), "slip": ds.slip(idx),
+            "true_angular": ds.angular(idx),
             "trial": np.asarray(ds.windows["trial"][idx]), "index": idx,
             "window_s": pred.window_s, "threshold": pred.threshold, "predictor": pred,
             "dataset": ds}
@@ -128,16 +141,18 @@ def _predict_stream(pred, ds, cols, idx: np.ndarray) -> dict[str, Any]:
     estimate at each window's end (module docstring)."""
     trial = np.asarray(ds.windows["trial"][idx])
     end = np.asarray(ds.windows["start"][idx], np.int64) + ds.window_samples
-    prob, raw = np.zeros(idx.size), np.zeros((idx.size, 2))
+    prob, raw, rate = np.zeros(idx.size), np.zeros((idx.size, 2)), np.zeros(idx.size)
     keep = np.zeros(idx.size, bool)
     for k in np.unique(trial):
         if int(ds.trials[k].get("audio_gaps") or 0):
             continue
-        ends, p, v = pred.trial_outputs(np.asarray(ds.audio(k))[:, cols])
+        ends, p, v, w = pred.trial_outputs(np.asarray(ds.audio(k))[:, cols])
         rows = np.flatnonzero(trial == k)
         j = np.searchsorted(ends, end[rows], side="right") - 1
         ok = j >= 0                      # a window ending before the first frame has none
         prob[rows[ok]], raw[rows[ok]] = p[j[ok]], v[j[ok]]
+        if w is not None:
+            rate[rows[ok]] = w[j[ok]]
         keep[rows[ok]] = True
     if not keep.any():
         raise ValueError("no window of the split has a streaming estimate (trials with audio "
@@ -145,8 +160,10 @@ def _predict_stream(pred, ds, cols, idx: np.ndarray) -> dict[str, Any]:
                          f"{pred.window_s * 1e3:g} ms of audio)")
     idx = idx[keep]
     return {"prob": prob[keep], "raw_velocity": raw[keep], "true_velocity": ds.velocity(idx),
-            "slip": ds.slip(idx), "trial": trial[keep], "index": idx, "window_s": ds.window_s,
-            "threshold": pred.threshold, "predictor": pred, "dataset": ds}
+            "angular": rate[keep] if pred.estimates_rotation else None,
+            "slip": ds.slip(idx), "true_angular": ds.angular(idx), "trial": trial[keep],
+            "index": idx, "window_s": ds.window_s, "threshold": pred.threshold,
+            "predictor": pred, "dataset": ds}
 
 
 def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str = "test",
@@ -157,33 +174,64 @@ def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str 
     pred, ds, idx = p["predictor"], p["dataset"], p["index"]
     args = (p["prob"], p["raw_velocity"], p["true_velocity"], p["slip"], p["window_s"],
             pred.threshold)
+    rot = _rotation_args(p)
     return {
         "checkpoint": str(checkpoint), "dataset": str(dataset), "split": split,
         "model_type": pred.model_type, "layout": pred.layout,
         "channel_names": pred.channel_names,
         "calibration": None if pred.calibration is None else pred.calibration.method,
-        "overall": compute_metrics(*args),
-        "per_object": grouped_metrics(ds.trial_field("object", idx), *args),
-        "per_condition": grouped_metrics(ds.trial_field("condition", idx), *args),
-        "output_calibration": _output_calibration(p, getattr(pred, "sigma_model", None)),
+        "overall": _overall(p, args, rot),
+        "per_object": grouped_metrics(ds.trial_field("object", idx), *args, **rot),
+        "per_condition": grouped_metrics(ds.trial_field("condition", idx), *args, **rot),
+        "output_calibration": _output_calibration(p, getattr(pred, "sigma_model", None),
+                                                  getattr(pred, "angular_sigma_model", None)),
     }
 
 
-def _output_calibration(p: dict[str, Any], model, n_boot: int = 1000) -> dict[str, Any]:
+def _rotation_args(p: dict[str, Any]) -> dict[str, Any]:
+    """The rotational arguments of ``compute_metrics`` (none when the split's windows have
+    no angular label)."""
+    if not np.isfinite(p["true_angular"]).any():
+        return {}
+    return {"angular": p["angular"], "true_angular": p["true_angular"]}
+
+
+def _overall(p: dict[str, Any], args: tuple, rot: dict[str, Any],
+             n_boot: int = 1000) -> dict[str, Any]:
+    """``compute_metrics`` over the split; with angular labels and two trials or more, the
+    rotational metrics' trial-bootstrap intervals (``<key>_ci``)."""
+    out = compute_metrics(*args, **rot)
+    if rot and np.unique(p["trial"]).size >= 2:
+        boot = bootstrap_metrics(p["trial"], *args[:5], n_boot=n_boot, seed=0,
+                                 threshold=args[5], **rot)
+        out.update({k + "_ci": boot[k + "_ci"] for k in ROTATION_KEYS if k + "_ci" in boot})
+    return out
+
+
+def _output_calibration(p: dict[str, Any], model, angular_model=None,
+                        n_boot: int = 1000) -> dict[str, Any]:
     """``calibration_check`` on the split, with trial-bootstrap intervals (docstring)."""
     arrays = [np.asarray(p[k]) for k in ("prob", "raw_velocity", "true_velocity", "slip")]
-    out = calibration_check(*arrays, model)
+    rates = {} if p.get("angular") is None or angular_model is None else {
+        "w_pred": np.asarray(p["angular"]), "w_true": np.asarray(p["true_angular"])}
+    out = calibration_check(*arrays, model, angular_model=angular_model, **rates)
     if np.unique(p["trial"]).size < 2:
         return out
-    ece, cover = [], []
+    ece, cover, w_cover = [], [], []
     for idx in resamples(p["trial"], n_boot, 0):
-        c = calibration_check(*(a[idx] for a in arrays), model)
+        c = calibration_check(*(a[idx] for a in arrays), model, angular_model=angular_model,
+                              **{k: a[idx] for k, a in rates.items()})
         ece.append(c["ece"])
         if c["sigma"] is not None and c["sigma"]["coverage"] is not None:
             cover.append(c["sigma"]["coverage"])
+        if c.get("angular_sigma") and c["angular_sigma"]["coverage"] is not None:
+            w_cover.append(c["angular_sigma"]["coverage"])
     out["ece_ci"] = [float(v) for v in np.percentile(ece, [2.5, 97.5])]
     if cover and out["sigma"] is not None:
         out["sigma"]["coverage_ci"] = [float(v) for v in np.percentile(cover, [2.5, 97.5])]
+    if w_cover and out.get("angular_sigma") is not None:
+        out["angular_sigma"]["coverage_ci"] = [float(v)
+                                               for v in np.percentile(w_cover, [2.5, 97.5])]
     return out
 
 
@@ -209,7 +257,31 @@ def format_report(res: dict[str, Any]) -> str:
             else "no slip windows")
         lines.append(f"calibration: threshold {res['overall']['threshold']:.2f}, "
                      f"ECE {cal['ece']:.3f}{ci(cal.get('ece_ci'))}; {cover}")
+    if res["overall"].get("n_angular_labelled"):
+        lines.append(rotation_line(res["overall"]))
     return "\n".join(lines)
+
+
+def rotation_line(m: dict[str, Any]) -> str:
+    """The rotational metrics (``compute_metrics`` with angular labels) in one line, each
+    with its interval where the result has one."""
+    def cell(key: str, scale: float, fmt: str, unit: str) -> str:
+        if key not in m:
+            return "-"
+        c = m.get(key + "_ci")
+        span = "" if c is None else f" [{c[0] * scale:{fmt}}, {c[1] * scale:{fmt}}]"
+        return f"{m[key] * scale:{fmt}}{unit}{span}"
+    head = "rotation" + ("" if m.get("rotation_estimated") else
+                         " (the model has no rotational output: scored as 0)")
+    return (f"{head}: n rotating {m['n_rotating']}, MAE "
+            f"{cell('rotation_mae_deg_s', 1, '.1f', ' deg/s')} of mean "
+            f"{cell('rotation_mean_true_deg_s', 1, '.1f', ' deg/s')} (ratio "
+            f"{cell('rotation_mae_ratio', 1, '.2f', '')}); pure rotation detected "
+            f"{cell('pure_rotation_detection', 100, '.1f', ' %')} of "
+            f"{m['n_pure_rotation']}; false rotation on translation "
+            f"{cell('false_rotation_on_translation', 100, '.1f', ' %')} of "
+            f"{m['n_pure_translation']}; kind agreement "
+            f"{cell('kind_agreement', 100, '.1f', ' %')} of {m['n_kind_windows']} slip windows")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -11,7 +11,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from aslip_ros.learn.metrics import compute_metrics
+from aslip_ros.learn.metrics import ROTATION_KEYS, compute_metrics
+from aslip_ros.slip import DEFAULT_THRESHOLD
 
 KEYS = ("detection_accuracy", "direction_mae_deg", "magnitude_rmse_mm")
 
@@ -30,14 +31,22 @@ def resamples(trial: np.ndarray, n_boot: int, seed: int):
 
 def bootstrap_metrics(trial: np.ndarray, prob, raw_velocity, true_velocity, slip,
                       window_s: float, *, n_boot: int = 1000, seed: int = 0,
-                      level: float = 0.95) -> dict[str, Any]:
-    """``compute_metrics`` overall plus ``<key>_ci`` = (low, high) for each of ``KEYS``."""
+                      level: float = 0.95, threshold: float = DEFAULT_THRESHOLD,
+                      angular=None, true_angular=None) -> dict[str, Any]:
+    """``compute_metrics`` overall plus ``<key>_ci`` = (low, high) for each of ``KEYS`` and,
+    with ``true_angular`` (rad/s, NaN: no label; ``angular`` the model's raw rate or None),
+    for each rotational metric (``metrics.ROTATION_KEYS``) the windows allow."""
     arrays = [np.asarray(a) for a in (prob, raw_velocity, true_velocity, slip)]
-    out = compute_metrics(*arrays, window_s)
-    samples = {k: [] for k in KEYS}
+    rot = {} if true_angular is None else {
+        "true_angular": np.asarray(true_angular),
+        "angular": None if angular is None else np.asarray(angular)}
+    out = compute_metrics(*arrays, window_s, threshold, **rot)
+    keys = KEYS + (ROTATION_KEYS if rot else ())
+    samples = {k: [] for k in keys}
     for idx in resamples(trial, n_boot, seed):
-        m = compute_metrics(*(a[idx] for a in arrays), window_s)
-        for k in KEYS:
+        m = compute_metrics(*(a[idx] for a in arrays), window_s, threshold,
+                            **{k: None if a is None else a[idx] for k, a in rot.items()})
+        for k in keys:
             if k in m:
                 samples[k].append(m[k])
     lo, hi = 50.0 * (1.0 - level), 50.0 * (1.0 + level)

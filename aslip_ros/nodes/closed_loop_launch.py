@@ -260,13 +260,18 @@ def recording_metadata(context, cell: Cell, **extra) -> dict:
 
 
 def closed_loop_description(controller: str, scenario: str, task_arg: str,
-                            task_help: str) -> LaunchDescription:
+                            task_help: str, scenarios: tuple[str, ...] = ()
+                            ) -> LaunchDescription:
     """Launch ``controller`` (slip_stop or slip_track) in its closed loop.
 
-    ``scenario`` is the scene's task when ``sim:=true``; ``task_arg`` is the one
+    ``scenario`` is the scene's task when ``sim:=true`` (with ``scenarios``, the default of a
+    ``scenario`` launch argument that may name any of them); ``task_arg`` is the one
     controller parameter exposed as a launch argument (empty: the cell's, else the node's).
     """
-    args = [
+    choice = [DeclareLaunchArgument(
+        "scenario", default_value=scenario, choices=[scenario, *scenarios],
+        description="sim: the scene's task")] if scenarios else []
+    args = choice + [
         DeclareLaunchArgument("sim", default_value="true", description="simulated scene"),
         DeclareLaunchArgument("checkpoint", default_value="",
                               description="model checkpoint (streaming, window CNN or "
@@ -356,7 +361,9 @@ def _closed_loop_nodes(context, controller, scenario, task_arg):
         nodes.insert(0, Node(package="aslip_ros", executable="scene_sim", name="scene_sim",
                              output="screen", on_exit=required,
                              parameters=[os.path.join(cfg, "scene_sim.yaml"),
-                                         {"scenario": scenario, "object": arg(context, "object"),
+                                         {"scenario": context.launch_configurations.get(
+                                             "scenario", scenario),
+                                          "object": arg(context, "object"),
                                           "seed": _given(context, "seed", 0)}]))
     else:
         nodes.insert(0, Node(package="aslip_ros", executable="audio_capture",

@@ -23,6 +23,7 @@ from aslip_ros import frames, poses
 from aslip_ros.audio_frame import (FULL_SCALE, NS_PER_S, AudioData,  # noqa: F401
                                    AudioFrameError, decode_audio_frame, stamp_to_ns)
 from aslip_ros.msg import AudioFrame, SlipVector
+from aslip_ros.slip import ROTATION_EPSILON_RAD_S
 
 #: Default frame of slip vectors (docs/design.md, "Units and frames").
 GRASP_FRAME = frames.GRASP_PLANE
@@ -84,14 +85,18 @@ def audio_from_msg(msg: AudioFrame, require_finite: bool = True) -> AudioData:
 
 def slip_to_msg(vx: float, vz: float, probability: float, slipping: bool, threshold: float,
                 stamp_ns: int, window_length: float, source: str,
-                frame_id: str = GRASP_FRAME, direction_sigma: float = -1.0) -> SlipVector:
+                frame_id: str = GRASP_FRAME, direction_sigma: float = -1.0,
+                angular_velocity: float = 0.0, angular_sigma: float = -1.0) -> SlipVector:
     """Build a SlipVector; refuses non-finite or out-of-range values instead of sending them.
 
     When ``slipping`` is false the velocity, speed and direction are zero (the paper's zero
-    vector), whatever ``vx``/``vz`` say.
+    vector), whatever ``vx``/``vz`` say. ``angular_velocity`` [rad/s, about grasp-plane +y]
+    and its sigma (negative: none) are not gated by ``slipping``, which is planar: a pure
+    rotation is published with ``slipping`` false.
     """
     values = {"vx": vx, "vz": vz, "probability": probability, "threshold": threshold,
-              "window_length": window_length, "direction_sigma": direction_sigma}
+              "window_length": window_length, "direction_sigma": direction_sigma,
+              "angular_velocity": angular_velocity, "angular_sigma": angular_sigma}
     bad = [k for k, v in values.items() if not math.isfinite(float(v))]
     if bad:
         raise ValueError(f"slip estimate has non-finite {', '.join(bad)}: {values}")
@@ -113,6 +118,8 @@ def slip_to_msg(vx: float, vz: float, probability: float, slipping: bool, thresh
     else:
         msg.direction_sigma = -1.0
     msg.velocity.y = 0.0
+    msg.angular_velocity = float(angular_velocity)
+    msg.angular_velocity_sigma = float(angular_sigma) if angular_sigma >= 0.0 else -1.0
     msg.window_length = float(window_length)
     msg.source = str(source)
     return msg
@@ -124,32 +131,40 @@ def prediction_to_slip(pred, stamp_ns: int, source: str,
 
     The message's ``threshold`` is the one the prediction's ``slipping`` was decided at
     (``pred.threshold``), never a second value that could disagree with the decision; its
-    ``direction_sigma`` is the prediction's.
+    ``direction_sigma`` is the prediction's, and so are ``angular_velocity`` and its sigma
+    (0 and -1, "not estimated", for a prediction without them).
     """
     return slip_to_msg(pred.vx, pred.vz, pred.probability, pred.slipping, pred.threshold,
                        stamp_ns, pred.window_length, source, frame_id,
-                       direction_sigma=pred.direction_sigma)
+                       direction_sigma=pred.direction_sigma,
+                       angular_velocity=getattr(pred, "angular_velocity", 0.0),
+                       angular_sigma=getattr(pred, "angular_sigma", -1.0))
 
 
 @dataclass(frozen=True)
 class SlipData:
-    """A validated SlipVector: grasp-plane ``(vx, vz)`` [m/s] and the decision."""
+    """A validated SlipVector: grasp-plane ``(vx, vz)`` [m/s], the decision, and the
+    rotational slip about grasp-plane +y [rad/s] with its sigma (negative: none)."""
 
     stamp_ns: int
     vx: float
     vz: float
     slipping: bool
     probability: float
+    angular_velocity: float = 0.0
+    angular_sigma: float = -1.0
 
 
 def slip_from_msg(msg: SlipVector) -> SlipData:
     """Decode a SlipVector; :class:`ValueError` on NaN/Inf or a probability outside [0, 1]."""
     vx, vz, p = float(msg.velocity.x), float(msg.velocity.z), float(msg.probability)
-    if not (math.isfinite(vx) and math.isfinite(vz) and math.isfinite(p)):
+    w, w_sigma = float(msg.angular_velocity), float(msg.angular_velocity_sigma)
+    if not all(math.isfinite(x) for x in (vx, vz, p, w, w_sigma)):
         raise ValueError("SlipVector holds a non-finite value")
     if not 0.0 <= p <= 1.0:
         raise ValueError(f"SlipVector probability {p} outside [0, 1]")
-    return SlipData(stamp_to_ns(msg.header.stamp), vx, vz, bool(msg.slipping), p)
+    return SlipData(stamp_to_ns(msg.header.stamp), vx, vz, bool(msg.slipping), p, w,
+                    w_sigma if w_sigma >= 0.0 else -1.0)
 
 
 # --------------------------------------------------------------------------------- poses
@@ -214,12 +229,17 @@ def probability_color(p: float, alpha: float = 1.0) -> ColorRGBA:
 
 def slip_markers(msg: SlipVector, ns: str = "aslip_slip", scale_s: float = 2.0,
                  shaft_m: float = 0.004, lifetime_s: float = 0.5,
-                 alpha: Optional[float] = None) -> MarkerArray:
+                 alpha: Optional[float] = None, arc_radius_m: float = 0.02) -> MarkerArray:
     """rviz markers for a SlipVector, in its own frame.
 
     An arrow from the grasp-plane origin along the slip velocity (``scale_s`` metres of arrow
-    per m/s of slip; deleted while not slipping) and a sphere at the origin, both colored by
-    the slip probability.
+    per m/s of slip: where the object goes in ``scale_s`` seconds; deleted while not
+    slipping), a sphere at the origin and, for the rotational slip, an arc of radius
+    ``arc_radius_m`` about the pad normal (+y) from the top of the pad (+z), turning the way
+    the object turns, through the angle it turns in ``scale_s`` seconds
+    (``angular_velocity * scale_s``, below one full turn) with an arrow head at its end
+    (both deleted while ``|angular_velocity|`` is at most
+    ``aslip_ros.slip.ROTATION_EPSILON_RAD_S``); all colored by the slip probability.
     """
     if not (math.isfinite(scale_s) and scale_s > 0):
         raise ValueError(f"scale_s must be positive, got {scale_s}")
@@ -248,4 +268,40 @@ def slip_markers(msg: SlipVector, ns: str = "aslip_slip", scale_s: float = 2.0,
     dot.pose.orientation.w = 1.0
     dot.scale.x = dot.scale.y = dot.scale.z = 3.0 * shaft_m
     dot.color = color
-    return MarkerArray(markers=[arrow, dot])
+    arc, head = _rotation_markers(msg, ns, scale_s * float(msg.angular_velocity),
+                                  arc_radius_m, shaft_m, color)
+    arc.lifetime = head.lifetime = arrow.lifetime
+    return MarkerArray(markers=[arrow, dot, arc, head])
+
+
+def _rotation_markers(msg: SlipVector, ns: str, sweep_rad: float, radius_m: float,
+                      shaft_m: float, color: ColorRGBA) -> tuple:
+    """The rotation's arc (LINE_STRIP, id 2) and its arrow head (ARROW, id 3)."""
+    arc, head = Marker(), Marker()
+    for m, k, kind in ((arc, 2, Marker.LINE_STRIP), (head, 3, Marker.ARROW)):
+        m.header = msg.header
+        m.ns, m.id, m.type = ns, k, kind
+    if not abs(float(msg.angular_velocity)) > ROTATION_EPSILON_RAD_S:
+        arc.action = head.action = Marker.DELETE
+        return arc, head
+    sweep = max(-1.9 * math.pi, min(1.9 * math.pi, sweep_rad))
+    Point = type(arc.pose.position)
+    # A turn by s about +y carries the top of the pad (0, 0, r) to r (sin s, 0, cos s).
+    n = max(2, int(math.ceil(abs(sweep) / (math.pi / 24)))) + 1
+    for j in range(n):
+        a = sweep * j / (n - 1)
+        arc.points.append(Point(x=radius_m * math.sin(a), y=0.0, z=radius_m * math.cos(a)))
+    end = arc.points[-1]
+    # Tangent at the end, the way it turns, as long as the planar arrow's head.
+    turn = 1.0 if sweep > 0 else -1.0
+    tx, tz = turn * math.cos(sweep), -turn * math.sin(sweep)
+    tail = Point(x=end.x - 3.0 * shaft_m * tx, y=0.0, z=end.z - 3.0 * shaft_m * tz)
+    head.points.extend([tail, Point(x=end.x + 3.0 * shaft_m * tx, y=0.0,
+                                    z=end.z + 3.0 * shaft_m * tz)])
+    for m in (arc, head):
+        m.action = Marker.ADD
+        m.pose.orientation.w = 1.0
+        m.color = color
+    arc.scale.x = shaft_m
+    head.scale.x, head.scale.y, head.scale.z = shaft_m, 2.0 * shaft_m, 3.0 * shaft_m
+    return arc, head

@@ -2,9 +2,11 @@
 
 Subscribes to two ``geometry_msgs/PoseStamped`` topics from any motion-capture driver
 (mocap4r2, vrpn_mocap, ...) or the scene, keeps the last ``buffer_s`` of each,
-and publishes the mean slip velocity over the window ``[t - window_s, t]`` ending at the
-newest instant both streams cover, computed by :func:`aslip_ros.data.labels.
-mocap_window_velocity` -- the same function the training export labels windows with.
+and publishes the mean slip over the window ``[t - window_s, t]`` ending at the newest
+instant both streams cover -- the planar velocity and, not gated by ``slipping``, the
+angular velocity about the pad normal (``angular_velocity``; its sigma -1) -- computed by
+:func:`aslip_ros.data.labels.mocap_window_velocity`, the same function the training export
+labels windows with.
 
 The grasp plane's pose in the finger's rigid body comes from ``calibration``:
 ``param`` (``grasp_plane_in_finger``), ``metadata`` (the key of the same name on
@@ -239,7 +241,8 @@ class MocapBridge(Node):
         try:
             msg = convert.slip_to_msg(vx, vz, 1.0 if slipping else 0.0, slipping,
                                       DEFAULT_THRESHOLD, t_end_ns, window, "mocap_truth",
-                                      self.p["frame_id"])
+                                      self.p["frame_id"],
+                                      angular_velocity=float(lab.angular[0]))
         except ValueError as exc:
             self.get_logger().warning(f"truth not published: {exc}", throttle_duration_sec=1.0)
             return

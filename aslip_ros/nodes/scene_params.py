@@ -7,6 +7,9 @@ from __future__ import annotations
 from aslip_ros.hw.sources import CONDITIONS, SCENARIOS
 from aslip_ros.nodes import common as c
 
+#: The pivot's lever arm by default [m]: an object held 10 cm from where it meets the surface.
+PIVOT_LEVER_M = 0.1
+
 
 def scene_params(prefix: str = "") -> list:
     """Parameter specs describing a scene, each name preceded by ``prefix``; the defaults
@@ -33,6 +36,9 @@ def scene_params(prefix: str = "") -> list:
         c.Param(prefix + "wall_distance_m", 0.0,
                 "wall_push: wall distance ahead of the object [m] (0 = start in contact)",
                 c.non_negative, read_only=True),
+        c.Param(prefix + "pivot_lever_m", PIVOT_LEVER_M,
+                "pivot: where the surface below meets the object, along the fingers from "
+                "the grasp axis [m]", c.in_range(0.02, 0.5), read_only=True),
         c.from_config(Scenario, "drag_speed_m_s", "drag: agent drag speed [m/s]", c.positive,
                       read_only=True, prefix=prefix),
         c.from_config(Scenario, "drag_hold_s", "drag: the agent holds the object still this "

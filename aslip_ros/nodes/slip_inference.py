@@ -347,7 +347,9 @@ class SlipInference(Node):
         p = e.prediction
         out = convert.slip_to_msg(p.vx, p.vz, p.probability, p.slipping, p.threshold,
                                   e.stamp_ns, p.window_length, self.source, self.p["frame_id"],
-                                  direction_sigma=e.direction_sigma)
+                                  direction_sigma=e.direction_sigma,
+                                  angular_velocity=p.angular_velocity,
+                                  angular_sigma=p.angular_sigma)
         self.pub_slip.publish(out)
         with self._lock:
             self.published += 1

@@ -3,9 +3,12 @@
 The task logic is :class:`aslip_ros.control.slip_stop.SlipStop`: start with the object in
 contact with the wall, retract ``retract_distance_m``, settle, re-approach at
 ``approach_speed_m_s`` along ``direction`` (``link_base``), stop after ``debounce_count``
-consecutive slipping estimates. The result (stop reason, success, stopping distance past the
-contact pose) is published latched as JSON on ``/aslip/slip_stop/result`` when the arm stops
-and again, final, once it has come to rest (``settle_result_s`` later).
+consecutive slipping estimates; with ``stop_on_rotation`` an estimate whose
+``|angular_velocity|`` (SlipVector, rad/s about the pad normal) reaches
+``rotation_threshold_rad_s`` counts as slipping (reason ``rotation``). The result (stop
+reason, success, stopping distance past the contact pose) is published latched as JSON on
+``/aslip/slip_stop/result`` when the arm stops and again, final, once it has come to rest
+(``settle_result_s`` later).
 
 ``direction`` ``[0, 0, 0]`` (default) takes the push direction from the scene's metadata
 (``task.push_direction`` on ``/aslip/metadata``); on hardware give it explicitly.
@@ -71,6 +74,12 @@ class SlipStopNode(ControllerNode):
                           "consecutive slip estimates needed to stop", c.int_range(1, 100)),
             c.from_config(SlipStopConfig, "time_margin", "phase time limit factor (>= 1)",
                           c.at_least(1.0)),
+            c.from_config(SlipStopConfig, "stop_on_rotation",
+                          "an estimate rotating at rotation_threshold_rad_s or faster counts "
+                          "as slipping; false = act on planar slip only"),
+            c.from_config(SlipStopConfig, "rotation_threshold_rad_s",
+                          "|angular_velocity| that counts as slip [rad/s]",
+                          c.in_range(0.01, 100.0)),
             c.Param("settle_result_s", 0.5, "final result this long after the stop [s]",
                     c.non_negative, read_only=True),
         ]
@@ -111,8 +120,9 @@ class SlipStopNode(ControllerNode):
         return True
 
     def feed_slip(self, slip, now: float) -> None:
-        """The slip decision is what the wall-push task uses."""
-        self.task.on_slip(slip.slipping, now)
+        """The planar slip decision and the angular velocity about the pad normal (0.0 from
+        a decoder or a message without one) are what the wall-push task uses."""
+        self.task.on_slip(slip.slipping, now, getattr(slip, "angular_velocity", 0.0))
 
     def after_step(self, now: float) -> None:
         """Publish the result at the stop and, final, once the arm has settled."""
@@ -150,7 +160,10 @@ class SlipStopNode(ControllerNode):
         if self.task is None:
             return {}
         travel = self.task.travel()
-        return {"travel_m": travel} if math.isfinite(travel) else {}
+        out = {"task_rejected_inputs": self.task.rejected_inputs}
+        if math.isfinite(travel):
+            out["travel_m"] = travel
+        return out
 
 
 def main(args: Optional[list] = None) -> int:

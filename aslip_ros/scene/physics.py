@@ -10,6 +10,11 @@ ablation in ``scene/ablation.py`` shows a result that depends on it (docs/scene.
   families apart.
 - The source sits towards the leading edge of the contact, so microphones nearer that edge
   hear it louder (distance falloff); that level pattern is the only sign cue.
+- Rotational slip about the pad normal (``w_rel``): each microphone's source follows the local
+  slip velocity of the pad region it hears, ``v + w x r`` at its position, with the same ridge
+  physics and its own line phases; the spread of velocities over that region (its RMS radius
+  ``heard_radius_m``) adds broadband but no lines, so even a microphone at the pad centre hears
+  a turning object. The leading-edge shift follows the translational part only.
 - Nuisances that make detection near the slip threshold honest: slow normal-force variation,
   per-grasp coupling of each microphone (gain mismatch, and the hand's own path to it),
   stick-slip and handling clicks, handling noise without slip, and a microphone noise floor.
@@ -35,7 +40,9 @@ from .layouts import Layout, ObjectSpec, PadSpec
 #: bags can be told apart. 1: the first scene. 2: smooth pads radiate from a spread-out
 #: contact (smooth_edge_fraction) and external pushes come closer together. 3: per-grasp
 #: coupling on (gain_mismatch_db 3, handling_path_db 1; :data:`UNCOUPLED` renders version 2).
-SCENE_VERSION = 3
+#: 4: rotational slip about the pad normal (twisting pushes with ``twist_fraction``,
+#: ``gravity_pivot``, the pivoting wall push); without rotation it renders what 3 rendered.
+SCENE_VERSION = 4
 
 #: Noise columns drawn per sample; fixed so one seed gives the same noise for every layout.
 _COL_BB_LOW = slice(0, 2)
@@ -89,6 +96,7 @@ class Acoustics:
     robot_level: float = 0.02         # robot noise RMS at joint_speed_ref
     robot_joint_speed_ref: float = 0.25
     floor_rms: float = 3.0e-4         # electronics noise floor per channel
+    heard_radius_m: float = 7.0e-3    # RMS radius of the pad region a microphone hears
 
     def validate(self) -> None:
         """Raise ValueError for a physically meaningless setting."""
@@ -245,6 +253,7 @@ class Synth:
         self._force_state = rng.standard_normal(3)
         self._jitter_state = 0.0
         self._phase = rng.uniform(0, 2 * np.pi, 2)          # ridge families x, z
+        self._mic_phase: np.ndarray | None = None           # per microphone while turning
         self._robot_phase = rng.uniform(0, 2 * np.pi, 3)    # one per joint
         d = np.hypot(self._mic_xz[:, 0], self._mic_xz[:, 1])
         self._g0 = 1.0 / (1.0 + d / acoustics.falloff_m)
@@ -263,13 +272,28 @@ class Synth:
         y, self._zi[name] = signal.lfilter(b, a, x, axis=0, zi=self._zi[name])
         return y.astype(np.float32)
 
+    def local_velocities(self, v_rel: np.ndarray, w_rel: np.ndarray) -> np.ndarray:
+        """Slip velocity of the pad point under each microphone, ``(n, n_channels, 2)`` [m/s].
+
+        ``v_rel`` (n, 2) is the planar slip velocity at the pad centre (grasp-plane x, z) and
+        ``w_rel`` (n,) the angular velocity about the pad normal (+y) [rad/s]; a microphone at
+        in-plane ``(x, z)`` sits under ``(vx + wy * z, vz - wy * x)``.
+        """
+        v = np.asarray(v_rel, dtype=float)
+        w = np.asarray(w_rel, dtype=float)
+        arm = np.column_stack([self._mic_xz[:, 1], -self._mic_xz[:, 0]])     # (C, 2)
+        return v[:, None, :] + w[:, None, None] * arm[None, :, :]
+
     def render(self, start: int, v_rel: np.ndarray, v_tcp: np.ndarray,
-               touch: np.ndarray) -> np.ndarray:
+               touch: np.ndarray, w_rel: np.ndarray | None = None) -> np.ndarray:
         """Audio for samples ``start .. start+n`` as float32 ``(n, n_channels)``.
 
-        ``v_rel`` (n, 2): object-relative-to-finger velocity in grasp-plane x, z [m/s];
-        ``v_tcp`` (n, 3): TCP velocity in ``world`` [m/s]; ``touch`` (n,): 0..1, an external
-        agent's hand (or a wall) touching the object.
+        ``v_rel`` (n, 2): object-relative-to-finger velocity in grasp-plane x, z at the pad
+        centre [m/s]; ``v_tcp`` (n, 3): TCP velocity in ``world`` [m/s]; ``touch`` (n,): 0..1,
+        an external agent's hand (or a wall) touching the object; ``w_rel`` (n,): angular
+        velocity of the object relative to the finger about the pad normal (+y) [rad/s].
+        Without rotation (None or all zero) the output is exactly that of scene version 3;
+        only blocks that turn take the per-microphone path.
         """
         ac = self.ac
         n = v_rel.shape[0]
@@ -290,6 +314,11 @@ class Synth:
         high = self._filt("high", z[:, _COL_BB_HIGH])
         speed = np.hypot(v_rel[:, 0], v_rel[:, 1])
         rel_speed = speed / ac.speed_ref_m_s
+        w = None if w_rel is None or not np.any(w_rel) else np.asarray(w_rel, dtype=float)
+        if w is not None:
+            # The pad as a whole slips at the speed a centred microphone hears: the planar
+            # part plus the spread of the turning over the region it hears.
+            speed = np.sqrt(speed * speed + (w * ac.heard_radius_m) ** 2)
 
         # Clicks by thinning page-drawn candidates: slip (per finger) and handling (common).
         impulses = np.zeros((n, 3), dtype=np.float32)
@@ -303,7 +332,10 @@ class Synth:
             impulses[idx[keep], srcs[keep]] = ac.click_level * np.exp(events[keep, 2]) * 40.0
         clicks = self._filt("click", impulses)
 
-        if np.any(speed > 0.0):
+        if w is not None:
+            out += self._slip_turning(v_rel, w, fz, jit, wander, low, high, clicks)
+        elif np.any(speed > 0.0):
+            self._mic_phase = None
             out += self._slip(v_rel, speed, rel_speed, fz, jit, wander, low, high, clicks)
 
         # Handling noise reaches both pads through the object alike: no direction cue.
@@ -348,11 +380,20 @@ class Synth:
             src += (ac.line_level * lines)[:, None].astype(np.float32)
         src = amp * src + clicks[:, :2] * np.minimum(rel_speed, 1.0)[:, None].astype(np.float32)
 
-        # Leading-edge source: the level at each microphone falls with its distance to it.
-        # The contact centroid of each pad also wanders slowly (grasp pose, pressure
-        # distribution), which blurs that level pattern like a real pad does.
-        # On a smooth pad detachment fronts sweep the whole contact, so the radiating region
-        # stays spread out; ridges concentrate it at the leading edge (textured pads).
+        return src[:, self._mic_finger] * self._edge_gain(unit, speed, wander)
+
+    def _edge_gain(self, unit: np.ndarray, speed: np.ndarray, wander: np.ndarray) -> np.ndarray:
+        """Level of the slip source at each microphone, float32 ``(n, n_channels)``.
+
+        Leading-edge source: the level at each microphone falls with its distance to it.
+        The contact centroid of each pad also wanders slowly (grasp pose, pressure
+        distribution), which blurs that level pattern like a real pad does.
+        On a smooth pad detachment fronts sweep the whole contact, so the radiating region
+        stays spread out; ridges concentrate it at the leading edge (textured pads).
+        ``unit`` and ``speed`` are those of the planar slip at the pad centre: a turning
+        contact has no leading edge of its own.
+        """
+        ac = self.ac
         shift = ac.leading_edge_shift_m * (1.0 if self.pad.textured else ac.smooth_edge_fraction)
         centre = unit * (shift * np.minimum(speed / 2e-3, 1.0))[:, None]
         wx = ac.contact_wander_m * wander[:, 0:2][:, self._mic_finger]
@@ -360,7 +401,48 @@ class Synth:
         dx = self._mic_xz[None, :, 0] - centre[:, None, 0] - wx
         dz = self._mic_xz[None, :, 1] - centre[:, None, 1] - wz
         g = (1.0 / (1.0 + np.hypot(dx, dz) / ac.falloff_m)) / self._g0    # (n, C)
-        return src[:, self._mic_finger] * g.astype(np.float32)
+        return g.astype(np.float32)
+
+    def _slip_turning(self, v_rel, w, fz, jit, wander, low, high, clicks) -> np.ndarray:
+        """The slip heard at every microphone while the object turns, ``(n, n_channels)``.
+
+        The same physics as :meth:`_slip`, per microphone: level, brightness and ridge lines
+        follow the local slip velocity ``v_m`` under it. Over the region it hears (RMS radius
+        ``heard_radius_m``) the turning spreads the velocities by ``|w| * heard_radius_m``
+        around ``v_m``: that incoherent part raises the level and the broadband noise but no
+        line (its line frequencies smear), so the lines carry the share ``|v_m . n| / s``
+        of the effective speed ``s = sqrt(|v_m|^2 + (w * heard_radius_m)^2)``.
+        """
+        ac, fs, f, fing = self.ac, self.fs, self._f, self._mic_finger
+        v_m = self.local_velocities(v_rel, w)                                 # (n, C, 2)
+        s = np.sqrt(np.sum(v_m * v_m, axis=2) + ((w * ac.heard_radius_m) ** 2)[:, None])
+        coh = v_m / np.maximum(s, 1e-9)[:, :, None]                           # (n, C, 2)
+        rel = s / ac.speed_ref_m_s
+        force_db = ac.force_var_db * (0.97 * fz[:, :1] + 0.25 * fz[:, 1:3])
+        amp = (ac.slip_level * self.obj.roughness * rel ** ac.speed_exponent
+               * 10.0 ** (force_db[:, fing] / 20.0)).astype(np.float32)     # (n, C)
+        b = s / (s + ac.brighten_speed_m_s) * (0.5 + self.obj.brightness)
+        b = np.clip(b * (1.0 + ac.tip_brightness * coh[:, :, 0]), 0.0, 0.95)
+        src = (np.sqrt(1.0 - b) / f["low"][2]).astype(np.float32) * low[:, fing] \
+            + (np.sqrt(b) / f["high"][2]).astype(np.float32) * high[:, fing]
+        if self.pad.textured and ac.line_level > 0.0:
+            # Each microphone's lines keep their own phase while the object turns; they start
+            # from the shared phase, and the first microphone's carries on after the turn.
+            if self._mic_phase is None:
+                self._mic_phase = np.tile(self._phase, (len(fing), 1))
+            scale = (1.0 + ac.ridge_jitter * jit) * (2.0 * np.pi / fs)
+            inc = np.abs(v_m) / np.array([ac.ridge_period_x_m, ac.ridge_period_z_m]) \
+                * scale[:, None, None]
+            ph = self._mic_phase + np.cumsum(inc, axis=0)
+            self._mic_phase = np.mod(ph[-1], 2.0 * np.pi)
+            self._phase = self._mic_phase[0].copy()
+            lines = _harmonic_sum(ph[:, :, 0], self._harm_x) * np.abs(coh[:, :, 0])
+            lines += _harmonic_sum(ph[:, :, 1], self._harm_z) * np.abs(coh[:, :, 1])
+            src += (ac.line_level * lines).astype(np.float32)
+        src = amp * src + clicks[:, fing] * np.minimum(rel, 1.0).astype(np.float32)
+        speed = np.hypot(v_rel[:, 0], v_rel[:, 1])
+        unit = v_rel / np.maximum(speed, 1e-9)[:, None]
+        return src * self._edge_gain(unit, speed, wander)
 
     def _robot(self, z: np.ndarray, v_tcp: np.ndarray) -> np.ndarray:
         """Common-mode robot operating noise: gear-mesh lines and broadband, 0 when still."""

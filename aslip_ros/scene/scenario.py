@@ -14,7 +14,8 @@ import numpy as np
 from .layouts import DEFAULT_LAYOUT, get_layout, get_object, get_pad
 from .physics import Acoustics
 
-KINDS = ("robot_induced", "external_induced", "wall_push", "external_drag", "scripted")
+KINDS = ("robot_induced", "external_induced", "wall_push", "external_drag", "scripted",
+         "gravity_pivot")
 CONDITIONS = ("robot_off", "robot_stationary", "robot_moving")
 
 
@@ -50,7 +51,20 @@ class Scenario:
     one_sided_fraction: float = 0.0
     one_sided_spread_rad: float = np.pi / 6.0
     no_slip_touch_fraction: float = 0.2
-    script: tuple[tuple[float, float, float, float], ...] = ()
+    #: external_induced: share of the agent's slipping pushes that twist the object about
+    #: the pad normal, half of them pure twists and half twists with the push (docs/scene.md,
+    #: "Rotational slip"); 0 = the pushes of scene version 3, draw for draw.
+    twist_fraction: float = 0.0
+    #: wall_push: lever arm [m] at which the surface meets the object, perpendicular to the
+    #: push (along +x for a downward push); 0 = the wall meets it in line with the grasp and
+    #: it slides. Beyond 2/3 of contact_radius_m the pads' torsional friction gives way first
+    #: and the object turns instead.
+    pivot_lever_m: float = 0.0
+    #: Radius of each pad's contact patch [m]: the torsional friction of the two pads is
+    #: 2 * (2/3) * friction * grip_force_n * contact_radius_m (uniform pressure).
+    contact_radius_m: float = 0.01
+    #: (t_start, t_end, vx, vz) or (t_start, t_end, vx, vz, wy) segments of ``scripted``.
+    script: tuple[tuple[float, ...], ...] = ()
     #: robot_induced: the arm follows velocity commands (a driver such as robot_sweeps on
     #: a cell) instead of the scene's own sweeps; the probe still stands in the world.
     commanded_arm: bool = False
@@ -74,11 +88,15 @@ class Scenario:
                              "motion is what makes the probe slip")
         if self.kind in ("wall_push", "external_drag") and self.condition != "robot_moving":
             raise ValueError(f"{self.kind} is closed loop: condition must be 'robot_moving'")
+        if self.kind == "gravity_pivot" and self.condition == "robot_moving":
+            raise ValueError("gravity_pivot keeps the arm still: use robot_off or "
+                             "robot_stationary")
         if self.duration_s is not None and not (np.isfinite(self.duration_s)
                                                 and self.duration_s > 0):
             raise ValueError(f"duration_s must be positive (or None), got {self.duration_s!r}")
         for name in ("sample_rate", "mocap_rate_hz", "tcp_rate_hz", "max_slip_speed_m_s",
-                     "grip_force_n", "wall_stiffness_n_m", "drag_speed_m_s", "arm_lag_s"):
+                     "grip_force_n", "wall_stiffness_n_m", "drag_speed_m_s", "arm_lag_s",
+                     "contact_radius_m"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value!r}")
@@ -86,7 +104,8 @@ class Scenario:
             raise ValueError(f"sample_rate must be at least 8000 Hz, got {self.sample_rate}")
         if self.mocap_rate_hz > self.sample_rate or self.tcp_rate_hz > self.sample_rate:
             raise ValueError("mocap_rate_hz and tcp_rate_hz must not exceed sample_rate")
-        for name in ("mocap_latency_s", "mocap_noise_m", "wall_distance_m", "drag_hold_s"):
+        for name in ("mocap_latency_s", "mocap_noise_m", "wall_distance_m", "drag_hold_s",
+                     "pivot_lever_m"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be >= 0, got {value!r}")
@@ -97,6 +116,8 @@ class Scenario:
         if not 0.0 <= self.one_sided_fraction <= 1.0:
             raise ValueError(f"one_sided_fraction must lie in [0, 1], got "
                              f"{self.one_sided_fraction}")
+        if not 0.0 <= self.twist_fraction <= 1.0:
+            raise ValueError(f"twist_fraction must lie in [0, 1], got {self.twist_fraction}")
         if not 0.0 <= self.no_slip_touch_fraction < 1.0:
             raise ValueError(f"no_slip_touch_fraction must lie in [0, 1), got "
                              f"{self.no_slip_touch_fraction}")
@@ -107,9 +128,10 @@ class Scenario:
         if d.shape != (2,) or not np.all(np.isfinite(d)) or np.hypot(*d) < 1e-9:
             raise ValueError(f"push_dir_xz must be a nonzero 2-vector, got {self.push_dir_xz}")
         for seg in self.script:
-            if len(seg) != 4 or not all(np.isfinite(seg)) or not 0.0 <= seg[0] < seg[1]:
-                raise ValueError(f"script segments are (t_start, t_end, vx, vz) with "
-                                 f"0 <= t_start < t_end, got {seg!r}")
+            if len(seg) not in (4, 5) or not all(np.isfinite(seg)) \
+                    or not 0.0 <= seg[0] < seg[1]:
+                raise ValueError(f"script segments are (t_start, t_end, vx, vz) or (t_start, "
+                                 f"t_end, vx, vz, wy) with 0 <= t_start < t_end, got {seg!r}")
         if not isinstance(self.acoustics, Acoustics):
             raise ValueError("acoustics must be an Acoustics instance")
         self.acoustics.validate()
@@ -118,6 +140,20 @@ class Scenario:
     def induced(self) -> str:
         """``"robot"`` when labels come from robot state, else ``"external"``."""
         return "robot" if self.kind == "robot_induced" else "external"
+
+    @property
+    def torsional_friction_nm(self) -> float:
+        """The torque [N m] at which the two pads' grip gives way to a turn about the pad
+        normal: ``2 * (2/3) * friction * grip_force_n * contact_radius_m``."""
+        mu = get_object(self.object).friction
+        return 2.0 * (2.0 / 3.0) * mu * self.grip_force_n * self.contact_radius_m
+
+    @property
+    def pivots(self) -> bool:
+        """True when a wall push turns the object rather than sliding it: the lever arm
+        makes the wall's torque reach the torsional friction before its force reaches the
+        sliding friction ``2 * friction * grip_force_n`` (lever > 2/3 contact radius)."""
+        return self.pivot_lever_m > (2.0 / 3.0) * self.contact_radius_m
 
     @property
     def closed_loop(self) -> bool:

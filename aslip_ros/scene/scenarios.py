@@ -13,12 +13,20 @@ any length needs bounded memory and the same seed always gives the same motion.
 - ``wall_push``: closed loop; the arm pushes the held object against a wall.
 - ``external_drag``: closed loop; an agent drags the object along a random path.
 - ``scripted``: a still gripper and a known, piecewise-constant slip velocity (tests, demos).
+- ``gravity_pivot``: a still gripper holds an object off its centre of mass; whenever the grip
+  relaxes, gravity turns it about the pad normal (and drags it down a little), until the grip
+  is restored; now and then a hand turns it back (labels from mocap).
+
+Rotational slip (scene version 4): the agent's pulses are ``(vx, vz, wy)``, the planar slip
+velocity at the pad centre and the angular velocity about the pad normal (+y of the grasp
+plane) [rad/s]; ``Scenario.twist_fraction`` makes some pushes twist (docs/scene.md).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .layouts import get_object
 from .scenario import CONDITIONS, KINDS, Scenario  # noqa: F401 - KINDS, CONDITIONS: re-exported
 # The variants live in their own module; re-exported here, where the scenarios are.
 from .variants import (COUPLING_DB, HANDLING_PATH_DB, LAB_MOCAP, VARIANTS,  # noqa: F401
@@ -32,6 +40,36 @@ _TOUCH_GAP_S = (0.1, 0.8)
 _PUSH_TRAVEL_M = 0.04
 #: Share of an agent's slipping pushes that are impulsive (the rest are sustained).
 _IMPULSIVE_SHARE = 0.4375
+#: Twisting pushes (docs/scene.md, "Rotational slip"): angular speed ranges [rad/s] of an
+#: impulsive twist (a flick of the wrist), of a sustained one, and of a slow sustained one
+#: (straddling the 0.5 rad/s rotation threshold, as slow pushes straddle 5 mm/s).
+_TWIST_IMPULSIVE_RAD_S = (1.0, 6.0)
+_TWIST_SUSTAINED_RAD_S = (1.0, 3.3)
+_TWIST_SLOW_RAD_S = (0.2, 1.0)
+#: Longest turn of one sustained twist [rad] and the planned angle beyond which twists turn
+#: back (the hand's forearm range; the mocap pose stays plausible).
+_TWIST_MAX_RAD = 1.0
+_TWIST_EXCURSION_RAD = 0.5
+#: Standard gravity [m/s^2].
+GRAVITY_M_S2 = 9.81
+#: gravity_pivot (docs/scene.md, "Rotational slip"): offset of the centre of mass from the pad
+#: centre [m], its tilt from the horizontal [rad], the grip's safety factor over the grip that
+#: just holds the torque, how fast the grip relaxes [share of the hold per s], how long it
+#: keeps relaxing after the object starts to turn [s] and how fast it comes back [share per
+#: s], the pause before each relaxation [s]; the relaxed grip still carries the weight with
+#: margin (load at most ``_PIVOT_MAX_LOAD`` of the sliding friction). A hand turns the object
+#: back (at ``_PIVOT_RESET_RAD_S``) once it has turned ``_PIVOT_RESET_RAD``.
+_PIVOT_COM_M = (0.03, 0.10)
+_PIVOT_TILT_RAD = 0.4
+_PIVOT_SAFETY = (1.2, 2.0)
+_PIVOT_RELAX_PER_S = (0.5, 2.0)
+_PIVOT_REACT_S = (0.05, 0.25)
+_PIVOT_REGRIP_PER_S = (5.0, 20.0)
+_PIVOT_HOLD_S = (0.3, 1.0)
+_PIVOT_MAX_LOAD = 0.6
+_PIVOT_RESET_RAD = 0.3
+_PIVOT_RESET_RAD_S = (0.8, 3.0)
+_PIVOT_DT_S = 1.0e-3
 
 
 def _trial_id(prefix: str, obj: str, seed: int) -> str:
@@ -82,12 +120,14 @@ def external_drag(seed: int, object: str = "chips_can", layout: str = "4mic",
                     trial_id=kw.pop("trial_id", _trial_id("drag", object, seed)), **kw)
 
 
-def scripted(seed: int, segments: list[tuple[float, float, float, float]],
+def scripted(seed: int, segments: list[tuple[float, ...]],
              object: str = "chips_can", layout: str = "4mic", pad: str = "textured",
              condition: str = "robot_off", duration_s: float = 5.0, **kw) -> Scenario:
-    """A still gripper; the object slips at ``(vx, vz)`` [m/s, grasp plane] between
-    ``t_start`` and ``t_end`` [s] of each segment (overlapping segments add). Labels from
-    mocap. For tests with analytically known motion."""
+    """A still gripper; the object slips at ``(vx, vz)`` [m/s, grasp plane, at the pad
+    centre] and turns at ``wy`` [rad/s, about the pad normal; 0 when the segment has four
+    numbers] between ``t_start`` and ``t_end`` [s] of each segment ``(t_start, t_end, vx, vz)``
+    or ``(t_start, t_end, vx, vz, wy)`` (overlapping segments add). Labels from mocap. For
+    tests with analytically known motion."""
     if condition == "robot_moving":
         raise ValueError("scripted scenarios keep the arm still: use robot_off or "
                          "robot_stationary")
@@ -95,6 +135,20 @@ def scripted(seed: int, segments: list[tuple[float, float, float, float]],
     return Scenario("scripted", seed, object, layout, pad, condition, duration_s,
                     script=script,
                     trial_id=kw.pop("trial_id", _trial_id("script", object, seed)), **kw)
+
+
+def gravity_pivot(seed: int, object: str = "chips_can", layout: str = "4mic",
+                  pad: str = "textured", condition: str = "robot_stationary",
+                  duration_s: float = 30.0, **kw) -> Scenario:
+    """A still gripper holds the object off its centre of mass; when the grip relaxes,
+    gravity turns it about the pad normal (with a little downward slide) until the grip is
+    restored, and a hand turns it back now and then. Labels from mocap (docs/scene.md,
+    "Rotational slip")."""
+    if condition == "robot_moving":
+        raise ValueError("gravity_pivot keeps the arm still: use robot_off or "
+                         "robot_stationary")
+    return Scenario("gravity_pivot", seed, object, layout, pad, condition, duration_s,
+                    trial_id=kw.pop("trial_id", _trial_id("piv", object, seed)), **kw)
 
 
 # --------------------------------------------------------------------------- motion programs
@@ -112,34 +166,57 @@ class PulseTrain:
         self._pulses: list[tuple] = []
         self._t_next = 0.0
 
-    def evaluate(self, t: np.ndarray) -> np.ndarray:
-        """Velocity at times ``t`` (ascending), shape ``(len(t), dim)``."""
-        while self._t_next <= t[-1]:
+    def extend_to(self, t_end: float) -> None:
+        """Generate pulses until the program reaches past ``t_end``."""
+        while self._t_next <= t_end:
             pulses, self._t_next = self._generate(self._t_next)
             self._pulses.extend(pulses)
+
+    def evaluate(self, t: np.ndarray) -> np.ndarray:
+        """Velocity at times ``t`` (ascending), shape ``(len(t), dim)``."""
+        self.extend_to(t[-1])
         self._pulses = [p for p in self._pulses if p[1] >= t[0]]
         out = np.zeros((t.shape[0], self.dim))
-        for t0, t1, ramp, vec, turn in self._pulses:
-            if t0 > t[-1]:
+        for pulse in self._pulses:
+            if pulse[0] > t[-1]:
                 continue
-            lo, hi = np.searchsorted(t, [t0, t1])
-            if hi <= lo:
-                continue
-            u = t[lo:hi] - t0
-            dur = t1 - t0
-            s = np.ones_like(u)
-            m = u < ramp
-            s[m] = 0.5 * (1.0 - np.cos(np.pi * u[m] / ramp))
-            m = u > dur - ramp
-            s[m] = 0.5 * (1.0 - np.cos(np.pi * (dur - u[m]) / ramp))
-            if turn != 0.0:
-                a = turn * (u - 0.5 * dur)
-                c, sn = np.cos(a), np.sin(a)
-                v = np.column_stack([c * vec[0] - sn * vec[1], sn * vec[0] + c * vec[1]])
-                out[lo:hi] += v * s[:, None]
-            else:
-                out[lo:hi] += s[:, None] * vec[None, :]
+            lo, hi = np.searchsorted(t, [pulse[0], pulse[1]])
+            if hi > lo:
+                self._add(out[lo:hi], t[lo:hi], pulse)
         return out
+
+    @staticmethod
+    def _add(out: np.ndarray, t: np.ndarray, pulse: tuple) -> None:
+        """Add one raised-cosine pulse to ``out`` (its samples at times ``t``). In 3-D pulses
+        (vx, vz, wy) a turn rate turns the planar part only."""
+        t0, t1, ramp, vec, turn = pulse
+        u = t - t0
+        dur = t1 - t0
+        s = np.ones_like(u)
+        m = u < ramp
+        s[m] = 0.5 * (1.0 - np.cos(np.pi * u[m] / ramp))
+        m = u > dur - ramp
+        s[m] = 0.5 * (1.0 - np.cos(np.pi * (dur - u[m]) / ramp))
+        if turn != 0.0:
+            a = turn * (u - 0.5 * dur)
+            c, sn = np.cos(a), np.sin(a)
+            v = np.column_stack([c * vec[0] - sn * vec[1], sn * vec[0] + c * vec[1]])
+            out[:, :2] += v * s[:, None]
+            if len(vec) > 2:
+                out[:, 2:] += s[:, None] * vec[None, 2:]
+        else:
+            out += s[:, None] * vec[None, :]
+
+
+class ProfileTrain(PulseTrain):
+    """A lazily generated sum of sampled velocity profiles ``(t0, t1, grid, values)``,
+    linearly interpolated between their samples and zero outside them."""
+
+    @staticmethod
+    def _add(out: np.ndarray, t: np.ndarray, pulse: tuple) -> None:
+        _, _, grid, values = pulse
+        for k in range(out.shape[1]):
+            out[:, k] += np.interp(t, grid, values[:, k])
 
 
 def _direction_back(rng: np.random.Generator, planned: np.ndarray) -> np.ndarray:
@@ -219,10 +296,36 @@ def arm_wander(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
     return PulseTrain(3, gen)
 
 
+def _twist(rng: np.random.Generator, scn: Scenario, planned_angle: float,
+           impulsive: bool) -> tuple[float, bool]:
+    """A twisting push's angular velocity [rad/s] and whether it keeps its planar part.
+
+    Half the twists are pure, half come with the push. The sign is random, and turns back
+    once the planned angle passes ``_TWIST_EXCURSION_RAD``.
+    """
+    if impulsive:
+        rate = rng.uniform(*_TWIST_IMPULSIVE_RAD_S)
+    elif rng.random() < scn.slow_fraction:
+        rate = rng.uniform(*_TWIST_SLOW_RAD_S)
+    else:
+        rate = rng.uniform(*_TWIST_SUSTAINED_RAD_S)
+    sign = rng.choice((-1.0, 1.0))
+    if abs(planned_angle) > _TWIST_EXCURSION_RAD:
+        sign = -np.sign(planned_angle)
+    return float(sign * rate), bool(rng.random() < 0.5)
+
+
 def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, PulseTrain]:
-    """An agent's touches and pushes: (slip velocity x, z; touch level 0..1)."""
-    planned = np.zeros(2)
+    """An agent's touches and pushes: ((slip velocity x, z, angular velocity wy); touch level
+    0..1). With ``twist_fraction`` 0 the draws are those of scene version 3, one for one."""
+    planned = np.zeros(3)          # planned offset x, z [m] and angle [rad]
     touches: list[tuple] = []
+
+    def twisted(vec: np.ndarray, impulsive: bool) -> np.ndarray:
+        if scn.twist_fraction <= 0.0 or rng.random() >= scn.twist_fraction:
+            return vec
+        wy, with_push = _twist(rng, scn, planned[2], impulsive)
+        return np.array([vec[0], vec[1], wy]) * ([1.0, 1.0, 1.0] if with_push else [0, 0, 1])
 
     def gen(t: float):
         nonlocal planned
@@ -235,37 +338,43 @@ def agent_pushes(scn: Scenario, rng: np.random.Generator) -> tuple[PulseTrain, P
         if kind < _IMPULSIVE_SHARE * pushes:              # impulsive push
             dur = rng.uniform(0.04, 0.15)
             speed = float(rng.uniform(0.02, scn.max_slip_speed_m_s))
-            e = _push_direction(rng, scn, planned)
-            pulses.append((t0, t0 + dur, 0.5 * dur, e * speed, 0.0))
-            planned = planned + e * speed * 0.5 * dur
+            e = _push_direction(rng, scn, planned[:2])
+            vec = twisted(np.r_[e * speed, 0.0], True)
+            pulses.append((t0, t0 + dur, 0.5 * dur, vec, 0.0))
+            planned = planned + vec * 0.5 * dur
         elif kind < pushes:                               # sustained push, may curve
             speed = _slip_speed(rng, scn, 0.06)
             dur = rng.uniform(0.3, 2.0)
             ramp = min(rng.uniform(0.05, 0.2), dur / 3.0)
             dur = min(dur, _PUSH_TRAVEL_M / speed + ramp)
-            e = _push_direction(rng, scn, planned)
+            e = _push_direction(rng, scn, planned[:2])
             turn = rng.uniform(-1.0, 1.0) if rng.random() < 0.5 else 0.0
             if scn.one_sided_fraction > 0.0 and _is_one_sided(e, scn):
                 turn = 0.0          # a curving push would leave the preferred sector
-            pulses.append((t0, t0 + dur, ramp, e * speed, turn))
-            planned = planned + e * speed * (dur - ramp)
+            vec = twisted(np.r_[e * speed, 0.0], False)
+            if vec[2] != 0.0:
+                dur = min(dur, _TWIST_MAX_RAD / abs(vec[2]) + ramp)
+            pulses.append((t0, t0 + dur, ramp, vec, turn))
+            planned = planned + vec * (dur - ramp)
         else:                                             # a touch that does not slip
             dur = rng.uniform(0.2, 1.0)
         t_end = t0 + dur + rng.uniform(0.05, 0.3)
         touches.append((t_touch, t_end, 0.02, np.array([rng.uniform(0.4, 1.0)]), 0.0))
         return pulses, t_end
 
-    slip = PulseTrain(2, gen)
+    slip = PulseTrain(3, gen)
+    return slip, _slaved_touches(slip, touches)
 
+
+def _slaved_touches(motion: PulseTrain, touches: list) -> PulseTrain:
+    """The touch levels that ``motion``'s generator appends to ``touches`` as it runs."""
     def touch_gen(t: float):
-        # Touches are produced by the slip generator; make sure it has run far enough.
-        while slip._t_next <= t + 1e-9:
-            pulses, slip._t_next = gen(slip._t_next)
-            slip._pulses.extend(pulses)
+        # Touches are produced by the motion generator; make sure it has run far enough.
+        motion.extend_to(t + 1e-9)
         out = list(touches)
         touches.clear()
-        return out, slip._t_next
-    return slip, PulseTrain(1, touch_gen)
+        return out, motion._t_next
+    return PulseTrain(1, touch_gen)
 
 
 def drag_path(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
@@ -290,9 +399,104 @@ def drag_path(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
 
 
 def script_train(scn: Scenario) -> PulseTrain:
-    """The scripted slip velocity: rectangular segments, no ramps."""
-    pulses = [(a, b, 0.0, np.array([vx, vz]), 0.0) for a, b, vx, vz in scn.script]
+    """The scripted slip velocity ``(vx, vz, wy)``: rectangular segments, no ramps."""
+    pulses = [(seg[0], seg[1], 0.0, np.array([seg[2], seg[3], seg[4] if len(seg) > 4 else 0.0]),
+               0.0) for seg in scn.script]
 
     def gen(t: float):
         return pulses, np.inf
-    return PulseTrain(2, gen)
+    return PulseTrain(3, gen)
+
+
+class _Pivot:
+    """The object held off its centre of mass in a relaxing grip (``gravity_pivot``).
+
+    Friction of the two pads: sliding ``Fm = 2 mu N`` and torsional ``Tm = 2 (2/3) mu N a``
+    (uniform pressure over a contact of radius ``a``). Under combined load the elliptic limit
+    surface ``(F/Fm)^2 + (T/Tm)^2 = 1`` holds, with the motion normal to it (Howe and
+    Cutkosky 1996): while the object turns, the weight ``F = m g`` takes the share
+    ``r = F/Fm`` of the surface, the torque the pads resist drops to ``Tm sqrt(1 - r^2)``,
+    and the pad centre slides down at ``v = (2a/3) |w| r / sqrt(1 - r^2)``.
+    """
+
+    def __init__(self, scn: Scenario, rng: np.random.Generator) -> None:
+        obj = get_object(scn.object)
+        self.rng = rng
+        self.lever = rng.uniform(*_PIVOT_COM_M)
+        side = np.pi if rng.random() < 0.5 else 0.0
+        self.alpha = side + rng.uniform(-_PIVOT_TILT_RAD, _PIVOT_TILT_RAD)  # from +x to +z
+        self.weight = obj.mass_kg * GRAVITY_M_S2
+        # About the pad centre: the object as a rod of half-length length_m, off by lever.
+        self.inertia = obj.mass_kg * (self.lever ** 2 + obj.length_m ** 2 / 3.0)
+        self.t_per_n = 2.0 * (2.0 / 3.0) * obj.friction * scn.contact_radius_m
+        self.f_per_n = 2.0 * obj.friction
+        self.n_floor = self.weight / (self.f_per_n * _PIVOT_MAX_LOAD)
+
+    def episode(self, t_relax: float) -> tuple[np.ndarray, np.ndarray]:
+        """Relax the grip from ``t_relax`` until gravity turns the object, then restore it:
+        the profile ``(grid, values (vx, vz, wy))`` of the motion, from onset to standstill."""
+        rng = self.rng
+        torque0 = self.weight * self.lever * np.cos(self.alpha)
+        n_crit = max(abs(torque0) / self.t_per_n, self.n_floor)
+        n_hold = n_crit * rng.uniform(*_PIVOT_SAFETY)
+        rate = n_hold * rng.uniform(*_PIVOT_RELAX_PER_S)
+        react = rng.uniform(*_PIVOT_REACT_S)
+        regrip = n_hold * rng.uniform(*_PIVOT_REGRIP_PER_S)
+        t_on = t_relax + (n_hold - n_crit) / rate
+        n_react = max(n_crit - rate * react, self.n_floor)
+        sign = 1.0 if torque0 >= 0.0 else -1.0
+        w, turned, rows, dt = 0.0, 0.0, [np.zeros(3)], _PIVOT_DT_S
+        for k in range(1, int(3.0 / dt)):
+            tau = k * dt
+            grip = max(n_crit - rate * tau, self.n_floor) if tau < react \
+                else min(n_react + regrip * (tau - react), n_hold)
+            load = min(self.weight / (self.f_per_n * grip), _PIVOT_MAX_LOAD)
+            resist = self.t_per_n * grip * np.sqrt(1.0 - load * load)
+            torque = self.weight * self.lever * np.cos(self.alpha - turned)
+            w += dt * (torque - sign * resist) / self.inertia
+            if w * sign <= 0.0:
+                break                                  # friction holds it again
+            slide = (self.t_per_n / self.f_per_n) * abs(w) * load / np.sqrt(1.0 - load * load)
+            rows.append(np.array([0.0, -slide, w]))
+            turned += w * dt
+        rows.append(np.zeros(3))
+        values = np.array(rows)
+        return t_on + dt * np.arange(len(values)), values
+
+
+def gravity_pivots(scn: Scenario, rng: np.random.Generator) -> tuple[ProfileTrain, PulseTrain]:
+    """The motion of ``gravity_pivot``: ((vx, vz, wy) at the pad centre; touch level 0..1).
+
+    Each cycle: the grip holds, relaxes until gravity turns the object, and is restored
+    (:class:`_Pivot`); once the object has turned ``_PIVOT_RESET_RAD`` a hand turns it back
+    (and lifts it by what it slid), touching it meanwhile."""
+    pivot = _Pivot(scn, rng)
+    touches: list[tuple] = []
+    since_reset = np.zeros(3)          # slid x, z [m] and turned [rad] since the last reset
+
+    def gen(t: float):
+        nonlocal since_reset
+        grid, values = pivot.episode(t + rng.uniform(*_PIVOT_HOLD_S))
+        moved = values[:-1].sum(axis=0) * _PIVOT_DT_S
+        pivot.alpha -= moved[2]
+        since_reset = since_reset + moved
+        profiles = [(grid[0], grid[-1], grid, values)]
+        t_next = grid[-1] + rng.uniform(0.2, 0.6)
+        if abs(since_reset[2]) > _PIVOT_RESET_RAD:
+            peak = rng.uniform(*_PIVOT_RESET_RAD_S)
+            dur = max(1.5 * abs(since_reset[2]) / peak, 0.2)
+            ramp = dur / 3.0
+            g = t_next + _PIVOT_DT_S * np.arange(int(np.ceil(dur / _PIVOT_DT_S)) + 1)
+            v = np.zeros((len(g), 3))
+            PulseTrain._add(v, g, (t_next, t_next + dur, ramp, -since_reset / (dur - ramp),
+                                   0.0))
+            profiles.append((g[0], g[-1], g, v))
+            touches.append((t_next - 0.1, g[-1] + 0.1, 0.02,
+                            np.array([rng.uniform(0.4, 1.0)]), 0.0))
+            pivot.alpha += since_reset[2]
+            since_reset = np.zeros(3)
+            t_next = g[-1] + rng.uniform(0.2, 0.6)
+        return profiles, t_next
+
+    motion = ProfileTrain(3, gen)
+    return motion, _slaved_touches(motion, touches)

@@ -9,10 +9,11 @@ grows with the length of a trial except the optional trajectory log (``record``)
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 import aslip_ros.scene.scenarios as sc
 from ..control.arm import ArmError
@@ -44,7 +45,9 @@ class Chunk:
     ``audio`` is float32 ``(n, n_channels)``; ``mocap`` holds the frames delivered during the
     block (their ``t`` is the capture time, i.e. up to the latency earlier); ``tcp`` holds
     ``(t, pose)`` robot-state samples; ``v_rel`` is the true slip velocity per sample
-    (grasp-plane x, z) [m/s], for tests and evaluation only.
+    (grasp-plane x, z, of the object's point at the pad centre) [m/s] and ``w_rel`` its true
+    angular velocity about the pad normal (+y of the grasp plane) [rad/s], for tests and
+    evaluation only.
     """
 
     first_sample_index: int
@@ -53,6 +56,7 @@ class Chunk:
     mocap: list
     tcp: list
     v_rel: np.ndarray
+    w_rel: np.ndarray | None = field(default=None)
 
 
 class SimArm:
@@ -161,6 +165,7 @@ class World:
         self._i = 0
         self._p_tcp = TCP_START_M.copy()
         self._r = np.zeros(2)
+        self._angle = 0.0
         self._v_rel_last = np.zeros(2)
         self._sweeps = self._wander = self._agent = self._touch = self._drag = None
         if scn.kind == "robot_induced" and not scn.commanded_arm:
@@ -173,6 +178,8 @@ class World:
             self._drag = sc.drag_path(scn, agent_rng)
         if scn.kind == "scripted":
             self._agent = sc.script_train(scn)
+        if scn.kind == "gravity_pivot":
+            self._agent, self._touch = sc.gravity_pivots(scn, agent_rng)
         d = np.asarray(scn.push_dir_xz, dtype=float)
         self._push_xz = d / np.hypot(*d)
         self._push_world = self._plane @ self._push_xz
@@ -180,16 +187,25 @@ class World:
         self._wall_s = lead0 + scn.wall_distance_m
         self._wall_slack = 2.0 * self.object.friction * scn.grip_force_n \
             / scn.wall_stiffness_n_m
+        # Pivoting wall push: where the surface meets the object (grasp plane, object frame
+        # at angle 0), the lever arm perpendicular to the push (+x for a downward push).
+        self._pivot = scn.kind == "wall_push" and scn.pivots
+        lever_dir = np.array([-self._push_xz[1], self._push_xz[0]])
+        self._contact_body = scn.pivot_lever_m * lever_dir \
+            + self.object.length_m * self._push_xz
         self.wall_contact_time: float | None = None
         self.wall_contact_tcp_position: np.ndarray | None = None
         #: Every contact onset (time [s], TCP position [m]), e.g. after retract-and-reapproach.
         self.wall_contacts: list[tuple[float, np.ndarray]] = []
         self._in_contact = False
         self.slip_onset_time: float | None = None
+        #: First time the object turns relative to the fingers [s] (None until it does).
+        self.rotation_onset_time: float | None = None
         self._next_mocap = 0
         self._next_tcp = 0
         self._pending: deque = deque()
-        self._log: dict[str, list] = {k: [] for k in ("t", "tcp", "object", "rel", "v_rel")}
+        self._log: dict[str, list] = {k: [] for k in ("t", "tcp", "object", "rel", "v_rel",
+                                                      "w_rel", "angle")}
 
     # ------------------------------------------------------------------ state accessors
     @property
@@ -208,7 +224,20 @@ class World:
 
     def object_pose(self) -> np.ndarray:
         """True object pose now in ``world``."""
-        return np.concatenate([self._p_tcp + self._plane @ self._r, self._q])
+        return np.concatenate([self._p_tcp + self._plane @ self._r,
+                               self._object_quaternion(self._angle)])
+
+    def angle_turned(self) -> float:
+        """Angle the object has turned relative to the fingers since the start, about the pad
+        normal (+y of the grasp plane) [rad]."""
+        return float(self._angle)
+
+    def _object_quaternion(self, angle: float) -> np.ndarray:
+        """The object's orientation in ``world``: the grasp plane's, turned by ``angle``
+        about the grasp plane's y axis."""
+        if angle == 0.0:
+            return self._q
+        return (Rotation.from_quat(self._q) * Rotation.from_rotvec([0.0, angle, 0.0])).as_quat()
 
     def relative_xz(self) -> np.ndarray:
         """Object position relative to the grasp centre, grasp-plane (x, z) [m]."""
@@ -228,7 +257,8 @@ class World:
 
     def trajectory(self) -> dict[str, np.ndarray]:
         """Logged truth at the mocap rate (needs ``record``): t, tcp, object (world xyz),
-        rel (grasp-plane xz), v_rel (grasp-plane xz)."""
+        rel (grasp-plane xz), v_rel (grasp-plane xz, at the pad centre), w_rel (about the
+        grasp plane's y) [rad/s], angle (turned relative to the fingers) [rad]."""
         if not self.record:
             raise ValueError("trajectory() needs World(..., record=True)")
         return {k: np.asarray(v) for k, v in self._log.items()}
@@ -257,25 +287,25 @@ class World:
         per = max(1, int(np.ceil(_SYNTH_BLOCK_S * self.fs / block_frames)))
         while self._i < total:
             n = min(block_frames * per, total - self._i)
-            base, audio, v_rel, tcp = self._advance(n)
+            base, audio, v_rel, w_rel, tcp = self._advance(n)
             for lo in range(0, n, block_frames):
                 hi = min(lo + block_frames, n)
-                yield self._chunk(base + lo, audio[lo:hi], v_rel[lo:hi], tcp)
+                yield self._chunk(base + lo, audio[lo:hi], v_rel[lo:hi], w_rel[lo:hi], tcp)
 
     def step(self, n_frames: int) -> Chunk:
         """Advance ``n_frames`` samples under the current arm command; return the chunk."""
         _check_frames(n_frames, "n_frames")
-        base, audio, v_rel, tcp = self._advance(int(n_frames))
-        return self._chunk(base, audio, v_rel, tcp)
+        base, audio, v_rel, w_rel, tcp = self._advance(int(n_frames))
+        return self._chunk(base, audio, v_rel, w_rel, tcp)
 
-    def _chunk(self, start: int, audio, v_rel, tcp: list) -> Chunk:
+    def _chunk(self, start: int, audio, v_rel, w_rel, tcp: list) -> Chunk:
         end = start + audio.shape[0]
         mocap = []
         while self._pending and self._pending[0][0] < end:
             mocap.append(self._pending.popleft()[1])
         tcp_here = [s for s in tcp if start <= s[0] < end]
         return Chunk(start, start / self.fs, audio, mocap,
-                     [(i / self.fs, pose) for i, pose in tcp_here], v_rel)
+                     [(i / self.fs, pose) for i, pose in tcp_here], v_rel, w_rel)
 
     def _advance(self, n: int):
         scn, fs = self.scenario, self.fs
@@ -293,32 +323,59 @@ class World:
             v_tcp = v_tcp + self.arm.velocities(t)
         p_tcp = self._p_tcp + np.cumsum(v_tcp, axis=0) / fs
 
+        w_rel = np.zeros(n)
         if scn.kind == "robot_induced":
             # The probe stands still in the world: slip is minus the arm's in-plane motion.
             v_rel = -(v_tcp @ self._plane)
-            r = self._r + np.cumsum(v_rel, axis=0) / fs
-        elif scn.kind in ("external_induced", "scripted"):
-            v_rel = self._agent.evaluate(t)
+        elif scn.kind in ("external_induced", "scripted", "gravity_pivot"):
+            vw = self._agent.evaluate(t)
+            v_rel, w_rel = np.ascontiguousarray(vw[:, :2]), vw[:, 2].copy()
             if self._touch is not None:
                 touch = self._touch.evaluate(t)[:, 0]
-            r = self._r + np.cumsum(v_rel, axis=0) / fs
         elif scn.kind == "external_drag":
             # The agent carries the object; it slips unless the arm moves with it.
             v_obj_xz = self._drag.evaluate(t)
             v_rel = v_obj_xz - v_tcp @ self._plane
-            r = self._r + np.cumsum(v_rel, axis=0) / fs
             touch[:] = 0.6
+        elif self._pivot:
+            w_rel, touch = self._wall_pivot(t, p_tcp)
+            v_rel = np.zeros((n, 2))
         else:
             r, v_rel, touch = self._wall(t, p_tcp)
+        angle = self._angle + np.cumsum(w_rel) / fs if np.any(w_rel) else np.full(n, self._angle)
+        if scn.kind != "wall_push" or self._pivot:
+            r = self._integrate(v_rel, w_rel, angle)
+        if self.rotation_onset_time is None and np.any(w_rel != 0.0):
+            self.rotation_onset_time = float(t[int(np.argmax(w_rel != 0.0))])
 
         obj = p_tcp + r @ self._plane.T
         self._v_rel_last = v_rel[-1].copy()
-        audio = self.synth.render(i0, v_rel, v_tcp, touch)
-        tcp = self._sample_sensors(i0, n, p_tcp, obj, r, v_rel)
+        audio = self.synth.render(i0, v_rel, v_tcp, touch, w_rel=w_rel)
+        tcp = self._sample_sensors(i0, n, p_tcp, obj, r, v_rel, w_rel, angle)
         self._p_tcp = p_tcp[-1].copy()
         self._r = r[-1].copy()
+        self._angle = float(angle[-1])
         self._i += n
-        return i0, audio, v_rel, tcp
+        return i0, audio, v_rel, w_rel, tcp
+
+    def _integrate(self, v_rel: np.ndarray, w_rel: np.ndarray,
+                   angle: np.ndarray) -> np.ndarray:
+        """The object origin relative to the grasp centre per sample, grasp-plane (x, z).
+
+        The object turns about the pad centre: ``dr/dt = v + w x r`` (x: ``+ wy rz``, z:
+        ``- wy rx``), with ``v`` the velocity of its point at the pad centre and ``angle``
+        the integral of ``w``. In the frame turning with the object, ``q = Ry(-angle) r``
+        moves at ``Ry(-angle) v``.
+        """
+        fs = self.fs
+        if not np.any(w_rel):
+            return self._r + np.cumsum(v_rel, axis=0) / fs
+        c, s = np.cos(angle), np.sin(angle)
+        c0, s0 = np.cos(self._angle), np.sin(self._angle)
+        q0 = np.array([self._r[0] * c0 - self._r[1] * s0, self._r[0] * s0 + self._r[1] * c0])
+        q = q0 + np.cumsum(np.column_stack([v_rel[:, 0] * c - v_rel[:, 1] * s,
+                                            v_rel[:, 0] * s + v_rel[:, 1] * c]), axis=0) / fs
+        return np.column_stack([q[:, 0] * c + q[:, 1] * s, -q[:, 0] * s + q[:, 1] * c])
 
     def _wall(self, t: np.ndarray, p_tcp: np.ndarray):
         """Rigid grip until the wall force beats friction, then a slip ratchet.
@@ -335,7 +392,13 @@ class World:
         prev = np.concatenate([[r_d0], r_d[:-1]])
         v_rel = np.outer((r_d - prev) * self.fs, self._push_xz)
         lead = along + r_d + self.object.length_m
-        depth = lead - self._wall_s
+        touch = self._wall_touch(t, p_tcp, lead - self._wall_s)
+        if self.slip_onset_time is None and np.any(r_d < r_d0 - 1e-9):
+            self.slip_onset_time = float(t[int(np.argmax(r_d < r_d0 - 1e-9))])
+        return r, v_rel, touch
+
+    def _wall_touch(self, t: np.ndarray, p_tcp: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Touch level from the contact depth into the wall [m]; records contact onsets."""
         touch = np.clip(depth / 1e-3, 0.0, 1.0) * 0.5
         contact = depth >= 0.0
         onsets = np.flatnonzero(contact & ~np.concatenate([[self._in_contact], contact[:-1]]))
@@ -345,11 +408,37 @@ class World:
         if self.wall_contact_time is None and self.wall_contacts:
             self.wall_contact_time, first = self.wall_contacts[0]
             self.wall_contact_tcp_position = first.copy()
-        if self.slip_onset_time is None and np.any(r_d < r_d0 - 1e-9):
-            self.slip_onset_time = float(t[int(np.argmax(r_d < r_d0 - 1e-9))])
-        return r, v_rel, touch
+        return touch
 
-    def _sample_sensors(self, i0: int, n: int, p_tcp, obj, r, v_rel) -> list:
+    def _wall_pivot(self, t: np.ndarray, p_tcp: np.ndarray):
+        """Rigid grip until the wall's torque beats the pads' torsional friction, then a turn
+        ratchet: ``(w_rel, touch)``.
+
+        The surface meets the object at the lever arm: its force ``F`` turns the object with
+        the torque ``F * m`` (``m``: the contact point's moment arm about the pad centre).
+        The contact may press at most ``torsional friction / (m * stiffness)`` into the
+        surface; beyond that the object turns (about the pad centre, the whole object
+        rigidly) just enough to stay there. Friction holds the angle when the arm backs off,
+        and the turning stops when the arm stops: it is driven by the arm's travel.
+        """
+        d = self._push_xz
+        along = p_tcp @ self._push_world                              # (n,)
+        c = self._r + _turn(self._contact_body, self._angle)         # contact point now
+        a, m = float(c @ d), float(d @ np.array([c[1], -c[0]]))     # g(u) = a cos + m sin
+        scn = self.scenario
+        slack = scn.torsional_friction_nm / (max(abs(m), 1e-6) * scn.wall_stiffness_n_m)
+        limit = self._wall_s + slack - along
+        # Turning by u in the direction that withdraws the contact point: g = rho cos(u + phi).
+        rho, phi = np.hypot(a, m), np.arctan2(abs(m), a)
+        need = np.arccos(np.clip(limit / rho, -1.0, 1.0)) - phi
+        u = np.maximum.accumulate(np.maximum(need, 0.0))
+        sign = -1.0 if m > 0.0 else 1.0
+        prev = np.concatenate([[0.0], u[:-1]])
+        w_rel = sign * (u - prev) * self.fs
+        depth = along + rho * np.cos(u + phi) - self._wall_s
+        return w_rel, self._wall_touch(t, p_tcp, depth)
+
+    def _sample_sensors(self, i0: int, n: int, p_tcp, obj, r, v_rel, w_rel, angle) -> list:
         scn, fs = self.scenario, self.fs
         end = i0 + n
         latency = int(round(scn.mocap_latency_s * fs))
@@ -369,10 +458,13 @@ class World:
                 self._log["object"].append(obj[j].copy())
                 self._log["rel"].append(r[j].copy())
                 self._log["v_rel"].append(v_rel[j].copy())
+                self._log["w_rel"].append(float(w_rel[j]))
+                self._log["angle"].append(float(angle[j]))
             if dropped:
                 continue
             sample = MocapSample(tc, np.concatenate([p_tcp[j] + noise[:3], self._q]),
-                                 np.concatenate([obj[j] + noise[3:], self._q]))
+                                 np.concatenate([obj[j] + noise[3:],
+                                                 self._object_quaternion(float(angle[j]))]))
             self._pending.append((idx + latency, sample))
         tcp = []
         while True:
@@ -387,3 +479,9 @@ class World:
 def _check_frames(n, name: str) -> None:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n <= 0:
         raise ValueError(f"{name} must be a positive integer, got {n!r}")
+
+
+def _turn(p: np.ndarray, angle: float) -> np.ndarray:
+    """Grasp-plane point ``(x, z)`` turned by ``angle`` about the grasp plane's y axis."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([p[0] * c + p[1] * s, -p[0] * s + p[1] * c])

@@ -47,6 +47,8 @@ def fill(msg, rng_seed: int = 7):
         msg.speed = float(np.hypot(0.0125, 0.0375))
         msg.direction = float(np.arctan2(-0.0375, 0.0125))
         msg.direction_sigma = 0.25
+        msg.angular_velocity = 0.75
+        msg.angular_velocity_sigma = 0.125
         msg.window_length = 0.2
         msg.source = "aslip_cnn"
     else:

@@ -17,6 +17,14 @@ may only fall with speed: adjacent bins that break that are merged and their per
 taken again over the pooled errors. Sigmas are clipped to [``SIGMA_FLOOR_RAD``, pi].
 Fewer than ``MIN_SIGMA_WINDOWS`` slip windows give no model (``None``): sigma unknown.
 
+Angular sigma (``fit_angular_sigma``, a model with a rotational output): over validation
+windows with an angular label (rotating or not), the absolute error of the raw rate
+``|w_hat - wy|`` [rad/s], binned like the direction sigma by quantiles of the predicted
+``|w_hat|`` (up to ``MAX_BINS`` bins of at least ``MIN_BIN_WINDOWS``); each bin's sigma is
+the 68.27th percentile of its errors, floored at ``ANGULAR_SIGMA_FLOOR_RAD_S``. No
+monotonicity is imposed: an absolute rate error may grow with the rate as well as fall.
+Fewer than ``MIN_SIGMA_WINDOWS`` labelled windows give no model: ``angular_sigma`` -1.
+
 ``calibration_check`` measures both on any split (``aslip evaluate``: held-out test by
 default): the fraction of slip windows with error <= sigma, and the expected calibration
 error of p(slip) over ten equal-width probability bins; ``plot_reliability`` draws them.
@@ -42,6 +50,9 @@ MIN_SIGMA_WINDOWS = 30
 MIN_BIN_WINDOWS = 30
 MAX_BINS = 4
 SIGMA_FLOOR_RAD = math.radians(2.0)
+#: The smallest angular sigma [rad/s] (about 1 deg/s): a perfect validation fit is not a
+#: promise of a perfect estimate.
+ANGULAR_SIGMA_FLOOR_RAD_S = 0.02
 RELIABILITY_BINS = 10
 
 
@@ -130,6 +141,20 @@ def _bin_sigmas(err: np.ndarray, speed: np.ndarray, edges: list[float]) -> np.nd
     return np.array([np.quantile(err[b == k], ONE_SIGMA) for k in range(len(edges) + 1)])
 
 
+def _quantile_edges(x: np.ndarray) -> list[float]:
+    """Edges of up to ``MAX_BINS`` bins of ``x`` at its quantiles, at least
+    ``MIN_BIN_WINDOWS`` values each, none empty."""
+    k = max(1, min(MAX_BINS, x.size // MIN_BIN_WINDOWS))
+    edges = sorted(set(float(e) for e in np.quantile(x, np.arange(1, k) / k)))
+    while True:                   # tied values can leave a bin empty: drop its edge
+        counts = np.bincount(np.searchsorted(np.asarray(edges), x, side="right"),
+                             minlength=len(edges) + 1)
+        if counts.all():
+            return edges
+        j = int(np.flatnonzero(counts == 0)[0])
+        del edges[max(j - 1, 0)]
+
+
 def fit_sigma_model(v_pred, v_true, slip) -> dict[str, Any]:
     """The direction-uncertainty model of the module docstring, as a JSON-able dict;
     ``{"model": None, "note": ...}`` when there are too few slip windows."""
@@ -142,15 +167,7 @@ def fit_sigma_model(v_pred, v_true, slip) -> dict[str, Any]:
         return {"model": None, "n_slip_windows": n,
                 "note": f"no sigma model: {n} validation slip windows (need "
                         f">= {MIN_SIGMA_WINDOWS}); direction_sigma stays unknown (-1)"}
-    k = max(1, min(MAX_BINS, n // MIN_BIN_WINDOWS))
-    edges = sorted(set(float(e) for e in np.quantile(speed, np.arange(1, k) / k)))
-    while True:                   # tied speeds can leave a bin empty: drop its edge
-        counts = np.bincount(np.searchsorted(np.asarray(edges), speed, side="right"),
-                             minlength=len(edges) + 1)
-        if counts.all():
-            break
-        j = int(np.flatnonzero(counts == 0)[0])
-        del edges[max(j - 1, 0)]
+    edges = _quantile_edges(speed)
     sig = _bin_sigmas(err, speed, edges)
     while len(edges) and np.any(np.diff(sig) > 0):    # slower must not be surer: pool
         j = int(np.flatnonzero(np.diff(sig) > 0)[0])
@@ -195,6 +212,13 @@ def meta_problems(d: Any) -> list[str]:
         problems.append("output_calibration.direction_sigma must be a JSON object")
     elif model is not None:
         problems += [f"output_calibration: {p}" for p in sigma_problems(model)]
+    ang = d.get("angular_sigma")
+    if ang is not None:
+        if not isinstance(ang, dict):
+            problems.append("output_calibration.angular_sigma must be a JSON object")
+        elif ang.get("model") is not None:
+            problems += [f"output_calibration: {p}"
+                         for p in angular_sigma_problems(ang["model"])]
     return problems
 
 
@@ -202,6 +226,99 @@ def sigma_model(meta: dict[str, Any]) -> SigmaModel | None:
     """The checkpoint's sigma model (None when it has none: older checkpoints too)."""
     d = (meta.get("output_calibration") or {}).get("direction_sigma") or {}
     return None if d.get("model") is None else SigmaModel.from_dict(d["model"])
+
+
+# --- angular sigma --------------------------------------------------------------------------
+
+class AngularSigmaModel:
+    """One-sigma error of the rotational rate [rad/s] as a step function of the predicted
+    ``|w_hat|`` [rad/s]."""
+
+    def __init__(self, rate_edges: Sequence[float], sigma: Sequence[float]) -> None:
+        self.edges = np.asarray(rate_edges, np.float64).reshape(-1)
+        self.sigma = np.asarray(sigma, np.float64).reshape(-1)
+        problems = angular_sigma_problems({"rate_edges_rad_s": self.edges.tolist(),
+                                           "sigma_rad_s": self.sigma.tolist()})
+        if problems:
+            raise ValueError("; ".join(problems))
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "AngularSigmaModel":
+        return cls(d["rate_edges_rad_s"], d["sigma_rad_s"])
+
+    def bins(self, rate) -> np.ndarray:
+        return np.searchsorted(self.edges, np.abs(np.asarray(rate, np.float64)), side="right")
+
+    def __call__(self, rate) -> np.ndarray:
+        """Sigma per predicted rate (its sign does not matter); a non-finite rate gets the
+        largest sigma."""
+        r = np.asarray(rate, np.float64)
+        out = self.sigma[self.bins(np.where(np.isfinite(r), r, 0.0))]
+        return np.where(np.isfinite(r), out, self.sigma.max())
+
+
+def fit_angular_sigma(w_pred, w_true) -> dict[str, Any]:
+    """The angular-uncertainty model of the module docstring from the raw predicted rates
+    and the labels (rad/s; NaN: no label), as a JSON-able dict; ``{"model": None, "note":
+    ...}`` when too few windows have a label."""
+    w_pred = np.asarray(w_pred, np.float64).reshape(-1)
+    w_true = np.asarray(w_true, np.float64).reshape(-1)
+    if w_pred.shape != w_true.shape or not np.isfinite(w_pred).all():
+        raise ValueError("predicted rates must be finite, one per label")
+    m = np.isfinite(w_true)
+    n = int(m.sum())
+    if n < MIN_SIGMA_WINDOWS:
+        return {"model": None, "n_windows": n,
+                "note": f"no angular sigma model: {n} validation windows with an angular "
+                        f"label (need >= {MIN_SIGMA_WINDOWS}); angular_sigma stays unknown "
+                        "(-1)"}
+    err, rate = np.abs(w_pred[m] - w_true[m]), np.abs(w_pred[m])
+    edges = _quantile_edges(rate)
+    sig = np.maximum(_bin_sigmas(err, rate, edges), ANGULAR_SIGMA_FLOOR_RAD_S)
+    counts = np.bincount(np.searchsorted(np.asarray(edges), rate, side="right"),
+                         minlength=len(edges) + 1)
+    return {"model": {"rate_edges_rad_s": edges, "sigma_rad_s": sig.tolist(),
+                      "quantile": ONE_SIGMA, "floor_rad_s": ANGULAR_SIGMA_FLOOR_RAD_S,
+                      "bin_counts": counts.tolist()},
+            "n_windows": n}
+
+
+def angular_sigma_problems(d: Any) -> list[str]:
+    """What is wrong with an angular sigma model document (empty when sound)."""
+    if not isinstance(d, dict):
+        return [f"angular sigma model must be a JSON object, got {type(d).__name__}"]
+    edges, sig = d.get("rate_edges_rad_s"), d.get("sigma_rad_s")
+    num = (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)
+           and math.isfinite(v))
+    if not isinstance(sig, list) or not sig or not all(num(s) and s > 0 for s in sig):
+        return [f"sigma_rad_s must be a non-empty list of positive numbers, got {sig!r}"]
+    if not isinstance(edges, list) or not all(num(e) and e >= 0 for e in edges) \
+            or any(b <= a for a, b in zip(edges, edges[1:])) or len(edges) != len(sig) - 1:
+        return [f"rate_edges_rad_s must be {len(sig) - 1} increasing rates >= 0, "
+                f"got {edges!r}"]
+    return []
+
+
+def angular_sigma_model(meta: dict[str, Any]) -> AngularSigmaModel | None:
+    """The checkpoint's angular sigma model (None when it has none: a model without a
+    rotational output, or one trained before it existed)."""
+    d = (meta.get("output_calibration") or {}).get("angular_sigma") or {}
+    return None if d.get("model") is None else AngularSigmaModel.from_dict(d["model"])
+
+
+def angular_coverage(model: AngularSigmaModel, w_pred, w_true) -> dict[str, Any]:
+    """Fraction of windows with an angular label whose rate error is <= their sigma,
+    overall and per bin (None where there are no windows)."""
+    w_pred = np.asarray(w_pred, np.float64).reshape(-1)
+    w_true = np.asarray(w_true, np.float64).reshape(-1)
+    m = np.isfinite(w_true)
+    inside = np.abs(w_pred[m] - w_true[m]) <= model(w_pred[m])
+    b = model.bins(w_pred[m])
+    per_bin = [{"sigma_rad_s": float(s), "n": int((b == k).sum()),
+                "coverage": float(inside[b == k].mean()) if (b == k).any() else None}
+               for k, s in enumerate(model.sigma)]
+    return {"coverage": float(inside.mean()) if inside.size else None, "n": int(inside.size),
+            "target": ONE_SIGMA, "per_bin": per_bin}
 
 
 # --- checks ---------------------------------------------------------------------------------
@@ -240,20 +357,29 @@ def reliability(prob, slip, n_bins: int = RELIABILITY_BINS) -> dict[str, Any]:
     return {"bins": bins, "ece": float(ece / prob.size) if prob.size else None}
 
 
-def calibration_check(prob, v_pred, v_true, slip, model: SigmaModel | None) -> dict[str, Any]:
-    """Reliability of p(slip) and, with a model, the sigma coverage on these windows."""
+def calibration_check(prob, v_pred, v_true, slip, model: SigmaModel | None, *,
+                      w_pred=None, w_true=None,
+                      angular_model: AngularSigmaModel | None = None) -> dict[str, Any]:
+    """Reliability of p(slip) and, with a model, the sigma coverage on these windows; with
+    an ``angular_model``, the raw rates ``w_pred`` and the labels ``w_true`` (rad/s, NaN: no
+    label), the angular sigma coverage (``angular_sigma``)."""
     prob, v_pred, v_true, slip = _arrays(prob, v_pred, v_true, slip)
     rel = reliability(prob, slip)
-    return {"n_windows": int(prob.size), "ece": rel["ece"], "reliability": rel["bins"],
-            "sigma": None if model is None else sigma_coverage(model, v_pred, v_true, slip)}
+    out = {"n_windows": int(prob.size), "ece": rel["ece"], "reliability": rel["bins"],
+           "sigma": None if model is None else sigma_coverage(model, v_pred, v_true, slip)}
+    if angular_model is not None and w_pred is not None and w_true is not None:
+        out["angular_sigma"] = angular_coverage(angular_model, w_pred, w_true)
+    return out
 
 
 def fit_output_calibration(prob, v_pred, v_true, slip, threshold: float | None = None,
-                           criterion: str = "") -> dict[str, Any]:
+                           criterion: str = "", *, w_pred=None, w_true=None) -> dict[str, Any]:
     """Threshold and direction-sigma model from VALIDATION windows (module docstring):
     ``prob`` (n,), ungated predicted velocity ``v_pred`` (n, 2) and true velocity
     ``v_true`` (n, 2) in m/s, slip labels (n,). A trainer with a criterion of its own
-    passes its ``threshold`` and names the ``criterion``. Returns the checkpoint's JSON
+    passes its ``threshold`` and names the ``criterion``. A model with a rotational output
+    passes its raw rates ``w_pred`` (n,) and the labels ``w_true`` (n,, rad/s, NaN: none or
+    None) for the angular sigma model (``angular_sigma``). Returns the checkpoint's JSON
     document."""
     prob, v_pred, v_true, slip = _arrays(prob, v_pred, v_true, slip)
     thr = choose_threshold(prob, slip) if threshold is None else {
@@ -262,10 +388,14 @@ def fit_output_calibration(prob, v_pred, v_true, slip, threshold: float | None =
     sig = fit_sigma_model(v_pred, v_true, slip)
     model = None if sig["model"] is None else SigmaModel.from_dict(sig["model"])
     check = calibration_check(prob, v_pred, v_true, slip, model)
-    return {"threshold": thr["threshold"], "threshold_fit": thr, "direction_sigma": sig,
-            "validation": {"n_windows": check["n_windows"], "ece": check["ece"],
-                           "sigma_coverage": None if model is None
-                           else check["sigma"]["coverage"]}}
+    doc = {"threshold": thr["threshold"], "threshold_fit": thr, "direction_sigma": sig,
+           "validation": {"n_windows": check["n_windows"], "ece": check["ece"],
+                          "sigma_coverage": None if model is None
+                          else check["sigma"]["coverage"]}}
+    if w_pred is not None:
+        labels = np.full(prob.size, np.nan) if w_true is None else w_true
+        doc["angular_sigma"] = fit_angular_sigma(w_pred, labels)
+    return doc
 
 
 def plot_reliability(path: str | os.PathLike, check: dict[str, Any], title: str = "") -> Path:
@@ -313,10 +443,12 @@ def plot_reliability(path: str | os.PathLike, check: dict[str, Any], title: str 
     return path
 
 
-def checkpoint_fields(prob, v_pred, v_true, slip) -> dict[str, Any]:
+def checkpoint_fields(prob, v_pred, v_true, slip, *, w_pred=None,
+                      w_true=None) -> dict[str, Any]:
     """The checkpoint keys a trainer sets from its validation predictions: the fitted
-    ``output_calibration`` and the ``threshold`` it chose."""
-    doc = fit_output_calibration(prob, v_pred, v_true, slip)
+    ``output_calibration`` and the ``threshold`` it chose (``w_pred``/``w_true``: the raw
+    rates and angular labels of a model with a rotational output)."""
+    doc = fit_output_calibration(prob, v_pred, v_true, slip, w_pred=w_pred, w_true=w_true)
     return {"output_calibration": doc, "threshold": doc["threshold"]}
 
 
@@ -324,12 +456,16 @@ def sequence_fields(outputs, seqs, threshold: float,
                     criterion: str = "validation false alarms per minute "
                                      "(threshold_selection)") -> dict[str, Any]:
     """``checkpoint_fields`` for a per-frame model validated on whole trials (the streaming
-    trainer): per trial ``(p, v)`` outputs and ``seqs`` with per-trial ``v``, ``slip`` and
-    ``valid`` (label) arrays. The model keeps the ``threshold`` its trainer chose by
-    ``criterion``; the sigma model is fitted here on the valid frames."""
+    trainer): per trial ``(p, v, w)`` outputs (``w`` None without a rotational output) and
+    ``seqs`` with per-trial ``v``, ``slip``, ``valid`` (label) and ``w`` (angular label,
+    NaN: none) arrays. The model keeps the ``threshold`` its trainer chose by
+    ``criterion``; the sigma models are fitted here on the valid frames."""
     def cat(xs, i=None):
         return np.concatenate([np.asarray(x if i is None else x[i])[np.asarray(m, bool)]
                                for x, m in zip(xs, seqs.valid)] or [np.zeros((0, 2))])
+    angular = bool(outputs) and all(o[2] is not None for o in outputs)
+    rates = {"w_pred": cat(outputs, 2).reshape(-1),
+             "w_true": cat(seqs.w).reshape(-1)} if angular else {}
     return {"output_calibration": fit_output_calibration(
         cat(outputs, 0).reshape(-1), cat(outputs, 1), cat(seqs.v), cat(seqs.slip).reshape(-1),
-        threshold, criterion)}
+        threshold, criterion, **rates)}

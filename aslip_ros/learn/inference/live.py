@@ -18,6 +18,11 @@ SVM, registered ones) and streaming ones (``aslip_stream``) alike:
 - the decision threshold (the predictor's, ``set_threshold``);
 - counters of all of it (``stats``) and the events a user should hear of (``events``).
 
+Each estimate's ``prediction`` carries the rotational slip rate (``angular_velocity``, raw,
+not gated by the planar ``slipping``, and ``angular_sigma``) for a checkpoint with a
+rotational output, 0.0 / -1 for any other; an estimate with a non-finite rate is withheld
+like any non-finite estimate.
+
 ``slip_inference`` only decodes messages into blocks, hands ``accept``'s window job to its
 model thread (``run``) and publishes; evaluation and the closed-loop demo call ``feed``,
 which runs the job at once, so what is measured offline is what runs live.
@@ -459,4 +464,5 @@ class LiveEstimator:
 
 def _finite(p: Prediction) -> bool:
     return all(math.isfinite(v) for v in (p.probability, p.vx, p.vz, p.threshold,
-                                          p.direction_sigma))
+                                          p.direction_sigma, p.angular_velocity,
+                                          p.angular_sigma))

@@ -15,6 +15,12 @@ checkpoint's ``output_calibration`` gives for the estimate's ungated predicted s
 (learn/calibration/output.py; about 68 % of validation and held-out slip windows fall
 within it), or -1 (unknown) for a checkpoint without one.
 
+A checkpoint whose ``outputs`` list ``wy`` (a model with a rotational output) also gives
+``angular_velocity`` [rad/s] about +y of the grasp plane: the raw estimate, NOT gated by the
+planar decision (a pure rotation is planar no-slip), and ``angular_sigma`` [rad/s] from the
+checkpoint's angular sigma model (-1 without one). Any other checkpoint (``models/*.pt``
+included) gives 0.0 and -1 (``BatchPrediction.angular`` is None).
+
 A checkpoint with a per-grasp ``calibration`` (docs/model.md, "Per-grasp calibration") gets
 window offsets from the caller: offline ``calibration_frames.dataset_offsets``; live, feed
 every accepted audio block to ``push_audio`` and pass ``calibration_offsets()`` with the
@@ -42,9 +48,9 @@ from aslip_ros.learn.models.registry import model_backend
 from aslip_ros.learn.calibration.grasp import CalibrationConstants
 from aslip_ros.learn.calibration.frames import FrameCutter, StreamCalibration
 from aslip_ros.learn.checkpoint import (Checkpoint, CheckpointFacts, CheckpointMismatch,
-                                        check_compatible, load_checkpoint)
+                                        check_compatible, estimates_rotation, load_checkpoint)
 from aslip_ros.learn.features import FeatureConfig, LogMel
-from aslip_ros.learn.calibration.output import sigma_model
+from aslip_ros.learn.calibration.output import angular_sigma_model, sigma_model
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,10 @@ class Prediction:
     window_length: float
     threshold: float = DEFAULT_THRESHOLD   # the decision threshold ``slipping`` was decided at
     direction_sigma: float = -1.0    # one-sigma direction error [rad]; -1: unknown
+    # Rotational slip about +y of the grasp plane [rad/s], raw (not gated by ``slipping``);
+    # 0 when the model does not estimate it.
+    angular_velocity: float = 0.0
+    angular_sigma: float = -1.0      # one-sigma error of angular_velocity [rad/s]; -1: unknown
 
 
 @dataclass(frozen=True)
@@ -71,6 +81,8 @@ class BatchPrediction:
     window_length: float
     threshold: float = DEFAULT_THRESHOLD   # the decision threshold ``slipping`` was decided at
     direction_sigma: np.ndarray | None = None   # (B,) [rad] from the raw speed; None: unknown
+    angular: np.ndarray | None = None   # (B,) raw wy [rad/s]; None: no rotational output
+    angular_sigma: np.ndarray | None = None   # (B,) [rad/s]; None: unknown
 
     def __len__(self) -> int:
         return int(self.probability.shape[0])
@@ -80,8 +92,12 @@ class BatchPrediction:
         speed = float(np.hypot(v[0], v[1]))
         d = (float(v[0] / speed), float(v[1] / speed)) if speed > 0 else (0.0, 0.0)
         sigma = -1.0 if self.direction_sigma is None else float(self.direction_sigma[i])
+        w = 0.0 if self.angular is None else float(self.angular[i])
+        w_sigma = -1.0 if self.angular is None or self.angular_sigma is None \
+            else float(self.angular_sigma[i])
         return Prediction(float(self.probability[i]), bool(self.slipping[i]), float(v[0]),
-                          float(v[1]), speed, d, self.window_length, self.threshold, sigma)
+                          float(v[1]), speed, d, self.window_length, self.threshold, sigma,
+                          w, w_sigma)
 
 
 class Predictor(CheckpointFacts):
@@ -101,6 +117,9 @@ class Predictor(CheckpointFacts):
                              "learn.inference.stream_predictor.StreamingPredictor")
         self.backend = backend.from_checkpoint(ckpt)
         self.sigma_model = sigma_model(meta)
+        #: True when the model estimates the rotational slip rate (``outputs`` names wy).
+        self.estimates_rotation = estimates_rotation(meta)
+        self.angular_sigma_model = angular_sigma_model(meta)
         self.calibration: CalibrationConstants | None = None
         self._stream_cal: StreamCalibration | None = None
         if meta.get("calibration") is not None:
@@ -218,27 +237,41 @@ class Predictor(CheckpointFacts):
                     not np.isfinite(offsets).all():
                 raise ValueError(f"offsets must be finite, shaped ({x.shape[0]}, "
                                  f"{self.n_channels}), got {offsets.shape}")
-        probs, vels = [], []
+        probs, vels, rates = [], [], []
         for s in range(0, max(x.shape[0], 1), batch_size):
             chunk = x[s:s + batch_size]
             if chunk.shape[0] == 0:
                 break
             off = None if offsets is None else offsets[s:s + batch_size]
-            p, v = self._checked(*self.backend.predict(chunk, off), chunk.shape[0])
+            p, v, w = self._checked(self.backend.predict(chunk, off), chunk.shape[0])
             probs.append(p)
             vels.append(v)
+            rates.append(w)
         prob = np.concatenate(probs) if probs else np.zeros(0, np.float32)
         raw = np.concatenate(vels) if vels else np.zeros((0, N_VELOCITY), np.float32)
-        return self._gate(prob, raw)
+        w = None
+        if self.estimates_rotation:
+            w = np.concatenate(rates) if rates else np.zeros(0, np.float32)
+        return self._gate(prob, raw, w)
 
-    def _checked(self, p: Any, v: Any, n: int) -> tuple[np.ndarray, np.ndarray]:
-        p, v = np.asarray(p), np.asarray(v)
+    def _checked(self, out: Any, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """A backend's ``(p, v)`` or ``(p, v, w)`` checked; ``w`` kept only when the
+        checkpoint says the model estimates rotation (and then required)."""
+        p, v = np.asarray(out[0]), np.asarray(out[1])
+        w = out[2] if len(out) > 2 else None
         if p.shape != (n,) or v.shape != (n, N_VELOCITY):
             raise ValueError(f"model {self.model_type!r} returned p {p.shape} and v {v.shape} "
                              f"for {n} windows; expected ({n},) and ({n}, {N_VELOCITY})")
         if not (np.isfinite(p).all() and np.isfinite(v).all()):
             raise ValueError(f"model {self.model_type!r} returned NaN or Inf")
-        return p, v
+        if not self.estimates_rotation:
+            return p, v, None
+        w = None if w is None else np.asarray(w, np.float32)
+        if w is None or w.shape != (n,) or not np.isfinite(w).all():
+            raise ValueError(f"model {self.model_type!r} estimates rotation (outputs) but "
+                             f"returned no finite ({n},) rate: "
+                             f"{None if w is None else w.shape}")
+        return p, v, w
 
     def predict_features(self, feats: np.ndarray) -> BatchPrediction:
         """Log-mel features (B, C, M, T) from ``LogMel`` (e.g. a training cache), for a
@@ -248,13 +281,17 @@ class Predictor(CheckpointFacts):
             raise ValueError(f"predict_features needs a model that reads log-mel features; "
                              f"{self.model_type!r} does not")
         feats = np.asarray(feats, dtype=np.float32)
-        return self._gate(*self._checked(*infer(feats), feats.shape[0]))
+        return self._gate(*self._checked(infer(feats), feats.shape[0]))
 
-    def _gate(self, prob: np.ndarray, raw: np.ndarray) -> BatchPrediction:
+    def _gate(self, prob: np.ndarray, raw: np.ndarray,
+              w: np.ndarray | None = None) -> BatchPrediction:
+        """The planar decision gates the velocity; the rotational rate stays raw."""
         threshold = self._threshold      # read once: the decision and its report agree
         slipping = prob >= threshold
         vel = np.where(slipping[:, None], raw, 0.0).astype(np.float32)
         sigma = None if self.sigma_model is None else \
             self.sigma_model(np.hypot(raw[:, 0], raw[:, 1]))
+        w_sigma = None if w is None or self.angular_sigma_model is None else \
+            self.angular_sigma_model(w)
         return BatchPrediction(prob.astype(np.float32), slipping, vel, raw.astype(np.float32),
-                               self.window_s, threshold, sigma)
+                               self.window_s, threshold, sigma, w, w_sigma)

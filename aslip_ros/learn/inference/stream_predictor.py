@@ -21,7 +21,8 @@ estimate describes the instant of its frame's last sample: ``stamp_ns`` is that 
 time on the block clock, and ``Prediction.window_length`` is the frame length (the audio
 the estimate reads directly; the state summarises what came before). Its
 ``direction_sigma`` comes from the checkpoint's ``output_calibration`` at the hop's ungated
-speed (-1 without one), as for ``learn.inference.predictor``.
+speed (-1 without one), as for ``learn.inference.predictor``; a checkpoint with a rotational
+output adds the raw ``angular_velocity`` now and its ``angular_sigma`` (0.0 / -1 without).
 """
 
 from __future__ import annotations
@@ -36,9 +37,9 @@ from aslip_ros.slip import DEFAULT_THRESHOLD
 from aslip_ros.learn.calibration.frames import FrameCutter, StreamCalibration, window_offsets
 from aslip_ros.learn.calibration.grasp import CalibrationConstants
 from aslip_ros.learn.checkpoint import (Checkpoint, CheckpointFacts, CheckpointMismatch,
-                                        check_compatible, load_checkpoint)
+                                        check_compatible, estimates_rotation, load_checkpoint)
 from aslip_ros.learn.features import FeatureConfig
-from aslip_ros.learn.calibration.output import sigma_model
+from aslip_ros.learn.calibration.output import angular_sigma_model, sigma_model
 from aslip_ros.learn.inference.predictor import Prediction
 from aslip_ros.learn.incremental_features import StreamingLogMel, stream_logmel
 from aslip_ros.learn.inference.audio_window import StreamGate
@@ -80,6 +81,8 @@ class StreamingPredictor(CheckpointFacts):
         self._threshold = DEFAULT_THRESHOLD
         self.set_threshold(threshold)
         self.sigma_model = sigma_model(ckpt.meta)     # None: direction_sigma -1 (unknown)
+        self.estimates_rotation = estimates_rotation(ckpt.meta)
+        self.angular_sigma_model = angular_sigma_model(ckpt.meta)
         self._origin: int | None = None        # stream index of the first sample since reset
         self._origin_ns = 0
         self.resets = 0
@@ -229,15 +232,15 @@ class StreamingPredictor(CheckpointFacts):
                 self._cal.push(block[fed:upto])
                 fed = upto
                 frame = frame - self._cal.offsets.astype(np.float32)[:, None]
-            p, v = self.stepper.step(frame)
+            p, v, w = self.stepper.step(frame)
             stamp = int(a.stamp_ns + round((idx - 1 - a.first_sample_index) * ns_per))
-            out.append(StreamEstimate(stamp, idx, self._prediction(p, v),
+            out.append(StreamEstimate(stamp, idx, self._prediction(p, v, w),
                                       (float(v[0]), float(v[1]))))
         if self._cal is not None:
             self._cal.push(block[fed:])
         return out
 
-    def _prediction(self, p: float, v: np.ndarray) -> Prediction:
+    def _prediction(self, p: float, v: np.ndarray, w: float | None = None) -> Prediction:
         t = self._threshold
         slipping = bool(p >= t)
         vx, vz = (float(v[0]), float(v[1])) if slipping else (0.0, 0.0)
@@ -245,12 +248,20 @@ class StreamingPredictor(CheckpointFacts):
         d = (vx / speed, vz / speed) if speed > 0 else (0.0, 0.0)
         sigma = -1.0 if self.sigma_model is None else \
             float(self.sigma_model(float(np.hypot(v[0], v[1]))))
-        return Prediction(float(p), slipping, vx, vz, speed, d, self.window_s, t, sigma)
+        rate, rate_sigma = 0.0, -1.0
+        if self.estimates_rotation and w is not None:     # raw: not gated by ``slipping``
+            rate = float(w)
+            if self.angular_sigma_model is not None:
+                rate_sigma = float(self.angular_sigma_model(rate))
+        return Prediction(float(p), slipping, vx, vz, speed, d, self.window_s, t, sigma,
+                          rate, rate_sigma)
 
-    def trial_outputs(self, audio: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def trial_outputs(self, audio: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """A whole ``(n, C)`` recording from a zero state (offline, batched; equal to pushing
         it block by block): frame end sample indices (exclusive, from the recording's first
-        sample), p and the raw (ungated) velocity per frame."""
+        sample), p, the raw (ungated) velocity and the rate wy per frame (None: the model has
+        no rotational output)."""
         audio = np.asarray(audio, np.float32)
         frames = stream_logmel(audio, self.feature_config, self.sample_rate)
         ends = self.features.frame_end_samples(np.arange(frames.shape[0]))
@@ -258,9 +269,12 @@ class StreamingPredictor(CheckpointFacts):
             cutter = FrameCutter(self.feature_config, self.sample_rate)
             offsets = window_offsets(cutter.frames(audio), ends, cutter, self.calibration)
             frames = frames - offsets.astype(np.float32)[:, :, None]
-        p, v = self.offline(frames)
-        return ends, np.asarray(p), np.asarray(v)
+        p, v, w = self.offline(frames)
+        return ends, np.asarray(p), np.asarray(v), None if w is None else np.asarray(w)
 
-    def offline(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Batched torch forward over ``(T, C, M)`` frames from a zero state: p, raw v."""
-        return self.backend.offline(frames)
+    def offline(self, frames: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Batched torch forward over ``(T, C, M)`` frames from a zero state: p, raw v and
+        wy (None without the rotational output)."""
+        p, v, w = self.backend.offline(frames)
+        return p, v, w if self.estimates_rotation else None

@@ -2,8 +2,10 @@
 
 Input: raw log-mel features ``(B, C, M, T)`` from ``features.LogMel``; the model normalises
 them with the dataset statistics it holds as buffers. Output: ``SlipOutput`` with the slip
-logit ``(B,)``, the non-negative slip speed in m/s ``(B,)`` and the unnormalised direction
-``(B, 2)`` in the grasp plane (x along the fingers, z vertical).
+logit ``(B,)``, the non-negative slip speed in m/s ``(B,)``, the unnormalised direction
+``(B, 2)`` in the grasp plane (x along the fingers, z vertical) and, for a model built with
+``ModelConfig.angular``, the rotational slip rate ``wy`` about the pad normal in rad/s
+``(B,)`` (``aslip_ros.slip.ANGULAR_COMPONENT``; None without that head).
 
 How "a learnable channel attention mechanism fuses the multi-microphone streams" is read
 here (docs/model.md): the gate produces one weight per microphone and scales that
@@ -24,9 +26,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from aslip_ros.learn.checkpoint import Checkpoint
+from aslip_ros.learn.checkpoint import Checkpoint, angular_problems
 from aslip_ros.learn.features import FeatureConfig, LogMel
 from aslip_ros.learn.models.registry import load_weights, register_model
+from aslip_ros.slip import ROTATION_RADIUS_M
 
 
 @dataclass(frozen=True)
@@ -36,7 +39,10 @@ class ModelConfig:
     ``width`` is the channel count of the first 2D block, doubling per block up to
     ``4 * width``; ``depth`` is the number of 2D blocks (each halves the mel axis).
     ``speed_scale`` (m/s) sets the unit of the magnitude head so that its raw output is
-    order one; training sets it to the median training slip speed.
+    order one; training sets it to the median training slip speed. ``angular`` adds the
+    rotational head (a model trained on windows with an angular label); its raw output is
+    the rim speed ``wy * ROTATION_RADIUS_M`` in units of ``speed_scale``, so it is trained
+    on the magnitude's scale. False for every checkpoint trained before it existed.
     """
 
     n_channels: int = 4
@@ -51,6 +57,7 @@ class ModelConfig:
     dropout: float = 0.1
     head_hidden: int = 32
     speed_scale: float = 0.02
+    angular: bool = False
 
     def __post_init__(self) -> None:
         if self.n_channels < 1 or self.n_mels < 1:
@@ -80,6 +87,7 @@ class SlipOutput(NamedTuple):
     logit: torch.Tensor       # (B,) slip logit; p(slip) = sigmoid(logit)
     magnitude: torch.Tensor   # (B,) slip speed, m/s, >= 0
     direction: torch.Tensor   # (B, 2) unnormalised (x, z) direction
+    angular: torch.Tensor | None = None   # (B,) wy [rad/s]; None: no rotational head
 
 
 class ChannelAttention(nn.Module):
@@ -189,6 +197,8 @@ class SlipNet(nn.Module):
             "magnitude": _head(h, cfg.head_hidden, 1),
             "direction": _head(h, cfg.head_hidden, 2),
         })
+        if cfg.angular:
+            self.heads["angular"] = _head(h, cfg.head_hidden, 1)
         self._encoder_frozen = False
 
     def set_normalization(self, mean, std) -> None:
@@ -213,7 +223,12 @@ class SlipNet(nn.Module):
         logit = self.heads["slip"](z).squeeze(1)
         # softplus keeps speed >= 0 with gradient everywhere (ReLU would die at zero speed).
         magnitude = F.softplus(self.heads["magnitude"](z).squeeze(1)) * self.cfg.speed_scale
-        return SlipOutput(logit, magnitude, self.heads["direction"](z))
+        angular = None
+        if self.cfg.angular:
+            # Signed and unbounded: the rate's sign is the direction of the turn.
+            angular = self.heads["angular"](z).squeeze(1) * (self.cfg.speed_scale
+                                                             / ROTATION_RADIUS_M)
+        return SlipOutput(logit, magnitude, self.heads["direction"](z), angular)
 
     def freeze_encoder(self, trainable: Sequence[str] = ()) -> None:
         """Stop encoder updates: no gradients and batch-norm statistics fixed, except the
@@ -295,7 +310,8 @@ class CnnBackend:
 
     @classmethod
     def meta_problems(cls, meta, model_config, feature_config) -> list[str]:
-        return _mel_problems(meta, model_config, feature_config)
+        return (_mel_problems(meta, model_config, feature_config)
+                + angular_problems(meta, model_config.angular))
 
     @classmethod
     def from_checkpoint(cls, ckpt: Checkpoint) -> "CnnBackend":
@@ -306,18 +322,25 @@ class CnnBackend:
         logmel = LogMel(FeatureConfig.from_dict(ckpt.meta["feature_config"]), ckpt.sample_rate)
         return cls(cfg, fuse_for_inference(model), logmel)
 
-    def predict(self, windows: np.ndarray,
-                offsets: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def predict(self, windows: np.ndarray, offsets: np.ndarray | None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         feats = self.logmel(windows)
         if offsets is not None:
             feats = feats - offsets[:, :, None, None]
         return self.infer_features(feats)
 
-    def infer_features(self, feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The model alone on log-mel features ``(B, C, M, T)`` (e.g. a training cache)."""
+    def infer_features(self, feats: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The model alone on log-mel features ``(B, C, M, T)`` (e.g. a training cache):
+        p(slip), the ungated velocity and the rate ``wy`` (None without that head)."""
         with torch.inference_mode():
             out = self.model(torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)))
-            prob = torch.sigmoid(out.logit)
-            d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
-            v = d * out.magnitude[:, None]
-        return prob.numpy(), v.numpy()
+            prob, v = output_arrays(out)
+        return prob, v, None if out.angular is None else out.angular.numpy()
+
+
+def output_arrays(out: SlipOutput) -> tuple[np.ndarray, np.ndarray]:
+    """p(slip) ``(B,)`` and the ungated velocity ``(B, 2)`` [m/s] of a network output."""
+    prob = torch.sigmoid(out.logit)
+    d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
+    return prob.cpu().numpy(), (d * out.magnitude[:, None]).cpu().numpy()

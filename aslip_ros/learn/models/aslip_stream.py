@@ -4,7 +4,9 @@ Input: one log-mel frame per 10 ms hop, ``(C, M)`` from ``streaming.StreamingLog
 normalised per mel bin with the training statistics the model holds. Each frame goes
 through a two-layer embedding (all microphones together: their level differences carry
 the direction) into a GRU whose state is the only memory; the heads read the state and
-give the slip logit and the slip velocity now, ``(vx, vz)`` in units of ``speed_scale``.
+give the slip logit and the slip velocity now, ``(vx, vz)`` in units of ``speed_scale``,
+and, for a model built with ``StreamConfig.angular``, the rotational rate ``wy`` now (its
+output is the rim speed ``wy * ROTATION_RADIUS_M`` in units of ``speed_scale``).
 
 Why a GRU rather than a cached causal dilated convolution: one step on a 96-wide state is
 a few small matrix-vector products (measured ~20 us p50 in numpy, against ~55 us for the
@@ -27,20 +29,24 @@ import numpy as np
 import torch
 from torch import nn
 
-from aslip_ros.learn.checkpoint import Checkpoint
+from aslip_ros.learn.checkpoint import Checkpoint, angular_problems
 from aslip_ros.learn.incremental_features import stream_meta_problems
 from aslip_ros.learn.models.registry import load_weights, register_model
+from aslip_ros.slip import ROTATION_RADIUS_M
 
 
 @dataclass(frozen=True)
 class StreamConfig:
-    """Architecture of the streaming net; stored in the checkpoint's ``model_config``."""
+    """Architecture of the streaming net; stored in the checkpoint's ``model_config``.
+    ``angular``: a fourth head output, the rotational rate (False for every checkpoint
+    trained before it existed)."""
 
     n_channels: int = 4
     n_mels: int = 40
     embed: int = 128
     hidden: int = 96
     speed_scale: float = 0.02
+    angular: bool = False
 
     def __post_init__(self) -> None:
         if min(self.n_channels, self.n_mels, self.embed, self.hidden) < 1:
@@ -57,8 +63,9 @@ class StreamConfig:
 
 
 class StreamNet(nn.Module):
-    """``forward(x (B, T, C, M), h0 (1, B, H) or None) -> (logit (B, T), v (B, T, 2), h)``;
-    ``v`` in m/s."""
+    """``forward(x (B, T, C, M), h0 (1, B, H) or None) -> (logit (B, T), v (B, T, 2),
+    w (B, T) or None, h)``; ``v`` in m/s, ``w`` the rate wy in rad/s (None without the
+    rotational output)."""
 
     def __init__(self, cfg: StreamConfig) -> None:
         super().__init__()
@@ -69,7 +76,7 @@ class StreamNet(nn.Module):
         self.embed1 = nn.Linear(n_in, cfg.embed)
         self.embed2 = nn.Linear(cfg.embed, cfg.embed)
         self.gru = nn.GRU(cfg.embed, cfg.hidden, batch_first=True)
-        self.head = nn.Linear(cfg.hidden, 3)
+        self.head = nn.Linear(cfg.hidden, 4 if cfg.angular else 3)
 
     def set_normalization(self, mean: np.ndarray, std: np.ndarray) -> None:
         self.feat_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
@@ -81,7 +88,13 @@ class StreamNet(nn.Module):
         z = torch.relu(self.embed2(torch.relu(self.embed1(z))))
         y, h = self.gru(z, h0)
         out = self.head(y)
-        return out[..., 0], out[..., 1:] * self.cfg.speed_scale, h
+        w = out[..., 3] * _rate_scale(self.cfg) if self.cfg.angular else None
+        return out[..., 0], out[..., 1:3] * self.cfg.speed_scale, w, h
+
+
+def _rate_scale(cfg: StreamConfig) -> float:
+    """rad/s per unit of the rotational output (the rim speed in ``speed_scale`` units)."""
+    return cfg.speed_scale / ROTATION_RADIUS_M
 
 
 class GruStepper:
@@ -105,8 +118,9 @@ class GruStepper:
     def reset(self) -> None:
         self.h = np.zeros(self.cfg.hidden, np.float32)
 
-    def step(self, frame: np.ndarray) -> tuple[float, np.ndarray]:
-        """``frame (C, M)`` raw log-mel -> (p_slip, v (2,) m/s); advances the state."""
+    def step(self, frame: np.ndarray) -> tuple[float, np.ndarray, float | None]:
+        """``frame (C, M)`` raw log-mel -> (p_slip, v (2,) m/s, wy rad/s or None without
+        the rotational output); advances the state."""
         z = ((frame - self.mean) * self.inv_std).reshape(-1)
         z = np.maximum(z @ self.w1 + self.b1, 0.0)
         z = np.maximum(z @ self.w2 + self.b2, 0.0)
@@ -118,14 +132,18 @@ class GruStepper:
         self.h = ((1.0 - rz[hsz:]) * n + rz[hsz:] * self.h).astype(np.float32)
         out = self.h @ self.wh + self.bh
         p = 1.0 / (1.0 + np.exp(-float(out[0])))
-        return p, out[1:] * np.float32(self.cfg.speed_scale)
+        w = float(out[3]) * _rate_scale(self.cfg) if self.cfg.angular else None
+        return p, out[1:3] * np.float32(self.cfg.speed_scale), w
 
 
-def offline_outputs(model: StreamNet, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """p_slip ``(T,)`` and v ``(T, 2)`` for one sequence ``(T, C, M)`` from a zero state."""
+def offline_outputs(model: StreamNet, frames: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """p_slip ``(T,)``, v ``(T, 2)`` and wy ``(T,)`` (None without the rotational output)
+    for one sequence ``(T, C, M)`` from a zero state."""
     with torch.inference_mode():
-        logit, v, _ = model(torch.from_numpy(np.ascontiguousarray(frames, np.float32))[None])
-    return torch.sigmoid(logit[0]).numpy(), v[0].numpy()
+        logit, v, w, _ = model(torch.from_numpy(np.ascontiguousarray(frames, np.float32))[None])
+    return (torch.sigmoid(logit[0]).numpy(), v[0].numpy(),
+            None if w is None else w[0].numpy())
 
 
 @register_model
@@ -143,7 +161,8 @@ class StreamBackend:
 
     @classmethod
     def meta_problems(cls, meta, model_config, feature_config) -> list[str]:
-        return stream_meta_problems(meta, model_config, feature_config)
+        return (stream_meta_problems(meta, model_config, feature_config)
+                + angular_problems(meta, model_config.angular))
 
     @classmethod
     def from_checkpoint(cls, ckpt: Checkpoint) -> "StreamBackend":
@@ -155,6 +174,8 @@ class StreamBackend:
         """A fresh per-hop stepper (numpy) over this network's weights."""
         return GruStepper(self.cfg, self.net.state_dict())
 
-    def offline(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Batched forward over ``(T, C, M)`` frames from a zero state: p, raw v."""
+    def offline(self, frames: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Batched forward over ``(T, C, M)`` frames from a zero state: p, raw v, wy (None
+        without the rotational output)."""
         return offline_outputs(self.net, frames)

@@ -1,4 +1,5 @@
-"""The paper's SVM baseline: RBF SVC for slip, RBF SVRs for (vx, vz), on handcrafted features.
+"""The paper's SVM baseline: RBF SVC for slip, RBF SVRs for (vx, vz) and, trained on windows
+with an angular label, for the rotational rate ``wy``, on handcrafted features.
 
 Features are computed per channel from the same resampled power spectrogram as the CNN's
 (``features.LogMel.power_spectrogram``), then concatenated and standardised:
@@ -19,9 +20,10 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
-from aslip_ros.slip import N_VELOCITY, VELOCITY_COMPONENTS
+from aslip_ros.slip import (ANGULAR_COMPONENT, N_VELOCITY, ROTATION_EPSILON_RAD_S,
+                            ROTATION_RADIUS_M, VELOCITY_COMPONENTS)
 from aslip_ros.learn.calibration.frames import remove_from_audio
-from aslip_ros.learn.checkpoint import Checkpoint
+from aslip_ros.learn.checkpoint import Checkpoint, angular_problems
 from aslip_ros.learn.features import FeatureConfig, LogMel
 from aslip_ros.learn.models.registry import register_model
 
@@ -133,7 +135,9 @@ class KernelMachine:
 @dataclass
 class SvmArrays:
     """The fitted baseline as arrays: standardisation, slip classifier, one regressor per
-    slip velocity component (``aslip_ros.slip.VELOCITY_COMPONENTS``, in order).
+    slip velocity component (``aslip_ros.slip.VELOCITY_COMPONENTS``, in order) and,
+    optionally, one for the rotational rate (``angular``: it predicts the rim speed
+    ``wy * ROTATION_RADIUS_M / target_scale``, the velocity regressors' scale).
 
     ``probability`` is sigmoid(decision value): not Platt-calibrated, but p >= 0.5 exactly
     where the SVC predicts slip, which is all the threshold needs.
@@ -144,14 +148,19 @@ class SvmArrays:
     slip: KernelMachine
     velocity: dict[str, KernelMachine]     # component name -> regressor
     target_scale: float   # m/s; regressors predict velocity / target_scale
+    angular: KernelMachine | None = None   # None: no rotational output
 
-    def predict(self, feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(probability (B,), ungated velocity (B, 2) m/s) from handcrafted features."""
+    def predict(self, feats: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(probability (B,), ungated velocity (B, 2) m/s, rate wy (B,) rad/s or None)
+        from handcrafted features."""
         z = (np.asarray(feats, dtype=np.float64) - self.mean) / self.std
         prob = 1.0 / (1.0 + np.exp(-np.clip(self.slip(z), -50, 50)))
         v = np.stack([self.velocity[c](z) for c in VELOCITY_COMPONENTS],
                      axis=1) * self.target_scale
-        return prob.astype(np.float32), v.astype(np.float32)
+        w = None if self.angular is None else (
+            self.angular(z) * (self.target_scale / ROTATION_RADIUS_M)).astype(np.float32)
+        return prob.astype(np.float32), v.astype(np.float32), w
 
     def to_tensors(self) -> dict[str, torch.Tensor]:
         out = {"scaler.mean": torch.from_numpy(np.asarray(self.mean, dtype=np.float64)),
@@ -160,6 +169,8 @@ class SvmArrays:
         out.update(self.slip.to_tensors("slip"))
         for name in VELOCITY_COMPONENTS:
             out.update(self.velocity[name].to_tensors(name))
+        if self.angular is not None:
+            out.update(self.angular.to_tensors(ANGULAR_COMPONENT))
         return out
 
     @classmethod
@@ -169,17 +180,32 @@ class SvmArrays:
             scale = float(t["target_scale"][0])
         except KeyError as exc:
             raise ValueError(f"SVM checkpoint lacks {exc}") from exc
+        angular = KernelMachine.from_tensors(t, ANGULAR_COMPONENT) \
+            if f"{ANGULAR_COMPONENT}.support" in t else None
         return cls(mean=mean, std=std, slip=KernelMachine.from_tensors(t, "slip"),
                    velocity={c: KernelMachine.from_tensors(t, c) for c in VELOCITY_COMPONENTS},
-                   target_scale=scale)
+                   target_scale=scale, angular=angular)
+
+
+def moving(slip: np.ndarray, angular: np.ndarray | None) -> np.ndarray:
+    """Windows that slip in the plane or rotate (``|wy| > ROTATION_EPSILON_RAD_S``; a NaN
+    label does not rotate): what a balanced subsample keeps as the positive class."""
+    slip = np.asarray(slip, bool)
+    if angular is None:
+        return slip
+    return slip | (np.abs(np.nan_to_num(np.asarray(angular, np.float64)))
+                   > ROTATION_EPSILON_RAD_S)
 
 
 def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
-            cfg: SvmConfig = SvmConfig()) -> tuple[SvmArrays, dict[str, Any]]:
+            cfg: SvmConfig = SvmConfig(), angular: np.ndarray | None = None
+            ) -> tuple[SvmArrays, dict[str, Any]]:
     """Fit on handcrafted features; returns the array model and the sklearn estimators.
 
-    The regressors see slip windows only: they estimate the velocity given slip, and the
-    classifier decides whether it is reported.
+    The velocity regressors see slip windows only: they estimate the velocity given slip,
+    and the classifier decides whether it is reported. With ``angular`` (n,) [rad/s, NaN:
+    no label] and at least two labelled windows, an SVR on the rate sees every labelled
+    window, rotating or not (a pure rotation is planar no-slip; a translation teaches 0).
     """
     from sklearn.svm import SVC, SVR
 
@@ -200,9 +226,18 @@ def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
     for j, name in enumerate(VELOCITY_COMPONENTS):
         svr[name] = SVR(kernel="rbf", C=cfg.svr_C, gamma=cfg.gamma,
                         epsilon=cfg.svr_epsilon).fit(z[slip], v[:, j] / scale)
+    rate = None
+    labelled = np.zeros(len(slip), bool) if angular is None else \
+        np.isfinite(np.asarray(angular, np.float64).reshape(-1))
+    if labelled.sum() >= 2:
+        target = np.asarray(angular, np.float64)[labelled] * (ROTATION_RADIUS_M / scale)
+        svr[ANGULAR_COMPONENT] = SVR(kernel="rbf", C=cfg.svr_C, gamma=cfg.gamma,
+                                     epsilon=cfg.svr_epsilon).fit(z[labelled], target)
+        rate = KernelMachine.from_sklearn(svr[ANGULAR_COMPONENT])
     arrays = SvmArrays(mean=mean, std=std, slip=KernelMachine.from_sklearn(svc),
-                       velocity={c: KernelMachine.from_sklearn(svr[c]) for c in svr},
-                       target_scale=scale)
+                       velocity={c: KernelMachine.from_sklearn(svr[c])
+                                 for c in VELOCITY_COMPONENTS},
+                       target_scale=scale, angular=rate)
     if list(svc.classes_) != [0, 1]:
         raise ValueError(f"unexpected SVC classes {svc.classes_}")
     return arrays, {"svc": svc, **{f"svr_{c}": m for c, m in svr.items()}}
@@ -230,11 +265,14 @@ class SvmBackend:
     def from_checkpoint(cls, ckpt: Checkpoint) -> "SvmBackend":
         fcfg = FeatureConfig.from_dict(ckpt.meta["feature_config"])
         n_bands = int(ckpt.meta["model_config"]["n_bands"])
-        return cls(SvmArrays.from_tensors(ckpt.tensors),
-                   SvmFeaturizer(fcfg, ckpt.sample_rate, n_bands))
+        arrays = SvmArrays.from_tensors(ckpt.tensors)
+        problems = angular_problems(ckpt.meta, arrays.angular is not None)
+        if problems:
+            raise ValueError("; ".join(problems))
+        return cls(arrays, SvmFeaturizer(fcfg, ckpt.sample_rate, n_bands))
 
-    def predict(self, windows: np.ndarray,
-                offsets: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def predict(self, windows: np.ndarray, offsets: np.ndarray | None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         if offsets is not None:
             windows = remove_from_audio(windows, offsets)
         return self.arrays.predict(self.featurizer(windows))

@@ -179,4 +179,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: val detection {val.get('detection_accuracy', float('nan')):.3f}, "
           f"direction MAE {val.get('direction_mae_deg', float('nan')):.1f} deg, "
           f"magnitude RMSE {val.get('magnitude_rmse_mm', float('nan')):.2f} mm")
+    if val.get("n_angular_labelled"):
+        from aslip_ros.learn.evaluate import rotation_line
+        print("val " + rotation_line(val))
     return 0

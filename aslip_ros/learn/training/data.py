@@ -21,6 +21,7 @@ from aslip_ros.util import atomic_path
 from aslip_ros.learn.data_io import WindowSet, select_windows
 from aslip_ros.learn.features import FeatureConfig, LogMel
 from aslip_ros.learn.training.config import TrainConfig
+from aslip_ros.slip import ROTATION_EPSILON_RAD_S
 
 
 def _cache_key(ds: WindowSet, fcfg: FeatureConfig, channels: Sequence[str]) -> str:
@@ -84,7 +85,13 @@ def split_windows(ds: WindowSet, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarr
 
 
 class Batches:
-    """Tensors for index batches from the feature cache and labels."""
+    """Tensors for index batches from the feature cache and labels.
+
+    ``moving``: windows that slip in the plane or rotate (``|wy|`` above
+    ``ROTATION_EPSILON_RAD_S``): the ones every epoch draws (``loop.epoch_indices``), so a
+    pure rotation, planar no-slip, is not thinned out with the still windows. Without
+    angular labels it is the planar ``slip``.
+    """
 
     def __init__(self, feats: np.ndarray, ds: WindowSet,
                  offsets: np.ndarray | None = None) -> None:
@@ -93,6 +100,8 @@ class Batches:
         all_idx = np.arange(len(ds))
         self.v = ds.velocity(all_idx)
         self.slip = ds.slip(all_idx)
+        self.w = ds.angular(all_idx)    # rad/s, NaN: no angular label
+        self.moving = self.slip | (np.abs(np.nan_to_num(self.w)) > ROTATION_EPSILON_RAD_S)
         self.prev = ds.previous_index()
 
     def labels(self, b: np.ndarray, device: torch.device | str = "cpu"
@@ -104,7 +113,8 @@ class Batches:
         return {"v_true": torch.from_numpy(self.v[b]).to(device),
                 "slip": torch.from_numpy(self.slip[b]).to(device),
                 "prev_v_true": torch.from_numpy(pv).to(device),
-                "prev_valid": torch.from_numpy(valid).to(device)}
+                "prev_valid": torch.from_numpy(valid).to(device),
+                "w_true": torch.from_numpy(self.w[b]).to(device)}
 
     def x(self, b: np.ndarray) -> np.ndarray:
         # Sorted reads are much faster on a memory map; restore the batch order after.

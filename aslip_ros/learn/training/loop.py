@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from aslip_ros.learn.training.losses import LossWeights, slip_loss
-from aslip_ros.learn.models.aslip_cnn import SlipNet
+from aslip_ros.learn.models.aslip_cnn import SlipNet, output_arrays
 from aslip_ros.learn.training.config import DEVICES, TrainConfig
 from aslip_ros.learn.training.data import Batches
 
@@ -68,7 +68,8 @@ def augment(x: np.ndarray, mean: np.ndarray, rng: np.random.Generator,
 
 def epoch_indices(idx: np.ndarray, slip: np.ndarray, ratio: float,
                   rng: np.random.Generator) -> np.ndarray:
-    """All slip windows plus at most ``ratio`` no-slip windows per slip window, shuffled."""
+    """All slip windows plus at most ``ratio`` no-slip windows per slip window, shuffled
+    (``slip``: the windows always drawn, ``Batches.moving``)."""
     pos, neg = idx[slip[idx]], idx[~slip[idx]]
     if pos.size == 0:
         chosen = neg
@@ -80,11 +81,12 @@ def epoch_indices(idx: np.ndarray, slip: np.ndarray, ratio: float,
 
 def evaluate_loss(model: SlipNet, data: Batches, idx: np.ndarray, weights: LossWeights,
                   bs: int = 1024) -> tuple[float, dict[str, np.ndarray]]:
-    """Mean loss over ``idx`` and the model's p(slip) and ungated velocity there."""
+    """Mean loss over ``idx`` and the model's p(slip), ungated velocity and, for a model
+    with a rotational output, its rate ``w`` (rad/s; None without) there."""
     model.eval()
     dev = _device_of(model)
     total, n = 0.0, 0
-    probs, vels = [], []
+    probs, vels, rates = [], [], []
     with torch.inference_mode():
         for s in range(0, idx.size, bs):
             b = idx[s:s + bs]
@@ -93,11 +95,15 @@ def evaluate_loss(model: SlipNet, data: Batches, idx: np.ndarray, weights: LossW
                                 **data.labels(b, dev))
             total += float(loss) * b.size
             n += b.size
-            d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
-            probs.append(torch.sigmoid(out.logit).cpu().numpy())
-            vels.append((d * out.magnitude[:, None]).cpu().numpy())
+            p, v = output_arrays(out)
+            probs.append(p)
+            vels.append(v)
+            if out.angular is not None:
+                rates.append(out.angular.cpu().numpy())
     pred = {"prob": np.concatenate(probs) if probs else np.zeros(0),
-            "v": np.concatenate(vels) if vels else np.zeros((0, 2))}
+            "v": np.concatenate(vels) if vels else np.zeros((0, 2)),
+            "w": (np.concatenate(rates) if rates else np.zeros(0)) if model.cfg.angular
+            else None}
     return total / max(n, 1), pred
 
 
@@ -179,7 +185,7 @@ class EpochRun:
 
     def _epoch(self) -> None:
         epoch = len(self.history)
-        order = epoch_indices(self.tr, self.data.slip, self.cfg.noslip_ratio, self.rng)
+        order = epoch_indices(self.tr, self.data.moving, self.cfg.noslip_ratio, self.rng)
         train_loss = _train_epoch(self.model, self.data, order, self.opt, self.feat_mean,
                                   self.rng, self.cfg, self.weights, f"epoch {epoch}")
         val_loss, _ = evaluate_loss(self.model, self.data, self.va, self.weights)

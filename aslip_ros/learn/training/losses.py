@@ -3,6 +3,13 @@
 L = w_slip * BCE(p, 1[|v*| > eps]) + w_mag * Huber(|v_hat|, |v*|) [slip windows]
   + w_dir * (1 - d_hat . d* + w_aux * ||v_dir - d*||^2) [slip windows]
   + w_smooth * (1 - d_hat_t . d*_{t-1}) [consecutive slip windows of one trial]
+  + w_rot * Huber(w_hat * R, wy * R) [windows with an angular label]
+
+The rotational term (a model with a rotational output, ``SlipOutput.angular``) compares the
+rim speeds ``wy * ROTATION_RADIUS_M`` in units of ``speed_scale``, the magnitude's scale, so
+neither term drowns the other. Every window with an angular label counts, rotating or not
+(a pure translation teaches |w| ~ 0, a pure rotation is planar no-slip); a NaN label (a
+version 1 dataset) is masked out and gives no gradient.
 
 Every masked term is a mean over the windows it applies to and exactly zero (with a valid
 graph) when none do, so all-no-slip batches train the detector alone without NaN.
@@ -18,6 +25,7 @@ import torch
 from torch.nn import functional as F
 
 from aslip_ros.learn.models.aslip_cnn import SlipOutput
+from aslip_ros.slip import ROTATION_RADIUS_M
 
 # Below this norm a vector has no direction; used both for targets and predictions.
 _DIR_EPS = 1e-8
@@ -29,7 +37,9 @@ class LossWeights:
 
     ``aux`` weights the auxiliary squared error on the unnormalised direction output inside
     the direction term (the paper gives no value); ``huber_delta`` is in units of the
-    model's ``speed_scale``.
+    model's ``speed_scale``. ``rot`` weights the rotational term (the paper has none): twice
+    the magnitude's, since one signed output carries both the rate and the sense of the turn
+    that the magnitude and direction terms share for the planar slip.
     """
 
     slip: float = 1.0
@@ -38,6 +48,7 @@ class LossWeights:
     smooth: float = 0.1
     aux: float = 0.25
     huber_delta: float = 1.0
+    rot: float = 1.0
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -54,18 +65,34 @@ def unit(v: torch.Tensor) -> torch.Tensor:
     return v / v.norm(dim=-1, keepdim=True).clamp(min=_DIR_EPS)
 
 
+def rotation_loss(angular: torch.Tensor, w_true: torch.Tensor, speed_scale: float,
+                  delta: float = 1.0) -> torch.Tensor:
+    """Huber loss of the rim speeds ``w * ROTATION_RADIUS_M`` in units of ``speed_scale``,
+    mean over the labelled rows of ``w_true`` (NaN: no label; such rows give no gradient),
+    exactly zero with a graph when none is labelled."""
+    labelled = torch.isfinite(w_true)
+    k = ROTATION_RADIUS_M / speed_scale
+    # The NaN targets are replaced before the arithmetic: NaN * 0 would still be NaN.
+    target = torch.where(labelled, w_true, torch.zeros_like(w_true)).to(angular.dtype) * k
+    return _masked_mean(F.huber_loss(angular * k, target, delta=delta, reduction="none"),
+                        labelled)
+
+
 def slip_loss(out: SlipOutput, v_true: torch.Tensor, slip: torch.Tensor, *,
               speed_scale: float, prev_v_true: torch.Tensor | None = None,
               prev_valid: torch.Tensor | None = None,
               weights: LossWeights = LossWeights(),
-              sample_weight: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+              sample_weight: torch.Tensor | None = None,
+              w_true: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """Total loss and its parts (as floats, for logging).
 
     ``v_true``: (B, 2) mean slip velocity (m/s, grasp plane x/z); ``slip``: (B,) bool/0-1
     labels (speed > epsilon, as the dataset stores them). ``prev_v_true``/``prev_valid``:
     the label of each window's predecessor in the same trial and whether it exists; the
     smoothness term compares the predicted direction with the previous window's true one.
-    ``sample_weight`` (B,) reweights the BCE term only (class balance).
+    ``sample_weight`` (B,) reweights the BCE term only (class balance). ``w_true`` (B,)
+    the angular label [rad/s], NaN where there is none: the rotational term, for a model
+    with a rotational output (``out.angular``).
     """
     if v_true.ndim != 2 or v_true.shape[1] != 2:
         raise ValueError(f"v_true must be (B, 2), got {tuple(v_true.shape)}")
@@ -100,9 +127,14 @@ def slip_loss(out: SlipOutput, v_true: torch.Tensor, slip: torch.Tensor, *,
     else:
         l_smooth = out.logit.sum() * 0.0
 
+    if out.angular is not None and w_true is not None:
+        l_rot = rotation_loss(out.angular, w_true, speed_scale, weights.huber_delta)
+    else:
+        l_rot = out.logit.sum() * 0.0
+
     total = (weights.slip * l_slip + weights.mag * l_mag + weights.dir * l_dir
-             + weights.smooth * l_smooth)
+             + weights.smooth * l_smooth + weights.rot * l_rot)
     parts = {"slip": float(l_slip.detach()), "mag": float(l_mag.detach()),
              "dir": float(l_dir.detach()), "smooth": float(l_smooth.detach()),
-             "total": float(total.detach())}
+             "rot": float(l_rot.detach()), "total": float(total.detach())}
     return total, parts

@@ -9,6 +9,11 @@ one. Training draws random 2 s sequences from the training trials, each starting
 zero state as the live estimator does after a reset; selection is by the validation loss
 over whole validation trials, with a time budget, and writes a self-describing checkpoint
 (``model_type`` "aslip_stream").
+
+Rotational slip: where the tracks give a per-frame angular label (``wy``; NaN where a
+recording has none), the model gets a rotational output, trained with a Huber loss on the
+rim speed ``wy * ROTATION_RADIUS_M`` in ``speed_scale`` units over every valid labelled
+frame (``rotation_weight``), and the checkpoint's ``outputs`` list ``wy``.
 """
 
 from __future__ import annotations
@@ -23,7 +28,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from aslip_ros.slip import DEFAULT_THRESHOLD
+from aslip_ros.slip import (ANGULAR_COMPONENT, DEFAULT_THRESHOLD, ROTATION_EPSILON_RAD_S,
+                            ROTATION_RADIUS_M)
 import torch
 from torch.nn import functional as F
 
@@ -58,6 +64,8 @@ class StreamTrainConfig:
     gain_db: float = 6.0
     channel_gain_db: float = 1.0
     velocity_weight: float = 2.0
+    # The rotational rim-speed Huber term (one component against the velocity's two).
+    rotation_weight: float = 2.0
     fa_per_min: float = 2.0        # validation false alarms per minute the threshold allows
     threads: int = 1
     progress: bool = True
@@ -77,6 +85,12 @@ class Sequences:
     slip: list[np.ndarray]
     valid: list[np.ndarray]
     decided: list[np.ndarray]      # valid and outside the onset / end guard band
+    w: list[np.ndarray]            # angular label wy [rad/s] per frame; NaN: none
+
+    @property
+    def has_angular(self) -> bool:
+        """Whether any valid frame has an angular label."""
+        return any(bool(np.isfinite(w[m]).any()) for w, m in zip(self.w, self.valid))
 
 
 def trial_sequences(ds: WindowSet, trials: Sequence[int], channels: Sequence[str],
@@ -88,7 +102,7 @@ def trial_sequences(ds: WindowSet, trials: Sequence[int], channels: Sequence[str
     ``StreamingPredictor`` reads it live."""
     cols = ds.channel_indices(channels)
     cutter = FrameCutter(fcfg, ds.sample_rate) if calibration is not None else None
-    out = Sequences([], [], [], [], [], [])
+    out = Sequences([], [], [], [], [], [], [])
     for k in trials:
         if int(ds.trials[k].get("audio_gaps") or 0):
             continue
@@ -106,6 +120,9 @@ def trial_sequences(ds: WindowSet, trials: Sequence[int], channels: Sequence[str
         out.slip.append(lab["slip"])
         out.valid.append(lab["valid"])
         out.decided.append(lab["valid"] & ~lab["ambiguous"])
+        w = lab.get(ANGULAR_COMPONENT)
+        out.w.append(np.full(lab["slip"].shape, np.nan, np.float32) if w is None
+                     else np.asarray(w, np.float32).reshape(-1))
     return out
 
 
@@ -171,7 +188,7 @@ def _batch(seqs: Sequences, cfg: StreamTrainConfig, rng: np.random.Generator,
     lens = np.array([f.shape[0] for f in seqs.frames])
     t = cfg.seq_frames
     k = rng.choice(len(lens), cfg.batch_size, p=lens / lens.sum())
-    xs, vs, ss, ms, ds = [], [], [], [], []
+    xs, vs, ss, ms, ds, ws = [], [], [], [], [], []
     for j in k:
         s = int(rng.integers(0, max(1, lens[j] - t)))
         x = seqs.frames[j][s:s + t].astype(np.float32)
@@ -184,20 +201,30 @@ def _batch(seqs: Sequences, cfg: StreamTrainConfig, rng: np.random.Generator,
         ss.append(seqs.slip[j][s:s + t])
         ms.append(seqs.valid[j][s:s + t])
         ds.append(seqs.decided[j][s:s + t])
+        ws.append(seqs.w[j][s:s + t])
     n = min(x.shape[0] for x in xs)
     return tuple(torch.from_numpy(np.stack([a[:n] for a in arr]))
-                 for arr in (xs, vs, ss, ms, ds))
+                 for arr in (xs, vs, ss, ms, ds, ws))
 
 
-def _loss(model: StreamNet, x, v, slip, valid, decided,
+def _loss(model: StreamNet, x, v, slip, valid, decided, w,
           cfg: StreamTrainConfig) -> torch.Tensor:
-    logit, vp, _ = model(x)
+    """Per valid frame: BCE (outside the guard band), the velocity's Huber loss and, for a
+    model with a rotational output, the rim speed's where the frame has an angular label
+    (NaN frames are masked before the arithmetic: no gradient from them)."""
+    logit, vp, wp, _ = model(x)
     m = valid.float()
     bce = F.binary_cross_entropy_with_logits(logit, slip.float(), reduction="none")
     scale = model.cfg.speed_scale
     hub = F.smooth_l1_loss(vp / scale, v / scale, reduction="none").sum(-1)
-    return ((bce * decided.float() + cfg.velocity_weight * hub * m).sum()
-            / m.sum().clamp(min=1.0))
+    per_frame = bce * decided.float() + cfg.velocity_weight * hub * m
+    if wp is not None:
+        lab = valid & torch.isfinite(w)
+        k = ROTATION_RADIUS_M / scale
+        target = torch.where(lab, w, torch.zeros_like(w)) * k
+        per_frame = per_frame + cfg.rotation_weight * lab.float() * F.smooth_l1_loss(
+            wp * k, target, reduction="none")
+    return per_frame.sum() / m.sum().clamp(min=1.0)
 
 
 def _validate(model: StreamNet, seqs: Sequences, cfg: StreamTrainConfig):
@@ -214,8 +241,9 @@ def _validate_cpu(model: StreamNet, seqs: Sequences, cfg: StreamTrainConfig):
     model.eval()
     losses, outs = [], []
     with torch.inference_mode():
-        for x, v, s, m, d in zip(seqs.frames, seqs.v, seqs.slip, seqs.valid, seqs.decided):
-            t = [torch.from_numpy(np.ascontiguousarray(a))[None] for a in (x, v, s, m, d)]
+        for x, v, s, m, d, w in zip(seqs.frames, seqs.v, seqs.slip, seqs.valid, seqs.decided,
+                                    seqs.w):
+            t = [torch.from_numpy(np.ascontiguousarray(a))[None] for a in (x, v, s, m, d, w)]
             losses.append(float(_loss(model, t[0].float(), *t[1:], cfg)) * float(m.sum()))
             outs.append(offline_outputs(model, x))
     loss = sum(losses) / max(1.0, float(sum(m.sum() for m in seqs.valid)))
@@ -223,7 +251,26 @@ def _validate_cpu(model: StreamNet, seqs: Sequences, cfg: StreamTrainConfig):
     v = np.concatenate([o[1] for o in outs])
     metrics = frame_metrics(p, v, np.concatenate(seqs.v), np.concatenate(seqs.slip),
                             np.concatenate(seqs.valid))
+    if outs and outs[0][2] is not None:
+        metrics.update(frame_rotation_metrics(np.concatenate([o[2] for o in outs]),
+                                              np.concatenate(seqs.w),
+                                              np.concatenate(seqs.valid)))
     return loss, metrics
+
+
+def frame_rotation_metrics(w: np.ndarray, w_true: np.ndarray,
+                           valid: np.ndarray) -> dict[str, float]:
+    """Per frame, over valid frames with an angular label: the rate MAE over all of them
+    and over rotating ones (deg/s; ``|wy| > ROTATION_EPSILON_RAD_S``)."""
+    m = valid & np.isfinite(w_true)
+    if not m.any():
+        return {}
+    err = np.degrees(np.abs(w[m] - w_true[m]))
+    out = {"rotation_frames": int(m.sum()), "rotation_mae_all_deg_s": float(err.mean())}
+    rot = np.abs(w_true[m]) > ROTATION_EPSILON_RAD_S
+    if rot.any():
+        out["rotation_mae_deg_s"] = float(err[rot].mean())
+    return out
 
 
 def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
@@ -234,21 +281,50 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
                  log: Callable[[str], None] = print) -> tuple[dict, dict, list]:
     """Train and select; returns ``(meta, tensors, history)`` for ``save_checkpoint``."""
     torch.set_num_threads(max(1, cfg.threads))
-    torch.manual_seed(cfg.seed)
-    device = resolve_device(cfg.device)
-    rng = np.random.default_rng(cfg.seed)
+    resolve_device(cfg.device)              # refuses cuda without a GPU before the features
     channels = list(channels or ds.channel_names)
     fcfg = feature_config or FeatureConfig()
     StreamingLogMel(fcfg, ds.sample_rate, len(channels))    # refuses unsupported rates early
     t0 = time.perf_counter()
     tr, va, cal = _split_sequences(ds, cfg, channels, fcfg, smoother, log)
     t_feat = time.perf_counter() - t0
+    model, fit = fit_stream(tr, va, cfg, model_config=model_config, log=log)
+    out_val = [offline_outputs(model, x) for x in va.frames]     # (p, v, w) per trial
+    threshold, sweep = select_threshold([o[0] for o in out_val], va.slip,
+                                        fcfg.hop / fcfg.sample_rate, cfg.fa_per_min)
+    log(f"threshold {threshold:.2f} (validation false alarms per minute <= "
+        f"{cfg.fa_per_min:g} where reachable)")
+    meta = stream_meta(ds, cfg, model.cfg, fcfg, channels, smoother, model)
+    if cal is not None:
+        meta["calibration"] = cal.to_dict()
+    meta.update(threshold=threshold, **sequence_fields(out_val, va, threshold))
+    meta["threshold_selection"] = {"fa_per_min_target": cfg.fa_per_min, "sweep": sweep}
+    meta["provenance"].update(
+        metrics={"val": fit["val_metrics"], "best_val_loss": fit["best_val_loss"]},
+        training={**fit["training"], "feature_time_s": t_feat, "train_trials": tr.trials,
+                  "val_trials": va.trials})
+    tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    return meta, tensors, fit["history"]
+
+
+def fit_stream(tr: Sequences, va: Sequences, cfg: StreamTrainConfig, *,
+               model_config: dict[str, Any] | None = None,
+               log: Callable[[str], None] = print) -> tuple[StreamNet, dict[str, Any]]:
+    """The network trained on ``tr`` and selected on ``va`` (lowest validation loss, early
+    stopping, ``cfg.time_budget_s``), on the CPU in eval mode, and what the run gives:
+    ``history``, ``val_metrics`` and ``best_val_loss`` of the chosen epoch, ``training``.
+    Normalisation and ``speed_scale`` come from the training sequences; the rotational
+    output is built when they carry angular labels."""
+    torch.manual_seed(cfg.seed)
+    device = resolve_device(cfg.device)
+    rng = np.random.default_rng(cfg.seed)
     allf = np.concatenate(tr.frames)
     mean, std = allf.mean(axis=(0, 1)), np.maximum(allf.std(axis=(0, 1)), 1e-3)
     speeds = np.hypot(*np.concatenate(tr.v)[np.concatenate(tr.slip)].T)
-    mcfg = StreamConfig(n_channels=len(channels), n_mels=fcfg.n_mels,
+    options = {"angular": tr.has_angular, **(model_config or {})}
+    mcfg = StreamConfig(n_channels=allf.shape[1], n_mels=allf.shape[2],
                         speed_scale=float(max(np.median(speeds) if speeds.size else 0.02, 1e-3)),
-                        **(model_config or {}))
+                        **options)
     model = StreamNet(mcfg)
     model.set_normalization(mean, std)
     model.to(device)
@@ -284,24 +360,11 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
             break
     model.load_state_dict(best[2])
     model.to("cpu").eval()
-    out_val = [offline_outputs(model, x) for x in va.frames]     # (p, v) per trial
-    threshold, sweep = select_threshold([o[0] for o in out_val], va.slip,
-                                        fcfg.hop / fcfg.sample_rate, cfg.fa_per_min)
-    log(f"threshold {threshold:.2f} (validation false alarms per minute <= "
-        f"{cfg.fa_per_min:g} where reachable)")
-    meta = stream_meta(ds, cfg, mcfg, fcfg, channels, smoother, model)
-    if cal is not None:
-        meta["calibration"] = cal.to_dict()
-    meta.update(threshold=threshold, **sequence_fields(out_val, va, threshold))
-    meta["threshold_selection"] = {"fa_per_min_target": cfg.fa_per_min, "sweep": sweep}
-    meta["provenance"].update(
-        metrics={"val": best[3], "best_val_loss": best[0]},
-        training={"best_epoch": best[1], "epochs_run": len(history), "stop_reason": stop,
-                  "train_time_s": time.perf_counter() - t_start, "feature_time_s": t_feat,
-                  "train_trials": tr.trials, "val_trials": va.trials,
-                  "device": str(device)})
-    tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
-    return meta, tensors, history
+    return model, {"history": history, "val_metrics": best[3], "best_val_loss": best[0],
+                   "training": {"best_epoch": best[1], "epochs_run": len(history),
+                                "stop_reason": stop,
+                                "train_time_s": time.perf_counter() - t_start,
+                                "device": str(device)}}
 
 
 def _split_sequences(ds: WindowSet, cfg: StreamTrainConfig, channels: Sequence[str],
@@ -349,7 +412,7 @@ def stream_meta(ds: WindowSet, cfg: StreamTrainConfig, mcfg: StreamConfig,
                        "scope": "per mel bin over training frames and channels"},
         # One frame is the audio an estimate reads directly; the state carries the rest.
         window_s=frame_s, window_samples=fcfg.n_fft * factor,
-        hop_s=fcfg.hop / fcfg.sample_rate,
+        hop_s=fcfg.hop / fcfg.sample_rate, angular=mcfg.angular,
         label={"kind": "slip_velocity_now",
                "describes": "the last audio sample of each frame",
                "smoother": {"method": "savitzky_golay", **smoother.to_dict()},
@@ -383,4 +446,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: val frame detection {val.get('detection_accuracy', math.nan):.3f},"
           f" direction MAE {val.get('direction_mae_deg', math.nan):.1f} deg, "
           f"speed RMSE {val.get('speed_rmse_mm_s', math.nan):.1f} mm/s")
+    if "rotation_frames" in val:
+        print(f"val frame rotation: MAE {val.get('rotation_mae_deg_s', math.nan):.1f} deg/s "
+              f"on rotating frames, {val['rotation_mae_all_deg_s']:.1f} deg/s on all "
+              f"{val['rotation_frames']} labelled frames")
     return 0

@@ -8,6 +8,11 @@
 ``--device`` (default cpu; auto: a CUDA GPU where torch sees one) moves the network and its
 batches; checkpoints always hold CPU tensors.
 
+Rotational slip: a dataset whose training windows carry angular labels (``wy``, dataset
+version 2) gives every model a rotational output (the CNN's ``angular`` head, the SVM's
+rate regressor; ``outputs`` in the checkpoint lists ``wy``); a finetune whose init has none
+gets a new head. Without labels everything trains as before.
+
 Per-grasp calibration (``--calibration``, default ``background`` on the command line): the
 constants are fitted on the training trials and every window is read with its own trial's
 causal calibration removed (``calibration.frames``); the constants go into the checkpoint
@@ -21,6 +26,7 @@ its checkpoint document with ``checkpoint.checkpoint_meta``.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import datetime as _dt
 import os
 import time
@@ -40,7 +46,7 @@ from aslip_ros.learn.features import FeatureConfig, normalization_stats
 from aslip_ros.learn.training.losses import LossWeights
 from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
 from aslip_ros.learn.calibration.output import checkpoint_fields
-from aslip_ros.learn.models.svm import SvmConfig, SvmFeaturizer, fit_svm
+from aslip_ros.learn.models.svm import SvmConfig, SvmFeaturizer, fit_svm, moving
 from aslip_ros.learn.training.data import Batches, feature_cache, split_windows
 from aslip_ros.learn.inference.predictor import Predictor
 from aslip_ros.learn.training.config import TrainConfig, TrainResult
@@ -88,21 +94,48 @@ def _open_init(ds: WindowSet, cfg: TrainConfig, init: str | os.PathLike | Checkp
     return init_ckpt
 
 
+def rotation_args(ds: WindowSet, idx: np.ndarray, w_pred: np.ndarray | None
+                  ) -> dict[str, Any]:
+    """``compute_metrics``' rotational arguments for windows ``idx`` (none when they have no
+    angular label): the labels and the model's raw rates (None: no rotational output)."""
+    w_true = ds.angular(idx)
+    if not np.isfinite(w_true).any():
+        return {}
+    return {"angular": w_pred, "true_angular": w_true}
+
+
+def _init_model(init_ckpt: Checkpoint, angular: bool) -> SlipNet:
+    """The init's network; with ``angular`` and an init without a rotational head, a new
+    head (randomly initialised) beside its trained weights."""
+    cfg = ModelConfig.from_dict(init_ckpt.meta["model_config"])
+    if not angular or cfg.angular:
+        model = SlipNet(cfg)
+        model.load_state_dict(init_ckpt.tensors)
+        return model
+    model = SlipNet(dataclasses.replace(cfg, angular=True))
+    missing, unexpected = model.load_state_dict(init_ckpt.tensors, strict=False)
+    if unexpected or any(not k.startswith("heads.angular.") for k in missing):
+        raise ValueError(f"the --init checkpoint's weights do not fit its model config "
+                         f"(missing {missing}, unexpected {unexpected})")
+    return model
+
+
 def _build_model(ds: WindowSet, init_ckpt: Checkpoint | None, feats: np.ndarray,
                  tr: np.ndarray, channels: list[str], fcfg: FeatureConfig,
                  model_options: dict[str, Any] | None, rng: np.random.Generator) -> SlipNet:
     """The init checkpoint's network, or a new one normalised on the training windows with
-    the median training slip speed as its speed scale."""
+    the median training slip speed as its speed scale; with a rotational head when the
+    training windows carry angular labels."""
+    angular = ds.has_angular(tr)
     if init_ckpt is not None:
-        model = SlipNet(ModelConfig.from_dict(init_ckpt.meta["model_config"]))
-        model.load_state_dict(init_ckpt.tensors)
-        return model
+        return _init_model(init_ckpt, angular)
     mean, std = normalization_stats(feats[np.sort(tr)] if tr.size <= 20000 else
                                     feats[np.sort(rng.choice(tr, 20000, replace=False))])
     slip_speed = ds.speed(tr)[ds.slip(tr)]
     scale = float(np.median(slip_speed)) if slip_speed.size else 0.02
+    options = {"angular": angular, **dict(model_options or {})}
     mcfg = ModelConfig(n_channels=len(channels), n_mels=fcfg.n_mels,
-                       speed_scale=max(scale, 1e-4), **dict(model_options or {}))
+                       speed_scale=max(scale, 1e-4), **options)
     model = SlipNet(mcfg)
     model.set_normalization(mean, std)
     return model
@@ -113,6 +146,7 @@ def _cnn_meta(ds: WindowSet, cfg: TrainConfig, model: SlipNet, fcfg: FeatureConf
               ) -> dict[str, Any]:
     return checkpoint_meta(
         CNN, model.cfg, fcfg, ds, channels, provenance=prov, calibration=cal,
+        angular=model.cfg.angular,
         normalization={"mean": model.feat_mean.tolist(), "std": model.feat_std.tolist(),
                        "scope": "per mel bin over training windows, channels and frames"},
         loss_weights=weights.to_dict(), train_config=cfg.to_dict())
@@ -183,7 +217,8 @@ class CnnJob:
         pred = self._predict_val()
         self.model.load_state_dict(current)
         return compute_metrics(pred["prob"], pred["v"], self.data.v[self.va],
-                               self.data.slip[self.va], self.ds.window_s)
+                               self.data.slip[self.va], self.ds.window_s,
+                               **rotation_args(self.ds, self.va, pred["w"]))
 
     def result(self, stop_reason: str = "time_budget") -> TrainResult:
         """End the run: the best epoch's weights, its metrics and the checkpoint document."""
@@ -192,7 +227,7 @@ class CnnJob:
         pred = self._predict_val()
         model = self.model.to("cpu")
         val_metrics = compute_metrics(pred["prob"], pred["v"], data.v[va], data.slip[va],
-                                      ds.window_s)
+                                      ds.window_s, **rotation_args(ds, va, pred["w"]))
         prov = _provenance(ds, cfg, _init_name(self.init))
         prov["device"] = str(self.device)
         if self.init_ckpt is not None:
@@ -207,7 +242,8 @@ class CnnJob:
                               "n_val_windows": int(va.size)})
         meta = _cnn_meta(ds, cfg, model, self.fcfg, self.channels, self.weights, self.cal,
                          prov)
-        meta.update(checkpoint_fields(pred["prob"], pred["v"], data.v[va], data.slip[va]))
+        meta.update(checkpoint_fields(pred["prob"], pred["v"], data.v[va], data.slip[va],
+                                      w_pred=pred["w"], w_true=data.w[va]))
         model.eval()
         tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
         return TrainResult(meta=meta, tensors=tensors, history=fit.history, model=model,
@@ -242,7 +278,8 @@ def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
     tr, va = split_windows(ds, cfg)
     cal, offsets = training_calibration(ds, cfg.calibration, channels, fcfg, tr, va, None,
                                         log)
-    slip_all = ds.slip(np.arange(len(ds)))
+    # Slip or rotating windows are the positives of the balanced subsample.
+    slip_all = moving(ds.slip(np.arange(len(ds))), ds.angular(np.arange(len(ds))))
     if tr.size > svm_config.max_train:
         # Balanced subsample: SVC cost grows quadratically with the training set.
         pos, neg = tr[slip_all[tr]], tr[~slip_all[tr]]
@@ -261,21 +298,24 @@ def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
                                for s in range(0, idx.size, 512)])
 
     t0 = time.perf_counter()
-    arrays, _ = fit_svm(feats(tr), ds.slip(tr), ds.velocity(tr), svm_config)
-    prob, v = arrays.predict(feats(va))
-    val_metrics = compute_metrics(prob, v, ds.velocity(va), ds.slip(va), ds.window_s)
+    arrays, _ = fit_svm(feats(tr), ds.slip(tr), ds.velocity(tr), svm_config,
+                        angular=ds.angular(tr) if ds.has_angular(tr) else None)
+    prob, v, w = arrays.predict(feats(va))
+    val_metrics = compute_metrics(prob, v, ds.velocity(va), ds.slip(va), ds.window_s,
+                                  **rotation_args(ds, va, w))
     prov = _provenance(ds, cfg, None)
     prov.update(metrics={"val": val_metrics},
                 training={"train_time_s": time.perf_counter() - t0,
                           "n_train_windows": int(tr.size), "n_val_windows": int(va.size)})
     meta = checkpoint_meta(
         SvmBackend.model_type, svm_config, fcfg, ds, channels, provenance=prov,
-        calibration=cal, train_config=cfg.to_dict(),
+        calibration=cal, train_config=cfg.to_dict(), angular=w is not None,
         normalization={"mean": arrays.mean.tolist(), "std": arrays.std.tolist(),
                        "scope": "per handcrafted feature over training windows"})
-    meta.update(checkpoint_fields(prob, v, ds.velocity(va), ds.slip(va)))
+    meta.update(checkpoint_fields(prob, v, ds.velocity(va), ds.slip(va), w_pred=w,
+                                  w_true=ds.angular(va)))
     return TrainResult(meta=meta, tensors=arrays.to_tensors(), history=[], model=arrays,
-                       val_pred={"prob": prob, "v": v})
+                       val_pred={"prob": prob, "v": v, "w": w})
 
 
 # --- a model type's own stage --------------------------------------------------------------
