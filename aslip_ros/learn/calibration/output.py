@@ -182,21 +182,28 @@ def fit_sigma_model(v_pred, v_true, slip) -> dict[str, Any]:
             "n_slip_windows": n}
 
 
-def sigma_problems(d: Any) -> list[str]:
-    """What is wrong with a sigma model document (empty when sound)."""
+def _binned_problems(d: Any, what: str, edges_key: str, sigma_key: str, sigma_ok,
+                     sigma_want: str, edges_want: str) -> list[str]:
+    """What is wrong with a binned sigma document: ``sigma_key`` a non-empty list of numbers
+    that ``sigma_ok`` accepts, ``edges_key`` one fewer increasing values >= 0."""
     if not isinstance(d, dict):
-        return [f"direction sigma model must be a JSON object, got {type(d).__name__}"]
-    edges, sig = d.get("speed_edges_m_s"), d.get("sigma_rad")
+        return [f"{what} sigma model must be a JSON object, got {type(d).__name__}"]
+    edges, sig = d.get(edges_key), d.get(sigma_key)
     num = (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)
            and math.isfinite(v))
-    if not isinstance(sig, list) or not sig or not all(num(s) and 0 < s <= math.pi + 1e-9
-                                                       for s in sig):
-        return [f"sigma_rad must be a non-empty list of numbers in (0, pi], got {sig!r}"]
+    if not isinstance(sig, list) or not sig or not all(num(v) and sigma_ok(v) for v in sig):
+        return [f"{sigma_key} must be a non-empty list of {sigma_want}, got {sig!r}"]
     if not isinstance(edges, list) or not all(num(e) and e >= 0 for e in edges) \
             or any(b <= a for a, b in zip(edges, edges[1:])) or len(edges) != len(sig) - 1:
-        return [f"speed_edges_m_s must be {len(sig) - 1} increasing speeds >= 0, "
+        return [f"{edges_key} must be {len(sig) - 1} increasing {edges_want} >= 0, "
                 f"got {edges!r}"]
     return []
+
+
+def sigma_problems(d: Any) -> list[str]:
+    """What is wrong with a sigma model document (empty when sound)."""
+    return _binned_problems(d, "direction", "speed_edges_m_s", "sigma_rad",
+                            lambda v: 0 < v <= math.pi + 1e-9, "numbers in (0, pi]", "speeds")
 
 
 def meta_problems(d: Any) -> list[str]:
@@ -285,18 +292,8 @@ def fit_angular_sigma(w_pred, w_true) -> dict[str, Any]:
 
 def angular_sigma_problems(d: Any) -> list[str]:
     """What is wrong with an angular sigma model document (empty when sound)."""
-    if not isinstance(d, dict):
-        return [f"angular sigma model must be a JSON object, got {type(d).__name__}"]
-    edges, sig = d.get("rate_edges_rad_s"), d.get("sigma_rad_s")
-    num = (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)
-           and math.isfinite(v))
-    if not isinstance(sig, list) or not sig or not all(num(s) and s > 0 for s in sig):
-        return [f"sigma_rad_s must be a non-empty list of positive numbers, got {sig!r}"]
-    if not isinstance(edges, list) or not all(num(e) and e >= 0 for e in edges) \
-            or any(b <= a for a, b in zip(edges, edges[1:])) or len(edges) != len(sig) - 1:
-        return [f"rate_edges_rad_s must be {len(sig) - 1} increasing rates >= 0, "
-                f"got {edges!r}"]
-    return []
+    return _binned_problems(d, "angular", "rate_edges_rad_s", "sigma_rad_s", lambda v: v > 0,
+                            "positive numbers", "rates")
 
 
 def angular_sigma_model(meta: dict[str, Any]) -> AngularSigmaModel | None:
