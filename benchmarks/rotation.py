@@ -29,7 +29,7 @@ import argparse
 import dataclasses
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +44,6 @@ CONDITIONS = ("robot_stationary", "robot_off", "robot_moving")
 #: Seed offsets: training trials, gravity pivots, and the fresh draw tested on.
 TEST_SEED = 700_000
 PIVOT_SEED = 80_000
-PLANAR_SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap", "rate")
 ROT_KEYS = (("rotation_mae_deg_s", "rot. MAE deg/s", 1.0),
             ("rotation_mae_ratio", "MAE / mean rate %", 100.0),
             ("pure_rotation_detection", "pure rotation detected %", 100.0),
@@ -71,7 +70,6 @@ class RotationConfig:
     n_boot: int = 500
     planar: bool = True
     progress: bool = False
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def log(msg: str) -> None:
