@@ -39,7 +39,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
               "train a slip model (chosen on your data, or by name)"),
     "evaluate": ("aslip_ros.learn.evaluate", "evaluate a checkpoint on a dataset (JSON metrics)"),
     "check": ("aslip_ros.bringup.check",
-              "bring-up checks of a new cell: audio, taps, mocap, grasp plane, arm"),
+              "bring-up checks of a new cell: audio, taps, mocap, grasp plane, arm, "
+              "real-time headroom"),
 }
 
 

@@ -22,3 +22,5 @@ DIAGNOSTICS = "/diagnostics"
 DIAGNOSTICS_JSON = "/aslip/diagnostics"
 TF = "/tf"
 TF_STATIC = "/tf_static"
+#: Simulated time (rosgraph_msgs/Clock): published by scene_sim in lockstep mode.
+CLOCK = "/clock"

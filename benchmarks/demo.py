@@ -18,11 +18,20 @@ Five objects x ``--trials`` trials per task and method: the package's estimator 
 the causal streaming model with the live per-grasp calibration, an estimate per 10 ms hop),
 the 200 ms window CNN with that calibration (``aslip_window``) and without it
 (``aslip_uncalibrated``), and the SVM baseline (calibrated); the scene couples every
-microphone differently in every grasp (since scene version 3). Episodes
-run in real time, so a small pool of worker processes each runs many of them in sequence
-(:mod:`benchmarks.demo_episode`: fresh context and domain per episode, the node
-classes composed in the worker). Results: ``<out>/summary.json``, ``<out>/table.md`` (beside
-the paper's numbers), ``<out>/*.png`` and per-episode traces in ``<out>/episodes/``.
+microphone differently in every grasp (since scene version 3). A pool of worker processes
+each runs many episodes in sequence (:mod:`benchmarks.demo_episode`: fresh context and
+domain per episode, the node classes composed in the worker).
+
+``--mode lockstep`` (default): each episode runs on simulated time, the scene stepping a
+block once the graph has handled the one before and the compute time charged to simulated
+time (``--charge budget``: each node's declared budget; ``measured``: this host's), so the
+table is the same on a fast or a slow, idle or busy machine; one worker per CPU.
+``--mode realtime``: the scene paces itself by the wall clock, as on a cell; the number of
+workers comes from ``aslip check realtime``'s measurement of this machine, and a machine
+too slow for even one real-time episode is said so instead of reporting its failures.
+
+Results: ``<out>/summary.json``, ``<out>/table.md`` (beside the paper's numbers),
+``<out>/*.png`` and per-episode traces in ``<out>/episodes/``.
 
 Models: the shipped checkpoints (``models/aslip_stream.pt``, ``models/aslip_cnn.pt``,
 ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``) when they match the scene
@@ -48,8 +57,8 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 from benchmarks import demo_metrics as dm
-from benchmarks.demo_episode import (TASKS, Episode, PivotSettings, StopSettings,
-                                     TrackSettings, save_trace)
+from benchmarks.demo_episode import (CHARGES, LOCKSTEP_BUDGET_S, MODES, TASKS, Episode,
+                                     PivotSettings, StopSettings, TrackSettings, save_trace)
 from benchmarks import demo_models
 from benchmarks.demo_models import OBJECTS
 
@@ -81,8 +90,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"comma-separated methods out of {','.join(METHODS)}")
     p.add_argument("--objects", default=",".join(OBJECTS), help="comma-separated objects")
     p.add_argument("--trials", type=int, default=10, help="trials per task, method, object")
-    p.add_argument("--workers", type=int, default=2,
-                   help="worker processes (each runs real-time episodes one after another)")
+    p.add_argument("--mode", choices=MODES, default=MODES[0],
+                   help="lockstep: simulated time, the same table on any host; realtime: "
+                        "the wall clock, to measure this machine")
+    p.add_argument("--charge", choices=CHARGES, default=CHARGES[0],
+                   help="lockstep: compute time charged per block, the nodes' declared "
+                        "budgets or what this host measures")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: one per CPU in lockstep; in realtime "
+                        "what `aslip check realtime` finds this machine can carry)")
     p.add_argument("--approach-speed", type=float, default=StopSettings.approach_speed_m_s,
                    help="slip-stop re-approach speed [m/s]")
     p.add_argument("--retract-speed", type=float, default=StopSettings.retract_speed_m_s,
@@ -183,7 +199,8 @@ def settings_overrides(cls, items: list[str]) -> dict:
 def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
                   stop: StopSettings, track: TrackSettings,
                   pivot: PivotSettings = PivotSettings(), pivot_methods=None,
-                  arms=dm.PIVOT_ARMS) -> list[Episode]:
+                  arms=dm.PIVOT_ARMS, mode: str = MODES[0],
+                  charge: str = CHARGES[0]) -> list[Episode]:
     """Every (task, method, object, trial); every method sees the same seeds. Pivot-stop
     runs ``pivot_methods`` (default: the first method) with each of ``arms`` on the same
     seeds, so its arms are paired trial by trial."""
@@ -197,7 +214,8 @@ def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
                     if task == "pivot_stop" else [(m, dm.PIVOT_ARMS[0]) for m in methods]
                 for method, arm in runs:
                     eps.append(Episode(task, method, str(checkpoints[method]), obj, trial,
-                                       seed, stop=stop, track=track, pivot=pivot, arm=arm))
+                                       seed, stop=stop, track=track, pivot=pivot, arm=arm,
+                                       mode=mode, charge=charge))
     return eps
 
 
@@ -280,13 +298,27 @@ def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True
             f"(`reruns` in summary.json). Paper columns from the A-SLIP paper, Table III "
             f"(real hardware). Pivot-stop (issue #21, no paper column): the angle the "
             f"object turned before the arm came to rest [deg], over all trials, with the "
-            f"95 % bootstrap interval of the mean.\n\n")
+            f"95 % bootstrap interval of the mean.\n\n{mode_sentence(meta)}\n\n")
     write_json(out / "summary.json", summary)
     write_text(out / "table.md", head + table + _notes(summary))
     if plots:
         from benchmarks.demo_plots import make_plots
         summary["plots"] = make_plots(out, ok)
     return summary
+
+
+def mode_sentence(meta: dict) -> str:
+    """How the run was timed, in one sentence for the table's head."""
+    if meta.get("mode", "realtime") == "realtime":
+        return ("Mode: real time (the scene paced by the wall clock): the figures measure "
+                "this machine as well as the methods.")
+    budget = meta.get("lockstep_budget_s") or {}
+    charge = ("each node's declared compute budget per block ("
+              + ", ".join(f"{k} {v * 1e3:g} ms" for k, v in budget.items()) + ")"
+              if meta.get("charge") == "budget" else "the compute time this host measured")
+    return ("Mode: lockstep on simulated time (the scene steps a block once the graph has "
+            f"handled the one before; {charge} charged to simulated time): the same table "
+            "on any host, idle or busy.")
 
 
 def tables_md(table: dict, ok: list[dict]) -> str:
@@ -358,15 +390,24 @@ def run(args: argparse.Namespace) -> int:
         print(f"benchmarks.demo: --stop-set/--track-set/--pivot-set: {exc}", file=sys.stderr)
         return 2
     eps = plan_episodes(tasks, methods, objects, args.trials, models, stop, track, pivot,
-                        pivot_methods, arms)
+                        pivot_methods, arms, args.mode, args.charge)
     out = Path(args.out)
     load0 = _load()
-    print(f"[demo] {len(eps)} real-time episodes on {args.workers} workers; models: "
+    workers, headroom = choose_workers(args, [str(models[m]) for m in used])
+    if workers < 1:
+        print(f"[demo] {headroom['why']}: no real-time table from this machine. The default "
+              "--mode lockstep gives the table on any host.", file=sys.stderr, flush=True)
+        return 1
+    mode = f"{args.mode} ({args.charge} charge)" if args.mode == "lockstep" else args.mode
+    print(f"[demo] {len(eps)} {mode} episodes on {workers} workers; models: "
           f"{models['source']}", file=sys.stderr, flush=True)
     t_run = time.perf_counter()
-    results = run_episodes(eps, args.workers, out / "episodes", not args.no_progress)
+    results = run_episodes(eps, workers, out / "episodes", not args.no_progress)
     meta = {"command": _command_line(), "tasks": tasks, "methods": methods, "objects": objects,
-            "trials": args.trials, "workers": args.workers, "cpus": os.cpu_count(),
+            "mode": args.mode, "charge": args.charge if args.mode == "lockstep" else None,
+            "lockstep_budget_s": LOCKSTEP_BUDGET_S if args.mode == "lockstep" else None,
+            "headroom": headroom,
+            "trials": args.trials, "workers": workers, "cpus": os.cpu_count(),
             "stop_settings": asdict(stop), "track_settings": asdict(track),
             "pivot_settings": asdict(pivot), "pivot_methods": pivot_methods,
             "pivot_arms": arms, "checkpoints": {m: str(models[m]) for m in used},
@@ -384,6 +425,41 @@ def run(args: argparse.Namespace) -> int:
         print("plots: " + ", ".join(str(p) for p in summary["plots"]))
     print(f"wall time {time.perf_counter() - t0:.0f} s")
     return 0 if not summary["errors"] else 1
+
+
+def choose_workers(args, checkpoints: list[str]) -> tuple[int, Optional[dict]]:
+    """Worker processes: ``--workers`` when given; in lockstep one per CPU (a busy worker
+    only slows the run, never changes it); in real time what this machine carries (0: too
+    slow), with the measurement: ``aslip check realtime``'s per-hop figures of each model,
+    and what a whole episode's graph costs here beyond them (the middleware and the nodes'
+    Python: one short lockstep episode per model, CPU seconds per scene second)."""
+    if args.workers is not None:
+        return max(1, args.workers), None
+    if args.mode == "lockstep":
+        return max(1, os.cpu_count() or 1), None
+    from aslip_ros.bringup import realtime
+    reports = [realtime.measure(ck) for ck in checkpoints]
+    episode = {ck: episode_cores(ck) for ck in checkpoints}
+    middleware = max(0.0, max(episode[r.checkpoint] - r.worker_cores for r in reports))
+    n = realtime.demo_workers(reports, middleware_cores=middleware)
+    doc = {"workers": n, "reports": [r.to_dict() for r in reports],
+           "episode_cores": episode, "middleware_cores": middleware,
+           "why": realtime.workers_line(n, reports, middleware_cores=middleware)}
+    print(f"[demo] headroom: {doc['why']}", file=sys.stderr, flush=True)
+    return n, doc
+
+
+def episode_cores(checkpoint: str) -> float:
+    """CPU cores one real-time episode of ``checkpoint`` needs on this machine: a short
+    lockstep slip-track episode (which runs as fast as the CPU allows) in this process, its
+    CPU seconds per second of scene time."""
+    from benchmarks.demo_episode import run_episode, warm_up
+    warm_up(checkpoint)
+    ep = Episode("slip_track", "headroom", checkpoint, OBJECTS[0], 0, SEED_BASE["slip_track"],
+                 track=TrackSettings(duration_s=1.0))
+    cpu0 = time.process_time()
+    r = run_episode(ep, keep_trace=False)
+    return (time.process_time() - cpu0) / max(r["scene_s"], 1e-3)
 
 
 def _command_line() -> str:

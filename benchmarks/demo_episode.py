@@ -10,6 +10,16 @@ through DDS topics exactly as between the separate executables (composing the no
 process changes only that); only the process start-up (importing torch and rclpy costs
 seconds) is shared between episodes.
 
+Two modes (``Episode.mode``). ``lockstep`` (the default): ``scene_sim`` steps a block only
+once the graph has handled the one before, and publishes simulated time on ``/clock``; the
+nodes run on it (``use_sim_time``, the controller one step per tick), so the trial does not
+depend on how fast or how busy the host is (:func:`_spin_lockstep`). The compute time of
+each block is charged to simulated time (``Episode.charge``: the declared budget of
+:data:`LOCKSTEP_BUDGET_S`, or the time measured on this host): the estimate of a block is
+due its budget after the block's end, and the controller's command takes effect its own
+budget after that. ``realtime``: the scene paces itself against the wall clock, as on a
+cell; what it measures is the machine as much as the method.
+
 Node parameters go in as ``parameter_overrides`` of each node's constructor (its
 ``**kwargs`` reach ``rclpy.node.Node``, as in a composed rclpy process), checked by the same
 declarations as from a launch file. The scene's true trajectory
@@ -36,6 +46,18 @@ from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 from aslip_ros.scene.scenario import Scenario
 
 TASKS = ("slip_stop", "slip_track", "pivot_stop")
+MODES = ("lockstep", "realtime")
+CHARGES = ("budget", "measured")
+#: The compute time charged to simulated time per block in lockstep [s], per node: the
+#: estimator's by model family, about the p99 of the live node on the reference machine
+#: (``make latency``, results/latency/tail.json: streaming 2.5 ms, window CNN 4.8 ms end to
+#: end, idle), and the controller's one step. ``--charge measured`` charges what this host
+#: takes instead.
+LOCKSTEP_BUDGET_S = {"aslip_stream": 0.003, "aslip_cnn": 0.005, "svm": 0.005,
+                     "controller": 0.0005}
+#: Lockstep: the longest the graph may take over one block before the episode is given up
+#: as stalled (wall clock; a guard against a lost message, never reached in a sound run).
+LOCKSTEP_STALL_S = 20.0
 
 
 @dataclass(frozen=True)
@@ -125,10 +147,16 @@ class Episode:
     pivot: PivotSettings = field(default_factory=PivotSettings)
     #: pivot_stop: ``rotation_aware`` (stop_on_rotation) or ``ignores_rotation``.
     arm: str = dm.PIVOT_ARMS[0]
+    mode: str = MODES[0]
+    charge: str = CHARGES[0]
 
     def __post_init__(self) -> None:
         if self.arm not in dm.PIVOT_ARMS:
             raise ValueError(f"arm must be one of {dm.PIVOT_ARMS}, got {self.arm!r}")
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.charge not in CHARGES:
+            raise ValueError(f"charge must be one of {CHARGES}, got {self.charge!r}")
 
     @property
     def key(self) -> str:
@@ -164,8 +192,14 @@ def node_params(ep: Episode, length_m: float) -> dict:
         scene.update(scenario="drag", drag_speed_m_s=ep.track.drag_speed_m_s,
                      drag_hold_s=ep.track.agent_hold_s)
         ctl = ep.track.law()
-    return {"scene_sim": scene, "slip_inference": {"checkpoint": str(ep.checkpoint)},
-            ep.task: ctl}
+    out = {"scene_sim": scene, "slip_inference": {"checkpoint": str(ep.checkpoint)},
+           ep.task: ctl}
+    if ep.mode == "lockstep":
+        for name, params in out.items():
+            params["use_sim_time"] = True
+            if name != "slip_inference":
+                params["lockstep"] = True
+    return out
 
 
 def pivot_scene(s: PivotSettings) -> dict:
@@ -330,7 +364,11 @@ def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
             for n in nodes:
                 executor.add_node(n)
             with StallProbe() as probe:
-                outcome = _spin(ep, executor, sim, ctl, rec, t_wall0, probe)
+                if ep.mode == "lockstep":
+                    outcome = _spin_lockstep(ep, executor, sim, infer, ctl, rec, t_wall0,
+                                             probe)
+                else:
+                    outcome = _spin(ep, executor, sim, ctl, rec, t_wall0, probe)
             # Input arrival gaps and stop latency, as the controller saw them.
             timing = dict(ctl.inputs.values(), **ctl.stop_latency())
             ctl.before_shutdown()
@@ -367,26 +405,81 @@ def _make_executor():
 
 def _spin(ep: Episode, executor, sim, ctl, rec, t_wall0: float, probe: StallProbe) -> str:
     """Spin until the trial is decided; returns why the episode ended."""
-    world = sim.world
-    length = world.object.length_m
-    n = world.wall_normal()
     while True:
         executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
         probe.tick()
         if time.monotonic() - t_wall0 > ep.wall_s_limit:
             return "wall_clock_limit"
-        if ep.task == "slip_track":
-            if world.t >= ep.track.agent_hold_s + ep.track.duration_s:
-                return "duration"
-            continue
-        if rec.result is not None and rec.result.get("final"):
-            return "controller_result"
-        if ep.task == "pivot_stop":
-            continue               # the controller's travel limit bounds the turn
-        contact = world.wall_contact_tcp_position
-        if contact is not None and (world.tcp_pose()[:3] - contact) @ n > length + 0.01:
-            # Already past the object's length: the trial has failed whatever follows.
-            return "pushed_past_length"
+        ended = _decided(ep, sim.world, rec)
+        if ended:
+            return ended
+
+
+class LockstepStall(RuntimeError):
+    """The graph did not handle a block within :data:`LOCKSTEP_STALL_S` (names what it
+    waited for)."""
+
+
+def _spin_until(executor, probe: StallProbe, done, what: str) -> None:
+    """Spin the episode's executor until ``done()``; a stall past the guard raises."""
+    t0 = time.monotonic()
+    while not done():
+        executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+        probe.tick()
+        if time.monotonic() - t0 > LOCKSTEP_STALL_S:
+            raise LockstepStall(f"lockstep: no {what} within {LOCKSTEP_STALL_S:g} s")
+
+
+def _spin_lockstep(ep: Episode, executor, sim, infer, ctl, rec, t_wall0: float,
+                   probe: StallProbe) -> str:
+    """Lockstep (module docstring): per block, (1) the scene steps and publishes it; (2) the
+    graph handles it: ``slip_inference`` has every frame and is idle, and the controller and
+    the recorder have every estimate and pose; (3) ``/clock`` ticks at the block's end plus
+    the estimator's charge, the controller takes one step, and the scene has its commands
+    (and ``slip_inference`` any recalibration request), each to take effect the
+    controller's charge after the tick. Nothing waits on a wall-clock period, so a slower
+    or busier host only takes longer."""
+    world, blocks = sim.world, 0
+    budget = LOCKSTEP_BUDGET_S.get(infer.source, max(LOCKSTEP_BUDGET_S.values()))
+    sim.command_delay_s = LOCKSTEP_BUDGET_S["controller"]
+    cal = ctl.calibration
+    while True:
+        if not sim.lockstep_block():
+            return "duration"
+        blocks += 1
+        _spin_until(executor, probe, lambda: infer.blocks_in >= blocks and infer.idle()
+                    and ctl.slip_count + ctl.rejected_slip >= infer.published
+                    and len(rec.slip) >= infer.published
+                    and ctl.pose_count >= sim.tcp_published, "estimate for the block")
+        charge = budget if ep.charge == "budget" else infer.last_compute_s
+        steps = ctl.control_steps
+        sim.lockstep_clock(world.t + charge)
+        arm = ctl.arm
+        _spin_until(executor, probe, lambda: ctl.control_steps > steps
+                    and sim.n_commands + sim.n_rejected >= getattr(arm, "published", 0)
+                    and cal.requests <= cal.replies, "control step")
+        if time.monotonic() - t_wall0 > ep.wall_s_limit:
+            return "wall_clock_limit"
+        ended = _decided(ep, world, rec)
+        if ended:
+            return ended
+
+
+def _decided(ep: Episode, world, rec) -> Optional[str]:
+    """Why the trial is decided, or None while it is not."""
+    if ep.task == "slip_track":
+        return "duration" if world.t >= ep.track.agent_hold_s + ep.track.duration_s \
+            else None
+    if rec.result is not None and rec.result.get("final"):
+        return "controller_result"
+    if ep.task == "pivot_stop":
+        return None                # the controller's travel limit bounds the turn
+    contact = world.wall_contact_tcp_position
+    if contact is not None and \
+            (world.tcp_pose()[:3] - contact) @ world.wall_normal() > world.object.length_m + 0.01:
+        # Already past the object's length: the trial has failed whatever follows.
+        return "pushed_past_length"
+    return None
 
 
 def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:

@@ -4,7 +4,8 @@
 - ``taps``: tap each pad when prompted; is the channel order the one named?
 - ``mocap``: rate, jitter, dropouts and latency of the finger and object poses (ROS);
 - ``grasp-plane``: ``grasp_plane_in_finger`` from a recording of the object held still;
-- ``arm``: the xArm's connection, and a 1 cm move at 1 cm/s inside the limits.
+- ``arm``: the xArm's connection, and a 1 cm move at 1 cm/s inside the limits;
+- ``realtime``: does the live inference keep its 10 ms hop, with margin, on this machine?
 
 Each prints one verdict line and exits 0 (OK) or 1 (FAIL).
 """
@@ -12,12 +13,13 @@ Each prints one verdict line and exits 0 (OK) or 1 (FAIL).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from aslip_ros import topics
 from aslip_ros.bringup import levels as lv
 
-WHAT = ('audio', 'taps', 'mocap', 'grasp-plane', 'arm')
+WHAT = ('audio', 'taps', 'mocap', 'grasp-plane', 'arm', 'realtime')
 
 
 class _Help(argparse.ArgumentDefaultsHelpFormatter):
@@ -93,6 +95,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        'move at 1 cm/s and back, inside the limits')
     _arm_args(p)
 
+    p = sub.add_parser('realtime', formatter_class=fmt, help='time the live inference of '
+                       'each model on simulated audio: does it keep its 10 ms hop with margin?')
+    _realtime_args(p)
+
+
+def _realtime_args(p: argparse.ArgumentParser) -> None:
+    from aslip_ros.bringup import realtime as rt
+    p.add_argument('--checkpoint', action='append', metavar='PATH',
+                   help='a checkpoint to time (repeatable; default: the shipped models, '
+                   + ', '.join(rt.DEFAULT_CHECKPOINTS) + ')')
+    p.add_argument('--duration', type=float, default=rt.DEFAULT_DURATION_S,
+                   help='seconds of audio timed per model [s]')
+    p.add_argument('--margin', type=float, default=rt.DEFAULT_MARGIN,
+                   help='OK when the p99 per hop is at most this fraction of the hop')
+    p.add_argument('--max-cores', type=float, default=rt.DEFAULT_MAX_CORES,
+                   help='OK when the inference needs at most this many cores at real time')
+    p.add_argument('--hop', type=float, default=0.01, help='hop (and audio block) [s]')
+    p.add_argument('--threads', type=int, default=rt.DEFAULT_THREADS,
+                   help='torch threads (slip_inference\'s torch_threads)')
+    p.add_argument('--json', metavar='PATH', help='also write the figures here (JSON)')
+
 
 def _pose_topics(p: argparse.ArgumentParser) -> None:
     p.add_argument('--finger-topic', default=topics.FINGER, help='finger PoseStamped topic')
@@ -139,6 +162,8 @@ def run(args: argparse.Namespace) -> int:
                              args.timeout_s)
     if args.what == 'mocap':
         return _mocap(args, out)
+    if args.what == 'realtime':
+        return _realtime(args, out)
     if args.what == 'grasp-plane':
         from aslip_ros.bringup.grasp_plane import check_grasp_plane
         return check_grasp_plane(args.bag, args.finger_topic, args.object_topic, out,
@@ -169,6 +194,37 @@ def _arm_config(args: argparse.Namespace):
     return arm_config(str(ip), pick(args.max_speed, 'arm_max_speed_m_s'),
                       pick(args.workspace_min, 'arm_workspace_min_m'),
                       pick(args.workspace_max, 'arm_workspace_max_m'))
+
+
+def _realtime(args: argparse.Namespace, out) -> int:
+    from aslip_ros.bringup import realtime as rt
+    paths = args.checkpoint or rt.default_checkpoints()
+    rt.verdict([], args.margin, args.max_cores)         # refuses bad options before timing
+    ckpts = [rt.load(p) for p in paths]                 # and every unusable checkpoint
+
+    def start(name: str) -> None:
+        print(f'timing {name} for {args.duration:g} s of audio...', file=out, flush=True)
+
+    reports = []
+    for path, ckpt in zip(paths, ckpts):
+        r = rt.measure(ckpt, args.duration, args.hop, args.threads, on_start=start,
+                       source=str(path))
+        reports.append(r)
+        print(r.text(), file=out, flush=True)
+    for r in reports:
+        print(rt.model_line(r, args.margin, args.max_cores), file=out)
+    verdict = rt.verdict(reports, args.margin, args.max_cores)
+    cores = os.cpu_count() or 1
+    workers = rt.demo_workers(reports, cores)
+    verdict.notes.append(rt.workers_line(workers, reports, cores))
+    if args.json:
+        from aslip_ros.util import write_json
+        write_json(args.json, {'margin': args.margin, 'max_cores': args.max_cores,
+                               'cpus': cores, 'load_average': list(os.getloadavg()),
+                               'models': [r.to_dict() for r in reports],
+                               'ok': verdict.ok, 'problems': verdict.problems,
+                               'demo_workers': workers})
+    return verdict.report(out)
 
 
 def _mocap(args: argparse.Namespace, out) -> int:

@@ -82,21 +82,24 @@ class ArrivalStats:
     """Arrival gaps of the input streams and how old slip estimates are when they arrive:
     what the stale-input timeout has to be measured against."""
 
-    def __init__(self) -> None:
+    def __init__(self, stamp_clock: Callable[[], float] = time.time) -> None:
+        """``stamp_clock``: now on the clock of the estimates' stamps [s] (the wall clock;
+        simulated time in lockstep)."""
+        self._stamp_clock = stamp_clock
         self.slip_gap_max = 0.0
         self.pose_gap_max = 0.0
         self.slip_age_max = 0.0
         self.slip_gaps_over_50ms = 0
 
     def slip(self, now: float, previous: Optional[float], stamp: float) -> None:
-        """One valid slip estimate arrived at ``now`` (monotonic); ``stamp``: its wall-clock
-        stamp [s] (the end of the audio window), 0 when unknown."""
+        """One valid slip estimate arrived at ``now`` (monotonic); ``stamp``: its stamp [s]
+        (the end of the audio window, on ``stamp_clock``), 0 when unknown."""
         if previous is not None:
             gap = now - previous
             self.slip_gap_max = max(self.slip_gap_max, gap)
             self.slip_gaps_over_50ms += gap > 0.05
         if stamp > 0:
-            self.slip_age_max = max(self.slip_age_max, time.time() - stamp)
+            self.slip_age_max = max(self.slip_age_max, self._stamp_clock() - stamp)
 
     def pose(self, now: float, previous: Optional[float]) -> None:
         """One TCP pose arrived at ``now`` (monotonic)."""

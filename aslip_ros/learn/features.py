@@ -8,7 +8,12 @@ statistics is *not* applied here: the statistics live inside the model (see
 
 Every window is featurised on its own (resampled, framed, transformed) whether it comes from
 the dataset or from the live ring buffer, so training and inference see identical numbers,
-edge effects included.
+edge effects included. The live node's ``SlidingLogMel`` computes the same numbers for the
+newest window of a stream while reusing the frames it shares with earlier windows: a frame
+whose resampling filter reads no sample outside the window depends only on those samples,
+wherever the window starts; every other frame (the first, whose filter reads the zeros
+before the window) is computed for each window as ``LogMel`` does. Both go through
+``LogMel.frames_logmel``, so they agree to float rounding (tested on scene audio).
 """
 
 from __future__ import annotations
@@ -168,13 +173,26 @@ class LogMel:
         n, d, half = x.shape[-1], self.down, self._half
         n_out = -(-n // d)
         right = max((n_out - 1) * d + 2 * half + 1 - half - n, 0)
-        xp = np.pad(x, [(0, 0)] * (x.ndim - 1) + [(half, right)])
-        taps = np.lib.stride_tricks.sliding_window_view(xp, 2 * half + 1, axis=-1)
-        # einsum walks the strided view directly; matmul would first copy every tap.
-        return np.einsum("...k,k->...", taps[..., ::d, :][..., :n_out, :], self._fir)
+        # Zeros beyond the window's edges (np.pad's result, without its per-call overhead).
+        xp = np.zeros(x.shape[:-1] + (half + n + right,), np.float32)
+        xp[..., half:half + n] = x
+        return self.decimate_valid(xp, n_out)
 
-    def power_spectrogram(self, audio: np.ndarray) -> np.ndarray:
-        """|STFT|^2, shape ``(..., n_channels, n_frames, n_fft // 2 + 1)``, at the feature rate."""
+    def decimate_valid(self, xp: np.ndarray, n_out: int) -> np.ndarray:
+        """Output ``j`` of the decimating filter reads ``xp[..., j * down : j * down + taps]``
+        (no padding: the caller supplies the margins); ``up`` must be 1."""
+        xp = np.ascontiguousarray(xp, dtype=np.float32)
+        step = xp.strides[-1]
+        # The taps of every output as one strided view over xp's buffer (numpy checks it
+        # lies inside; sliding_window_view costs more than the filter on short inputs).
+        taps = np.ndarray(xp.shape[:-1] + (n_out, self._fir.size), np.float32, xp, 0,
+                          xp.strides[:-1] + (self.down * step, step))
+        # einsum walks the strided view directly; matmul would first copy every tap.
+        return np.einsum("...k,k->...", taps, self._fir)
+
+    def _framed(self, audio: np.ndarray) -> np.ndarray:
+        """``(..., n_samples, C)`` -> STFT frames at the feature rate ``(..., C, T, n_fft)``
+        (a strided view)."""
         x = np.asarray(audio, dtype=np.float32)
         if x.ndim < 2:
             raise ValueError(f"audio must be (..., n_samples, n_channels), got {x.shape}")
@@ -182,10 +200,26 @@ class LogMel:
         n = x.shape[-1]
         if n < self.cfg.n_fft:
             raise ValueError(f"window of {n} samples at the feature rate < n_fft={self.cfg.n_fft}")
-        frames = np.lib.stride_tricks.sliding_window_view(x, self.cfg.n_fft, axis=-1)
-        frames = frames[..., :: self.cfg.hop, :] * self.window
-        spec = np.fft.rfft(frames, axis=-1)
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        step = x.strides[-1]
+        t = 1 + (n - self.cfg.n_fft) // self.cfg.hop
+        # A strided view of the frames, as in ``decimate_valid``.
+        return np.ndarray(x.shape[:-1] + (t, self.cfg.n_fft), np.float32, x, 0,
+                          x.strides[:-1] + (self.cfg.hop * step, step))
+
+    def frames_power(self, frames: np.ndarray) -> np.ndarray:
+        """|rfft|^2 of Hann-windowed frames ``(..., n_fft)`` at the feature rate."""
+        spec = np.fft.rfft(frames * self.window, axis=-1)
         return (spec.real ** 2 + spec.imag ** 2).astype(np.float32, copy=False)
+
+    def frames_logmel(self, frames: np.ndarray) -> np.ndarray:
+        """Natural-log mel power ``(..., n_mels)`` of frames ``(..., n_fft)`` at the feature
+        rate: the one transform behind ``__call__`` and ``SlidingLogMel``."""
+        return np.log(np.maximum(self.frames_power(frames) @ self.fb_t, self.cfg.log_floor))
+
+    def power_spectrogram(self, audio: np.ndarray) -> np.ndarray:
+        """|STFT|^2, shape ``(..., n_channels, n_frames, n_fft // 2 + 1)``, at the feature rate."""
+        return self.frames_power(self._framed(audio))
 
     def __call__(self, audio: np.ndarray) -> np.ndarray:
         x = np.asarray(audio, dtype=np.float32)
@@ -193,9 +227,93 @@ class LogMel:
             # Large batches thrash the cache in the framed FFT; small chunks are ~3x faster.
             return np.concatenate([self(x[s:s + self.chunk])
                                    for s in range(0, x.shape[0], self.chunk)])
-        mel = self.power_spectrogram(x) @ self.fb_t  # (..., C, T, M)
-        out = np.log(np.maximum(mel, self.cfg.log_floor))
+        out = self.frames_logmel(self._framed(x))   # (..., C, T, M)
         return np.ascontiguousarray(np.swapaxes(out, -1, -2), dtype=np.float32)
+
+
+class SlidingLogMel:
+    """``LogMel`` of the newest window of a stream, reusing what earlier windows computed.
+
+        sliding = SlidingLogMel(LogMel(cfg, 48000.0), window_samples)
+        feats = sliding(window, start)      # == LogMel(cfg, 48000.0)(window), (C, M, T)
+
+    ``start`` is the stream index of the window's first sample, counted from any origin
+    that stays fixed until ``reset`` (the live estimator: since its window last restarted);
+    ``epoch`` names that origin (a new one forgets every frame, like ``reset``). A frame is
+    *inner* when its resampling filter reads only samples inside the window: its log-mel
+    then depends on nothing but those samples, so it is kept under the index of the first
+    one and reused by every later window that holds the same frame (a window moved by a
+    multiple of the hop holds all but one of them again). Other frames, and every frame
+    of a rate ratio that needs upsampling (``up != 1``), are computed for each window
+    exactly as ``LogMel`` does: the zeros around the window included. Not thread-safe.
+    """
+
+    def __init__(self, logmel: LogMel, window_samples: int) -> None:
+        self.logmel = logmel
+        self.window_samples = int(window_samples)
+        self.n_frames = logmel.n_frames(self.window_samples)
+        cfg, d = logmel.cfg, logmel.down
+        #: input samples one frame's filter reads (margins included) and how far the first
+        #: one lies before the frame's first sample; 0 without resampling
+        self._margin = logmel._half if logmel.up == 1 and d > 1 else 0
+        self._span = (cfg.n_fft - 1) * d + 1 + 2 * self._margin
+        self.first = np.arange(self.n_frames) * cfg.hop * d - self._margin
+        self.inner = (self.first >= 0) & (self.first + self._span <= self.window_samples)
+        self.reusable = logmel.up == 1
+        self._frames: dict[int, np.ndarray] = {}
+        self._epoch: object = None
+        self.computed = 0           # frames computed since construction (tests, benchmarks)
+        self.reused = 0             # frames taken from an earlier window
+
+    def reset(self) -> None:
+        """Forget every kept frame (the stream index origin changes)."""
+        self._frames = {}
+
+    def __call__(self, window: np.ndarray, start: int, epoch: object = None) -> np.ndarray:
+        """The log-mel ``(C, n_mels, n_frames)`` float32 of ``window`` ``(N, C)``, whose
+        first sample has stream index ``start`` in origin ``epoch``."""
+        x = np.asarray(window, dtype=np.float32)
+        if x.ndim != 2 or x.shape[0] != self.window_samples:
+            raise ValueError(f"expected a window shaped ({self.window_samples}, C), "
+                             f"got {x.shape}")
+        if not self.reusable:
+            self.computed += self.n_frames
+            return self.logmel(x)
+        if epoch != self._epoch:
+            self._frames, self._epoch = {}, epoch
+        start = int(start)
+        kept, frames, missing = {}, [None] * self.n_frames, []
+        for k in range(self.n_frames):
+            key = start + int(self.first[k])
+            f = self._frames.get(key) if self.inner[k] else None
+            if f is None:
+                missing.append(k)
+            else:
+                frames[k] = kept[key] = f
+        if missing:
+            mel = self._compute(x, missing)                      # (len(missing), C, M)
+            for i, k in enumerate(missing):
+                frames[k] = mel[i]
+                if self.inner[k]:
+                    kept[start + int(self.first[k])] = mel[i]
+        self.computed += len(missing)
+        self.reused += self.n_frames - len(missing)
+        self._frames = kept             # only this window's frames can recur
+        return np.stack(frames, axis=-1)
+
+    def _compute(self, x: np.ndarray, ks: list[int]) -> np.ndarray:
+        """Frames ``ks`` of window ``x`` ``(N, C)``: ``(len(ks), C, n_mels)``, from the
+        samples each one reads (zeros outside the window, as ``LogMel`` pads)."""
+        n, n_fft, span = x.shape[0], self.logmel.cfg.n_fft, self._span
+        seg = np.zeros((len(ks), span, x.shape[1]), np.float32)
+        for i, k in enumerate(ks):
+            lo = int(self.first[k])
+            a, b = max(lo, 0), min(lo + span, n)
+            seg[i, a - lo:b - lo] = x[a:b]
+        seg = np.ascontiguousarray(np.swapaxes(seg, 1, 2))       # (K, C, span)
+        if self.logmel.down > 1:
+            seg = self.logmel.decimate_valid(seg, n_fft)         # (K, C, n_fft)
+        return self.logmel.frames_logmel(seg)
 
 
 def normalization_stats(features: np.ndarray, max_windows: int = 20000,

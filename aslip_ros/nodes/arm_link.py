@@ -5,6 +5,7 @@ stream where it has one, else polled at the control rate."""
 
 from __future__ import annotations
 
+import time
 from typing import Any, Callable, Mapping, Optional, Tuple
 
 from aslip_ros.control.arm import ArmError
@@ -15,11 +16,13 @@ OPEN_ERRORS = (ArmError, ValueError, ImportError, OSError)
 
 
 def open_arm(node, kind, params: Mapping[str, Any], on_pose: Callable,
-             on_error: Callable, name: str) -> Tuple[Any, ArmWorker]:
+             on_error: Callable, name: str,
+             clock: Callable[[], float] = time.monotonic) -> Tuple[Any, ArmWorker]:
     """Build ``kind``'s arm for ``node``, connect it and start its worker thread.
 
     ``on_pose(pose, now, stamp_ns)`` gets every pose the arm measures; ``on_error(exc)`` a
-    failed arm call. Raises one of :data:`OPEN_ERRORS` (nothing is left open then)."""
+    failed arm call; ``clock`` is the node's time source (the worker's stop times). Raises
+    one of :data:`OPEN_ERRORS` (nothing is left open then)."""
     arm = kind.make(node, params)
     arm.connect()
     streams = kind.pose_from_topic
@@ -27,7 +30,8 @@ def open_arm(node, kind, params: Mapping[str, Any], on_pose: Callable,
     if listen is not None:
         streams = bool(listen(on_pose))
     poll = None if streams else 1.0 / params["control_rate_hz"]
-    return arm, ArmWorker(arm, on_error, on_pose=on_pose, poll_period_s=poll, name=name)
+    return arm, ArmWorker(arm, on_error, on_pose=on_pose, poll_period_s=poll, name=name,
+                          clock=clock)
 
 
 def close_arm(arm: Optional[Any], worker: Optional[ArmWorker], logger) -> None:

@@ -13,6 +13,11 @@ A stale input is acted on by a one-shot deadline per stream, re-armed by each va
 so the stop leaves ``slip_timeout_s`` (or ``pose_timeout_s``) after the last valid input,
 not at the next control tick.
 
+Time: the steady clock, or in lockstep (``lockstep``, with ``use_sim_time``) the simulated
+time on ``/clock`` that ``scene_sim`` publishes once the graph has handled a block: the
+node then runs one control step per tick and no timer of its own, so a trial depends on
+simulated time only, never on how fast the host is (docs/nodes.md, "Lockstep").
+
 Lifecycle: ``configure`` connects the arm (an unreachable xArm fails the transition and
 nothing moves), ``activate`` enables velocity mode and starts the task, ``deactivate``/
 ``cleanup``/``shutdown`` stop the arm; ``autostart`` (default) does the first two. Stale
@@ -29,10 +34,11 @@ from typing import Optional
 
 from geometry_msgs.msg import PoseStamped
 from rclpy.clock import Clock, ClockType
+from rosgraph_msgs.msg import Clock as ClockMsg
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import String
 
-from aslip_ros import frames, poses
+from aslip_ros import frames, poses, topics
 from aslip_ros.control.arm import ArmError
 from aslip_ros.control.command import DEFAULT_DURATION_S, VelocityCommand
 from aslip_ros.control.limits import ArmLimits
@@ -94,6 +100,9 @@ def arm_params() -> list:
         c.Param("recalibrate_service", DEFAULT_SERVICE, "called at each task start (a new "
                 "grasp) to restart the per-grasp calibration; '' = never", read_only=True),
         c.Param("autostart", True, "configure and activate at start", read_only=True),
+        c.Param("lockstep", False, f"step once per {topics.CLOCK} tick (scene_sim's lockstep "
+                "mode; set use_sim_time too) instead of on a steady-clock timer",
+                read_only=True),
         c.Param("exit_when_done", False, "exit once the task has ended", read_only=True),
     ]
 
@@ -125,6 +134,10 @@ class ControllerNode(LifecycleNode):
         super().__init__(name, **kwargs)
         self.p = c.declare_params(self, arm_params() + self.task_params(), self._on_change,
                                   self.cross_check)
+        self.lockstep = bool(self.p["lockstep"])
+        self._sim_now = 0.0            # lockstep: the newest /clock tick [s]
+        self.control_steps = 0         # lockstep: ticks handled
+        self.pose_count = 0            # TCP pose messages received (valid or not)
         self._lock = threading.Lock()
         self.arm = None
         self.worker = None
@@ -138,7 +151,7 @@ class ControllerNode(LifecycleNode):
         self.last_slip_t: Optional[float] = None
         self.last_pose_t: Optional[float] = None
         self.steady_slip = 0    # consecutive SlipVectors, each within slip_timeout_s
-        self.inputs = ArrivalStats()
+        self.inputs = ArrivalStats(self.now_s if self.lockstep else time.time)
         self._stop_report: Optional[dict] = None
         self._task_fed = False
         self._pose_fed = False
@@ -147,7 +160,8 @@ class ControllerNode(LifecycleNode):
         self.diag = c.Diagnostics(self, f"aslip: {name}", self.p["arm"])
         self.arm_kind = resolve_arm(self.p["arm"])
         self.pub_tcp = None
-        self.calibration = GraspCalibration(self, self.p["recalibrate_service"])
+        self.calibration = GraspCalibration(self, self.p["recalibrate_service"],
+                                            clock=self.now_s)
         # One dispatch thread (common._executor): callback groups would change nothing.
         self.create_subscription(SlipVector, self.p["slip_topic"], self._on_slip,
                                  c.RELIABLE_QOS)
@@ -156,16 +170,21 @@ class ControllerNode(LifecycleNode):
             self.create_subscription(PoseStamped, c.TCP_TOPIC, self._on_tcp, c.SENSOR_QOS)
         else:
             self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(1.0 / self.p["control_rate_hz"], self._control, clock=steady)
-        # One-shot deadlines, re-armed by every valid input: a stale stream is acted on at
-        # the exact moment it goes stale, not at the next control tick.
-        self._slip_deadline = self.create_timer(
-            self.p["slip_timeout_s"], lambda: self._on_deadline(self._slip_deadline),
-            clock=steady, autostart=False)
-        self._pose_deadline = self.create_timer(
-            self.p["pose_timeout_s"], lambda: self._on_deadline(self._pose_deadline),
-            clock=steady, autostart=False)
+        self._slip_deadline = self._pose_deadline = None
+        if self.lockstep:
+            # Every tick is a control step, which also judges staleness (no deadlines).
+            self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, c.CLOCK_QOS)
+        else:
+            steady = Clock(clock_type=ClockType.STEADY_TIME)
+            self.create_timer(1.0 / self.p["control_rate_hz"], self._control, clock=steady)
+            # One-shot deadlines, re-armed by every valid input: a stale stream is acted on
+            # at the exact moment it goes stale, not at the next control tick.
+            self._slip_deadline = self.create_timer(
+                self.p["slip_timeout_s"], lambda: self._on_deadline(self._slip_deadline),
+                clock=steady, autostart=False)
+            self._pose_deadline = self.create_timer(
+                self.p["pose_timeout_s"], lambda: self._on_deadline(self._pose_deadline),
+                clock=steady, autostart=False)
         self.create_timer(1.0, self._diagnose)
         if self.p["autostart"]:
             self.trigger_configure()
@@ -173,6 +192,19 @@ class ControllerNode(LifecycleNode):
                 self.trigger_activate()
         c.ready(self, f"{self.task_name}, arm {self.p['arm']}, "
                       f"{'active' if self.active else 'not active'}")
+
+    # -- time --------------------------------------------------------------------------------
+
+    def now_s(self) -> float:
+        """The node's monotonic time [s]: steady, or the newest ``/clock`` tick in lockstep."""
+        return self._sim_now if self.lockstep else time.monotonic()
+
+    def _on_clock(self, msg: ClockMsg) -> None:
+        """Lockstep: simulated time advanced; one control step at the new time."""
+        t = msg.clock.sec + msg.clock.nanosec * 1e-9
+        self._sim_now = max(self._sim_now, t)
+        self._control()
+        self.control_steps += 1
 
     # -- subclass hooks ------------------------------------------------------------------------
 
@@ -223,7 +255,8 @@ class ControllerNode(LifecycleNode):
         """Create and connect the arm; an unreachable arm fails the transition."""
         try:
             arm, worker = open_arm(self, self.arm_kind, self.p, self._on_arm_pose,
-                                   self._on_arm_error, f"{self.get_name()}-arm-io")
+                                   self._on_arm_error, f"{self.get_name()}-arm-io",
+                                   clock=self.now_s)
         except OPEN_ERRORS as exc:
             self.arm_error = f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"arm not available ({self.arm_error}); the node stays "
@@ -282,7 +315,7 @@ class ControllerNode(LifecycleNode):
                 self._stop_report = {"reason": command.reason,
                                      "last_slip_t": self.last_slip_t,
                                      "last_pose_t": self.last_pose_t,
-                                     "posted_t": time.monotonic()}
+                                     "posted_t": self.now_s()}
                 # Once per activation: why the arm stopped is in the log, not only on
                 # the diagnostics.
                 self.get_logger().info(f"stopping the arm: {command.reason}")
@@ -318,14 +351,14 @@ class ControllerNode(LifecycleNode):
             self.get_logger().error(f"unreadable /aslip/metadata: {exc}")
 
     def _on_slip(self, msg: SlipVector) -> None:
-        now = time.monotonic()
+        now = self.now_s()
         try:
             slip = convert.slip_from_msg(msg)
         except ValueError as exc:
             self.rejected_slip += 1
             self.get_logger().warning(f"SlipVector rejected: {exc}", throttle_duration_sec=1.0)
             return
-        self._slip_deadline.reset()
+        _rearm(self._slip_deadline)
         with self._lock:
             self.slip_count += 1
             fresh = self.last_slip_t is not None and \
@@ -339,7 +372,8 @@ class ControllerNode(LifecycleNode):
                 self._task_fed = True
 
     def _on_tcp(self, msg: PoseStamped) -> None:
-        now = time.monotonic()
+        self.pose_count += 1
+        now = self.now_s()
         try:
             stamp_ns, _, pose = convert.pose_from_msg(msg)
         except ValueError:
@@ -357,7 +391,7 @@ class ControllerNode(LifecycleNode):
         self._take_pose(pose, now, stamp_ns)
 
     def _take_pose(self, pose, now: float, stamp_ns: int) -> None:
-        self._pose_deadline.reset()
+        _rearm(self._pose_deadline)
         with self._lock:
             self.inputs.pose(now, self.last_pose_t)
             self.last_pose_t = now
@@ -384,7 +418,7 @@ class ControllerNode(LifecycleNode):
         with self._lock:
             if not self.active or self.worker is None:
                 return
-            now = time.monotonic()
+            now = self.now_s()
             if self.task is None:
                 self.task = self.make_task()
                 if self.task is None:
@@ -444,3 +478,9 @@ class ControllerNode(LifecycleNode):
         else:
             level, message = c.Diagnostics.OK, values.get("task_state", "waiting for inputs")
         self.diag.publish(level, message, values)
+
+
+def _rearm(deadline) -> None:
+    """Restart a stale-input deadline (none in lockstep: each tick judges staleness)."""
+    if deadline is not None:
+        deadline.reset()

@@ -43,6 +43,7 @@ class GraspCalibration:
         self._begun_grasp = 0
         self.converged_after_s: Optional[float] = None
         self.requests = 0
+        self.replies = 0                           # answered or failed calls
         self._pending = False
         if self.client is not None:
             node.create_timer(0.1, self._request)
@@ -72,6 +73,7 @@ class GraspCalibration:
                  "'calibration converged' is logged")
 
     def _on_reply(self, future) -> None:
+        self.replies += 1
         try:
             reply = future.result()
         except Exception as exc:  # noqa: BLE001 - a failed call is reported, never raised

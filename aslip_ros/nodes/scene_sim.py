@@ -11,12 +11,22 @@ TF: ``world`` -> ``link_base`` (static identity: they coincide in the scene) and
 anyone listens on ``/tf``, the finger, object and TCP poses of each block as
 ``aslip_finger``, ``aslip_object`` and ``aslip_tcp`` (aslip_ros/frames.py).
 
+Lockstep (``lockstep``): the scene stops pacing itself against the wall clock. A driver in
+the same process (the closed-loop demo, ``benchmarks.demo_episode``) steps one block with
+:meth:`SceneSim.lockstep_block` once the graph has handled the one before, and publishes the
+simulated time on ``/clock`` with :meth:`SceneSim.lockstep_clock` when the block's estimate
+is due (the block's end plus the compute time charged for it); lockstep controllers step
+once per tick. A command that arrives then takes effect ``command_delay_s`` after that tick,
+inside the next block (which is stepped in pieces at each command), so the graph's latency
+is in the trial although nothing depends on the host's speed.
+
 For evaluation (the closed-loop demo) it can write the world's true trajectory, the wall
 contact and the slip onset to ``trajectory_out`` (``.npz``) when the run ends.
 """
 
 from __future__ import annotations
 
+import collections
 import json
 import threading
 import time
@@ -27,9 +37,10 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import String
 
-from aslip_ros import frames
+from aslip_ros import frames, topics
 from aslip_ros.control.arm import ArmError
 from aslip_ros.hw import sources
 from aslip_ros.hw.sources import world_metadata
@@ -46,6 +57,17 @@ def build_world(values: dict, prefix: str = ""):
         return sources.build_world(values, prefix)
     except ValueError as exc:
         raise c.ConfigError(str(exc)) from exc
+
+
+def merge_chunks(pieces: list):
+    """One chunk of consecutive pieces of the scene's stream (a block stepped in parts)."""
+    first = pieces[0]
+    w = [p.w_rel for p in pieces]
+    return type(first)(first.first_sample_index, first.t0,
+                       np.concatenate([p.audio for p in pieces]),
+                       [m for p in pieces for m in p.mocap], [s for p in pieces for s in p.tcp],
+                       np.concatenate([p.v_rel for p in pieces]),
+                       None if any(x is None for x in w) else np.concatenate(w))
 
 
 class PacedScene:
@@ -87,6 +109,10 @@ class PacedScene:
         self._blocks += 1
         return self.world.step(self.block_frames)
 
+    def step_frames(self, n: int):
+        """Advance ``n`` frames (a piece of a lockstep block); returns the scene chunk."""
+        return self.world.step(n)
+
     def stamp_ns(self, t_s: float) -> int:
         """ROS stamp of scene time ``t_s``."""
         return self.start_ns + int(round(t_s * 1e9))
@@ -112,6 +138,9 @@ class SceneSim(Node):
                     read_only=True),
             c.Param("frame_id", convert.SENSOR_FRAME, "audio frame id", c.non_empty,
                     read_only=True),
+            c.Param("lockstep", False, "step only when a driver in this process says the "
+                    f"graph has handled the last block, publishing {topics.CLOCK} (module "
+                    "docstring); false = real time", read_only=True),
             c.Param("start_with_subscriber", False, f"hold the scene's clock at 0 until "
                     f"{c.AUDIO_TOPIC} has a subscriber (a recorder), so a finite recording "
                     "loses no scene second to a recorder that starts late", read_only=True),
@@ -151,9 +180,20 @@ class SceneSim(Node):
         self._hold = bool(self.p["start_with_subscriber"])
         self.scene = PacedScene(self.world, self.block_frames,
                                 self.get_clock().now().nanoseconds)
-        # The stepping timer and the diagnostics timer never block each other.
-        self.create_timer(self.scene.block_s / 2.0, self._tick,
-                          callback_group=MutuallyExclusiveCallbackGroup())
+        self.lockstep = bool(self.p["lockstep"])
+        #: Lockstep: commands waiting for their time, ``(scene time [s], velocity)``; the
+        #: newest tick; the delay charged to each command after its tick [s].
+        self._queued: collections.deque = collections.deque()
+        self._tick_s = 0.0
+        self.command_delay_s = 0.0
+        self.tcp_published = 0
+        if self.lockstep:
+            self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, c.CLOCK_QOS)
+            self.lockstep_clock(0.0)
+        else:
+            # The stepping timer and the diagnostics timer never block each other.
+            self.create_timer(self.scene.block_s / 2.0, self._tick,
+                              callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(1.0, self._diagnose, callback_group=MutuallyExclusiveCallbackGroup())
         c.ready(self, f"scenario {self.world.scenario.kind}, {len(self.names)} channels at "
                       f"{fs:g} Hz, {self.block_frames}-frame blocks")
@@ -165,12 +205,56 @@ class SceneSim(Node):
     def _on_cmd(self, msg: TwistStamped) -> None:
         try:
             v = convert.twist_from_msg(msg)
-            with self._lock:
-                if float(np.linalg.norm(v)) == 0.0:
-                    self.world.arm.stop()
-                else:
-                    self.world.arm.send_velocity(v, self.cmd_timeout)
+            if self.lockstep:
+                self._queued.append((self._tick_s + self.command_delay_s, v))
+            else:
+                self._command(v)
             self.n_commands += 1
+        except (ArmError, ValueError) as exc:
+            self.n_rejected += 1
+            self.get_logger().warning(f"arm command refused: {exc}", throttle_duration_sec=1.0)
+
+    def _command(self, v: np.ndarray) -> None:
+        """Hand one velocity (zero: a stop) to the simulated arm."""
+        with self._lock:
+            if float(np.linalg.norm(v)) == 0.0:
+                self.world.arm.stop()
+            else:
+                self.world.arm.send_velocity(v, self.cmd_timeout)
+
+    # -- lockstep ------------------------------------------------------------------------------
+
+    def lockstep_clock(self, t_s: float) -> float:
+        """Publish scene time ``t_s`` on ``/clock`` (never backwards); returns the tick."""
+        self._tick_s = max(self._tick_s, float(t_s))
+        self.pub_clock.publish(ClockMsg(clock=convert.ns_to_stamp(
+            self.scene.stamp_ns(self._tick_s))))
+        return self._tick_s
+
+    def lockstep_block(self) -> bool:
+        """Step and publish one block, each queued command taking effect at its time
+        (the block is stepped in pieces there); False once ``duration_s`` is reached."""
+        limit = self.p["duration_s"]
+        if self._finished:
+            return False
+        if limit > 0.0 and self.world.t >= limit:
+            self._finish()
+            return False
+        fs, left, pieces = self.world.fs, self.block_frames, []
+        while left > 0:
+            while self._queued and self._queued[0][0] <= self.world.t + 0.5 / fs:
+                self._apply_queued(self._queued.popleft()[1])
+            n = left
+            if self._queued:
+                n = min(left, max(1, int(round((self._queued[0][0] - self.world.t) * fs))))
+            pieces.append(self.scene.step_frames(n))
+            left -= n
+        self._publish(pieces[0] if len(pieces) == 1 else merge_chunks(pieces))
+        return True
+
+    def _apply_queued(self, v: np.ndarray) -> None:
+        try:
+            self._command(v)
         except (ArmError, ValueError) as exc:
             self.n_rejected += 1
             self.get_logger().warning(f"arm command refused: {exc}", throttle_duration_sec=1.0)
@@ -207,11 +291,18 @@ class SceneSim(Node):
         self.pub_audio.publish(convert.audio_to_msg(
             chunk.first_sample_index, st(chunk.t0), self.world.fs, self.names, chunk.audio,
             self.meta.get("layout", ""), self.p["frame_id"]))
-        for m in chunk.mocap:
-            self.pub_finger.publish(convert.pose_to_msg(m.finger_pose, st(m.t), frames.WORLD))
-            self.pub_object.publish(convert.pose_to_msg(m.object_pose, st(m.t), frames.WORLD))
+        # The poses go out only to whoever listens (a recorder, mocap_bridge), as the TF
+        # frames below: an unmatched publisher would only serialize them for no one.
+        if self.pub_finger.get_subscription_count() or \
+                self.pub_object.get_subscription_count():
+            for m in chunk.mocap:
+                self.pub_finger.publish(convert.pose_to_msg(m.finger_pose, st(m.t),
+                                                            frames.WORLD))
+                self.pub_object.publish(convert.pose_to_msg(m.object_pose, st(m.t),
+                                                            frames.WORLD))
         for t, pose in chunk.tcp:
             self.pub_tcp.publish(convert.pose_to_msg(pose, st(t), frames.BASE))
+        self.tcp_published += len(chunk.tcp)
         if self.tf.wanted:
             tf = self._tf_msg
             self.tf.publish(

@@ -56,6 +56,17 @@ the first published estimates already come at the hop rate.
 Streaming checkpoints (``aslip_stream``): no window nor model thread, a
 SlipVector per 10 ms hop, state resets in ``stream_resets`` and ``last_reset_reason``.
 
+Falling behind (a machine too slow or too busy for the stream): the node degrades, it does
+not stall. A window model's waiting window is replaced by a newer one (``hops_superseded``
+above). A streaming model processes every block in the audio callback, so a backlog would
+make every later estimate later still: a block that reaches the node more than
+``max_lag_s`` later than the stream's usual delay (``aslip_ros.lag.LagMeter``: its stamps
+against this host's clock, where they are on it) is skipped instead, counted in
+``hops_skipped_behind`` (and ``dropped_behind``, with a throttled warning), and the stream
+restarts on the first block that is on time. Every estimate keeps the stamp of the audio it
+was computed from, so a controller judges its age truthfully. On simulated time
+(``use_sim_time``, lockstep) nothing is behind and nothing is skipped.
+
 Latency in the diagnostics, over the newest ``TIMING_SAMPLES`` published estimates (a
 streaming block that completes several hops counts once), each as ``_p50_ms``,
 ``_p99_ms``, ``_p999_ms`` (p99.9) and ``_max_ms``: ``latency_*``, the audio callback's
@@ -89,6 +100,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from aslip_ros import topics
+from aslip_ros.lag import LagMeter
 from aslip_ros.learn.inference.live import Estimate, Job, LiveConfig, LiveEstimator, load_predictor
 from aslip_ros.msg import AudioFrame, SlipVector
 from aslip_ros.nodes import common as c
@@ -165,6 +177,9 @@ def inference_params() -> list:
                 c.int_range(1, 64), read_only=True),
         c.Param("diagnostics_period_s", 1.0, "diagnostics period [s]",
                 c.in_range(0.05, 60.0), read_only=True),
+        c.Param("max_lag_s", 0.05, "streaming models: skip a block that arrives this much "
+                "later than the stream's usual delay (the node is behind) [s]; 0 = never",
+                c.off_or(0.0, c.in_range(0.005, 1.0), "never")),
         c.Param("dead_channel_margin_db", d.dead_channel_margin_db,
                 "withhold the estimate when a channel is this far below the median of "
                 "the others or digitally silent [dB]; 0 = no check",
@@ -206,6 +221,16 @@ class SlipInference(Node):
         self._job: Optional[tuple[Job, "_Handed"]] = None
         self._wake = threading.Condition(threading.Lock())
         self._stop = False
+        self._running = False                    # the model thread is on a window
+        #: Compute time of the newest block's estimates [s] (audio callback to published,
+        #: the model's queue wait excluded): what a lockstep driver may charge for it.
+        self.last_compute_s = 0.0
+        #: Falling behind (module docstring): off for window models and on simulated time.
+        sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._lag = LagMeter() if self.est.streaming and not sim_time else None
+        self._arrival_s = time.time
+        self.skipped_behind = 0
+        self.lag_s = 0.0
         self.pub_slip = self.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
         self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
         self.pub_calibration = self.create_publisher(String, topics.CALIBRATION, c.LATCHED_QOS)
@@ -247,6 +272,8 @@ class SlipInference(Node):
             self.est.set_max_time_jump(changed["max_time_jump_s"])
         if "marker_scale_s" in changed:
             self.p["marker_scale_s"] = changed["marker_scale_s"]
+        if "max_lag_s" in changed:
+            self.p["max_lag_s"] = changed["max_lag_s"]
         if "dead_channel_margin_db" in changed:
             self.est.dead_margin_db = float(changed["dead_channel_margin_db"])
 
@@ -326,6 +353,9 @@ class SlipInference(Node):
             self._report()
             return
         age = (wall_in - a.end_stamp_ns) * 1e-9 if wall_in else 0.0
+        if self._behind(a.end_stamp_ns):
+            self._report()
+            return
         estimates, job = self.est.accept(a)
         t_acc = time.perf_counter()
         self._report()
@@ -335,6 +365,7 @@ class SlipInference(Node):
             t_out = time.perf_counter()
             fwd = self.est.last_forward_s
             self.timing.add(age, 0.0, t_acc - t_in - fwd, fwd, t_out - t_acc, t_out - t_in)
+            self.last_compute_s = t_out - t_in
         if job is not None:
             handed = _Handed(t_in, age, t_acc - t_in, time.perf_counter())
             with self._wake:
@@ -342,6 +373,21 @@ class SlipInference(Node):
                     self.est.count_superseded()
                 self._job = (job, handed)
                 self._wake.notify()
+
+    def _behind(self, end_stamp_ns: int) -> bool:
+        """True when this block is skipped because the node is behind the stream."""
+        if self._lag is None:
+            return False
+        lag = self._lag.lag(self._arrival_s(), end_stamp_ns * 1e-9)
+        with self._lock:
+            self.lag_s = lag
+            limit = self.p["max_lag_s"]
+            if not (limit > 0.0 and lag > limit):
+                return False
+            self.skipped_behind += 1
+        self.est.drop("behind", f"{lag * 1e3:.0f} ms behind the stream (max_lag_s "
+                                f"{limit * 1e3:.0f} ms): block skipped, the stream restarts")
+        return True
 
     def _publish(self, e: Estimate, marker: bool = True) -> None:
         p = e.prediction
@@ -353,7 +399,8 @@ class SlipInference(Node):
         self.pub_slip.publish(out)
         with self._lock:
             self.published += 1
-        if marker:        # rviz needs only the newest arrow
+        # rviz needs only the newest arrow, and only when someone shows it.
+        if marker and self.pub_marker.get_subscription_count() > 0:
             self.pub_marker.publish(convert.slip_markers(out,
                                                          scale_s=self.p["marker_scale_s"]))
 
@@ -367,6 +414,7 @@ class SlipInference(Node):
                     return
                 job, h = self._job
                 self._job = None
+                self._running = True
             try:
                 t_run = time.perf_counter()
                 e = self.est.run(job)
@@ -378,10 +426,21 @@ class SlipInference(Node):
                     est = self.est
                     self.timing.add(h.age, t_run - h.handed, h.accept + est.last_features_s,
                                     est.last_forward_s, t_out - t_pub, t_out - h.t_in)
+                    self.last_compute_s = h.accept + (t_out - t_run)
             except Exception as exc:  # noqa: BLE001 - the thread must outlive a bad window
                 if self._stop:
                     return
                 self._internal_error(exc)
+            finally:
+                with self._wake:
+                    self._running = False
+                    self._wake.notify_all()
+
+    def idle(self) -> bool:
+        """True when no window waits for the model and the model thread is not on one (a
+        streaming model works in the audio callback: always idle between callbacks)."""
+        with self._wake:
+            return self._job is None and not self._running
 
     def destroy_node(self) -> None:
         """Stop the model thread, then destroy the node."""
@@ -398,7 +457,8 @@ class SlipInference(Node):
         with self._lock:
             arr = list(self.arrivals)
             values = {"blocks_received": self.blocks_in, "estimates_published": self.published,
-                      "model": self.source}
+                      "model": self.source, "hops_skipped_behind": self.skipped_behind,
+                      "lag_ms": self.lag_s * 1e3}
         rep = self.est.report()
         values.update(rep["values"])
         values.update({f"dropped_{k}": v for k, v in sorted(rep["drops"].items())})

@@ -111,7 +111,7 @@ class SlipStopNode(ControllerNode):
         self._stopped_at = None
         self._final_sent = False
         self.get_logger().info(f"wall push along {np.round(d, 4).tolist()} (link_base)")
-        return SlipStop(self.task_config(self.p, d))
+        return SlipStop(self.task_config(self.p, d), clock=self.now_s)
 
     def start_task(self, now: float) -> bool:
         """Start from the current (contact) TCP pose."""

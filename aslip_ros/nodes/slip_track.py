@@ -13,7 +13,6 @@ next slip (or, with ``stop_on_slip_end``, ends the task).
 
 from __future__ import annotations
 
-import time
 from typing import Optional
 
 from aslip_ros.control.slip_track import SlipTrack, SlipTrackConfig, TrackState
@@ -70,7 +69,7 @@ class SlipTrackNode(ControllerNode):
     def make_task(self):
         """A fresh SlipTrack controller."""
         self._t_start = None
-        return SlipTrack(self.task_config(self.p))
+        return SlipTrack(self.task_config(self.p), clock=self.now_s)
 
     def start_task(self, now: float) -> bool:
         """Start tracking."""
@@ -109,7 +108,7 @@ class SlipTrackNode(ControllerNode):
         if self.task.reason:
             out["stop_reason"] = self.task.reason
         if self._t_start is not None:
-            out["tracking_s"] = time.monotonic() - self._t_start
+            out["tracking_s"] = self.now_s() - self._t_start
         return out
 
 

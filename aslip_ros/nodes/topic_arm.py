@@ -40,6 +40,9 @@ class TopicArm:
         self._pose: Optional[np.ndarray] = None
         self._enabled = False
         self.commands = 0
+        #: Messages published, velocities and stops (a lockstep driver waits for the
+        #: receiver to have them all).
+        self.published = 0
 
     def connect(self) -> None:
         """Nothing to open: the topic exists once the publisher does."""
@@ -55,11 +58,13 @@ class TopicArm:
         now = self._node.get_clock().now().nanoseconds
         self._pub.publish(convert.twist_to_msg(v_xyz_m_s, now, self._frame))
         self.commands += 1
+        self.published += 1
 
     def stop(self) -> None:
         """Publish a zero twist (a stop)."""
         now = self._node.get_clock().now().nanoseconds
         self._pub.publish(convert.twist_to_msg([0.0, 0.0, 0.0], now, self._frame))
+        self.published += 1
 
     def set_pose(self, pose: np.ndarray) -> None:
         """Newest TCP pose from the TCP topic."""

@@ -38,7 +38,6 @@ class TestSlipStop(unittest.TestCase):
         probe = PROBE["probe"] = lc.Probe(domain, lc.closed_loop_topics())
         result = probe.wait_for(lambda: lc.final_slip_stop_result(probe), RESULT_TIMEOUT_S,
                                 "final slip-stop result")
-        t_final = time.monotonic()
         print(f"slip_stop result: {result}", flush=True)
         self.assertIn(result["reason"], lc.slip_stop_reasons())
         self.assertIsInstance(result["success"], bool)
@@ -46,7 +45,7 @@ class TestSlipStop(unittest.TestCase):
         lc.assert_arm_commanded(probe)
         self.assertGreater(len(probe.messages("slip")), 100, "slip estimates")
         time.sleep(1.0)
-        lc.assert_no_motion_after(probe, t_final)
+        lc.assert_no_motion_after_stop(probe)
 
 
 @lc.post_shutdown_test()
@@ -63,8 +62,7 @@ class TestShutdown(unittest.TestCase):
         probe = PROBE.get("probe")
         self.assertIsNotNone(probe, "the active test did not run")
         try:
-            t_final = lc.final_result_time(probe)
-            self.assertIsNotNone(t_final, "no final result")
-            lc.assert_no_motion_after(probe, t_final)
+            self.assertIsNotNone(lc.final_result_time(probe), "no final result")
+            lc.assert_no_motion_after_stop(probe)
         finally:
             probe.close()

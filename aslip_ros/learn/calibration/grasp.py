@@ -146,6 +146,21 @@ def frame_stats(frames: np.ndarray, k: CalibrationConstants
 
     ``frames``: log-mel ``(C, M, T)`` (natural-log power, as ``features.LogMel`` gives).
     """
+    return _frame_stats(frames, k, _GateArrays(k))
+
+
+class _GateArrays:
+    """The constants ``frame_stats`` reads, as arrays (built once per state, not per hop)."""
+
+    def __init__(self, k: CalibrationConstants) -> None:
+        self.mean = np.asarray(k.gate_mean, dtype=np.float64)
+        self.std = np.asarray(k.gate_std, dtype=np.float64)
+        self.coef = np.asarray(k.gate_coef, dtype=np.float64)
+
+
+def _frame_stats(frames: np.ndarray, k: CalibrationConstants, g: _GateArrays
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``frame_stats`` with the gate's arrays already built."""
     x = np.asarray(frames, dtype=np.float64)
     if x.ndim != 3 or x.shape[0] != len(k.channel_names) or x.shape[1] != k.n_mels:
         raise ValueError(f"frames must be ({len(k.channel_names)}, {k.n_mels}, T), got "
@@ -156,8 +171,8 @@ def frame_stats(frames: np.ndarray, k: CalibrationConstants
     level = (top + np.log(np.exp(x - top).sum(axis=1, keepdims=True)))[:, 0, :]   # (C, T)
     mean_level = level.mean(axis=0)
     dev = level - mean_level
-    z = (x.mean(axis=0).T - np.asarray(k.gate_mean)) / np.asarray(k.gate_std)      # (T, M)
-    logit = z @ np.asarray(k.gate_coef) + k.gate_bias
+    z = (x.mean(axis=0).T - g.mean) / g.std                                       # (T, M)
+    logit = z @ g.coef + k.gate_bias
     p = 1.0 / (1.0 + np.exp(-np.clip(logit, -50.0, 50.0)))
     active = mean_level > k.floor_level
     return dev, p, active
@@ -180,6 +195,7 @@ class CalibrationState:
     def __init__(self, constants: CalibrationConstants) -> None:
         self.k = constants
         self._ref = np.asarray(constants.ref_offset, dtype=np.float64)
+        self._gate = _GateArrays(constants)
         self.reset()
 
     def reset(self) -> None:
@@ -192,7 +208,7 @@ class CalibrationState:
 
     def update(self, frames: np.ndarray) -> np.ndarray:
         """Consume new log-mel frames ``(C, M, T)`` (each frame once); return the offsets."""
-        dev, p, active = frame_stats(frames, self.k)
+        dev, p, active = _frame_stats(frames, self.k, self._gate)
         w = frame_weights(p, active, self.k)
         self.weight += float(w.sum())
         self._sum += (dev - self._ref[:, None]) @ w

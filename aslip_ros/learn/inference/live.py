@@ -27,12 +27,19 @@ like any non-finite estimate.
 model thread (``run``) and publishes; evaluation and the closed-loop demo call ``feed``,
 which runs the job at once, so what is measured offline is what runs live.
 
+Per hop, a CNN window reuses the log-mel frames it shares with the windows before it
+(``features.SlidingLogMel``: equal to the backend's ``LogMel`` of the whole window, which
+training uses, to float rounding; tested on scene audio): a job carries where its window
+lies in the stream since the window last restarted (``Job.start``, ``Job.epoch``), and
+``run`` computes only the frames no earlier window held, plus the first, which reads the
+zeros before the window. Other window models featurise each window whole.
+
 Timing (for the callers' tail-latency figures; nothing here changes a result): ``run`` and
 a streaming ``accept`` leave the model's share of their time in ``last_forward_s`` and, for
 ``run``, the rest (dead-channel check, log-mel features, calibration offsets) in
-``last_features_s``. The split comes from timing the backend's log-mel call (window
-models that have one) and the streaming stepper's ``step`` (``_Timed``): a window model
-without a log-mel call counts its features as forward.
+``last_features_s``. The split comes from timing the log-mel features (the sliding ones, or
+the backend's log-mel call) and the streaming stepper's ``step`` (``_Timed``): a window
+model without a log-mel call counts its features as forward.
 """
 
 from __future__ import annotations
@@ -48,12 +55,12 @@ from typing import Any, Optional
 import numpy as np
 
 from aslip_ros.learn.checkpoint import Checkpoint, load_checkpoint
-from aslip_ros.learn.features import LogMel
+from aslip_ros.learn.features import LogMel, SlidingLogMel
 from aslip_ros.learn.inference.audio_window import RingBuffer, StreamGate
 from aslip_ros.learn.inference.channel_check import DEAD_MARGIN_DB, dead_channels
 from aslip_ros.learn.inference.predictor import Prediction, Predictor
 from aslip_ros.learn.inference.stream_predictor import DEFAULT_MAX_TIME_JUMP_S, StreamingPredictor
-from aslip_ros.learn.models.registry import model_backend
+from aslip_ros.learn.models.registry import CNN, model_backend
 
 #: direction_sigma [rad] while the per-grasp calibration has not converged: uninformative.
 UNCONVERGED_DIRECTION_SIGMA = float(np.pi)
@@ -102,6 +109,10 @@ class Job:
     stamp_ns: int                 # end of the window
     offsets: Optional[np.ndarray]  # per-grasp calibration as of the window's end
     converged: bool
+    #: the window's first sample, counted from the window's last restart (None: unknown,
+    #: the window is featurised whole)
+    start: Optional[int] = None
+    epoch: int = 0                 # which restart ``start`` counts from
 
 
 @dataclass
@@ -157,6 +168,17 @@ class _Timed:
         return out
 
 
+def _sliding_features(predictor: Any) -> Optional[SlidingLogMel]:
+    """The sliding log-mel of a CNN checkpoint's windows (None for any other model: only
+    the CNN's ``predict`` is its ``infer_features`` of ``LogMel`` less the offsets)."""
+    backend = getattr(predictor, "backend", None)
+    logmel = getattr(backend, "logmel", None)
+    if predictor.model_type != CNN or not isinstance(logmel, LogMel) \
+            or not hasattr(backend, "infer_features"):
+        return None
+    return SlidingLogMel(logmel, predictor.window_samples)
+
+
 def _time_model(predictor: Any, streaming: bool) -> Optional[_Timed]:
     """Wrap the model's own compute (the stepper of a streaming predictor; a window
     backend's log-mel features) so its time can be told from the rest."""
@@ -191,11 +213,15 @@ class LiveEstimator:
         # ``accept`` (the audio thread) and ``run`` (a model thread) share the bookkeeping.
         self._lock = threading.RLock()
         self._since_hop = 0
+        self._pushed = 0                   # samples into the window since its last restart
+        self._epoch = 0                    # window restarts so far
         self._announced_converged = False
         #: Timing of the last ``run`` (window models) or streaming block [s]: see the module
         #: docstring. Each is written and read on the thread that runs the model.
         self.last_features_s = 0.0
         self.last_forward_s = 0.0
+        self._sliding = None if self.streaming else _sliding_features(predictor)
+        self._sliding_lock = threading.Lock()
         self._timed = _time_model(predictor, self.streaming)
         if self.streaming:
             predictor.warm_up()
@@ -302,6 +328,8 @@ class LiveEstimator:
             self.ring.reset()
             self.predictor.reset_calibration()
             self._since_hop = 0
+            self._pushed = 0
+            self._epoch += 1
         self._announced_converged = False
         self._event("restart", reason)
 
@@ -365,12 +393,13 @@ class LiveEstimator:
         pr.push_audio(a.block)
         self._note_convergence()
         self._since_hop += a.frames
+        self._pushed += a.frames
         if self.ring.filled < self.ring.length or self._since_hop < self.hop_frames:
             return None
         # Several hops inside one block: one estimate on the newest window is what matters.
         self._since_hop %= self.hop_frames
         return Job(self.ring.window().copy(), int(a.end_stamp_ns), pr.calibration_offsets(),
-                   self.calibration_converged)
+                   self.calibration_converged, self._pushed - self.ring.length, self._epoch)
 
     def _dead(self, audio: np.ndarray) -> list[str]:
         margin = self.dead_margin_db
@@ -428,15 +457,15 @@ class LiveEstimator:
         dead = dead_channels(job.window, self.predictor.channel_names, margin) \
             if margin > 0 else []
         t1 = time.perf_counter()
-        problem, pred = "", None
+        problem, pred, features = "", None, 0.0
         if not dead:
             try:
-                pred = self.predictor.predict(job.window, job.offsets)
+                pred, features = self._predict(job)
             except ValueError as exc:
                 problem = str(exc)
             if pred is not None and not _finite(pred):
                 problem = f"non-finite estimate {pred}"
-        features = self._timed.take() if self._timed is not None else 0.0
+        features += self._timed.take() if self._timed is not None else 0.0
         self.last_features_s = t1 - t0 + features
         self.last_forward_s = time.perf_counter() - t1 - features
         with self._lock:
@@ -451,6 +480,18 @@ class LiveEstimator:
         sigma = UNCONVERGED_DIRECTION_SIGMA if job.offsets is not None and not job.converged \
             else pred.direction_sigma
         return Estimate(job.stamp_ns, pred, sigma)
+
+    def _predict(self, job: Job) -> tuple[Prediction, float]:
+        """The model's estimate of ``job`` and the seconds its sliding features took (0.0
+        when the backend featurised the window itself)."""
+        if self._sliding is None or job.start is None:
+            return self.predictor.predict(job.window, job.offsets), 0.0
+        t0 = time.perf_counter()
+        with self._sliding_lock:
+            feats = self._sliding(job.window, job.start, job.epoch)
+        t1 = time.perf_counter()
+        offsets = None if job.offsets is None else np.asarray(job.offsets)[None]
+        return self.predictor.predict_features(feats[None], offsets)[0], t1 - t0
 
     def feed(self, a) -> list[Estimate]:
         """``accept`` and, for a window model, ``run`` at once: every estimate of the block."""

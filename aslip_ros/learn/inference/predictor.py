@@ -122,6 +122,7 @@ class Predictor(CheckpointFacts):
         self.angular_sigma_model = angular_sigma_model(meta)
         self.calibration: CalibrationConstants | None = None
         self._stream_cal: StreamCalibration | None = None
+        self._stream_ok: tuple | None = None    # (rate, names) of the last stream passed
         if meta.get("calibration") is not None:
             self.calibration = CalibrationConstants.from_dict(meta["calibration"])
             self._check_calibration(ckpt.sample_rate, ckpt.channel_names)
@@ -163,10 +164,17 @@ class Predictor(CheckpointFacts):
         return t
 
     def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
-        """Raise CheckpointMismatch (a ValueError) unless the stream matches the training."""
+        """Raise CheckpointMismatch (a ValueError) unless the stream matches the training.
+
+        The last stream that passed is remembered: the live path checks every block, and
+        the calibration's check builds a featuriser."""
+        key = (float(sample_rate), tuple(channel_names))
+        if key == self._stream_ok:
+            return
         check_compatible(self.meta, sample_rate, channel_names)
         if self.calibration is not None:
             self._check_calibration(sample_rate, channel_names)
+        self._stream_ok = key
 
     def _check_calibration(self, sample_rate: float, channel_names: Sequence[str]) -> None:
         try:
@@ -273,14 +281,22 @@ class Predictor(CheckpointFacts):
                              f"{None if w is None else w.shape}")
         return p, v, w
 
-    def predict_features(self, feats: np.ndarray) -> BatchPrediction:
-        """Log-mel features (B, C, M, T) from ``LogMel`` (e.g. a training cache), for a
-        model that reads them (the CNN)."""
+    def predict_features(self, feats: np.ndarray,
+                         offsets: np.ndarray | None = None) -> BatchPrediction:
+        """Log-mel features (B, C, M, T) from ``LogMel`` (e.g. a training cache, or the live
+        ``SlidingLogMel``), for a model that reads them (the CNN); ``offsets`` ``(B, C)``:
+        the per-grasp calibration removed from them first, as ``predict_batch`` does."""
         infer = getattr(self.backend, "infer_features", None)
         if infer is None:
             raise ValueError(f"predict_features needs a model that reads log-mel features; "
                              f"{self.model_type!r} does not")
         feats = np.asarray(feats, dtype=np.float32)
+        if offsets is not None:
+            offsets = np.asarray(offsets, dtype=np.float32)
+            if offsets.shape != feats.shape[:2] or not np.isfinite(offsets).all():
+                raise ValueError(f"offsets must be finite, shaped {feats.shape[:2]}, got "
+                                 f"{offsets.shape}")
+            feats = feats - offsets[:, :, None, None]
         return self._gate(*self._checked(infer(feats), feats.shape[0]))
 
     def _gate(self, prob: np.ndarray, raw: np.ndarray,

@@ -92,6 +92,7 @@ class StreamingPredictor(CheckpointFacts):
         # after the calibration frames complete by its last sample.
         self.calibration: CalibrationConstants | None = None
         self._cal: StreamCalibration | None = None
+        self._stream_ok: tuple | None = None    # (rate, names) of the last stream passed
         if ckpt.meta.get("calibration") is not None:
             self.calibration = CalibrationConstants.from_dict(ckpt.meta["calibration"])
             self._check_calibration(ckpt.channel_names)
@@ -157,10 +158,15 @@ class StreamingPredictor(CheckpointFacts):
         return t
 
     def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
-        """CheckpointMismatch unless rate and channel names (in order) match the training."""
+        """CheckpointMismatch unless rate and channel names (in order) match the training
+        (the last stream that passed is remembered: the live path checks every block)."""
+        key = (float(sample_rate), tuple(channel_names))
+        if key == self._stream_ok:
+            return
         check_compatible(self.meta, sample_rate, channel_names)
         if self.calibration is not None:
             self._check_calibration(channel_names)
+        self._stream_ok = key
 
     def reset(self, reason: str = "reset") -> None:
         """Forget the audio history, the recurrent state and the grasp's calibration."""
