@@ -120,6 +120,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pivot-set", action="append", default=[], metavar="NAME=VALUE",
                    help="any pivot-stop setting (a PivotSettings field, e.g. "
                         "pivot_lever_m=0.08); repeatable")
+    p.add_argument("--hogs", type=int, default=0,
+                   help="run beside this many CPU-busy processes (a machine at about half "
+                        "speed on 2 cores), as make latency's --hogs")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -330,8 +333,9 @@ def tables_md(table: dict, ok: list[dict]) -> str:
 
 def _notes(summary: dict) -> str:
     m = summary["meta"]
+    beside = f", beside {m['hogs']} CPU hogs" if m.get("hogs") else ""
     lines = ["", f"Wall time {m.get('wall_s', float('nan')):.0f} s with {m['workers']} "
-             f"workers on {m['cpus']} CPUs (load average at the start "
+             f"workers on {m['cpus']} CPUs{beside} (load average at the start "
              f"{m.get('load_start', 'n/a')}, at the end {m.get('load_end', 'n/a')}).",
              f"Episodes that fell behind real time (scene blocks skipped): "
              f"{m.get('episodes_behind', 0)}; trials repeated after a watchdog stop on "
@@ -392,6 +396,26 @@ def run(args: argparse.Namespace) -> int:
     eps = plan_episodes(tasks, methods, objects, args.trials, models, stop, track, pivot,
                         pivot_methods, arms, args.mode, args.charge)
     out = Path(args.out)
+    from benchmarks.tail_latency import start_hogs, stop_hogs
+    hogs = start_hogs(args.hogs)
+    try:
+        return _run_planned(args, t0, eps, models, used, out, asked_meta(
+            tasks, methods, objects, stop, track, pivot, pivot_methods, arms))
+    finally:
+        stop_hogs(hogs)
+
+
+def asked_meta(tasks, methods, objects, stop, track, pivot, pivot_methods, arms) -> dict:
+    """What the run was asked, for ``summary.json``'s ``meta``."""
+    return {"tasks": tasks, "methods": methods, "objects": objects,
+            "stop_settings": asdict(stop), "track_settings": asdict(track),
+            "pivot_settings": asdict(pivot), "pivot_methods": pivot_methods,
+            "pivot_arms": arms}
+
+
+def _run_planned(args, t0: float, eps: list, models: dict, used: list, out: Path,
+                 asked: dict) -> int:
+    """Choose the workers, run the episodes, write the outputs."""
     load0 = _load()
     workers, headroom = choose_workers(args, [str(models[m]) for m in used])
     if workers < 1:
@@ -403,14 +427,12 @@ def run(args: argparse.Namespace) -> int:
           f"{models['source']}", file=sys.stderr, flush=True)
     t_run = time.perf_counter()
     results = run_episodes(eps, workers, out / "episodes", not args.no_progress)
-    meta = {"command": _command_line(), "tasks": tasks, "methods": methods, "objects": objects,
-            "mode": args.mode, "charge": args.charge if args.mode == "lockstep" else None,
+    meta = {"command": _command_line(), **asked, "hogs": args.hogs, "mode": args.mode,
+            "charge": args.charge if args.mode == "lockstep" else None,
             "lockstep_budget_s": LOCKSTEP_BUDGET_S if args.mode == "lockstep" else None,
             "headroom": headroom,
             "trials": args.trials, "workers": workers, "cpus": os.cpu_count(),
-            "stop_settings": asdict(stop), "track_settings": asdict(track),
-            "pivot_settings": asdict(pivot), "pivot_methods": pivot_methods,
-            "pivot_arms": arms, "checkpoints": {m: str(models[m]) for m in used},
+            "checkpoints": {m: str(models[m]) for m in used},
             "models_source": models["source"], "model_test_metrics": models.get("test_metrics"),
             "scene_version": demo_models.scene_version(), "host": platform.node(),
             "episodes_s": round(time.perf_counter() - t_run, 1),
@@ -440,11 +462,14 @@ def choose_workers(args, checkpoints: list[str]) -> tuple[int, Optional[dict]]:
     from aslip_ros.bringup import realtime
     reports = [realtime.measure(ck) for ck in checkpoints]
     episode = {ck: episode_cores(ck) for ck in checkpoints}
-    middleware = max(0.0, max(episode[r.checkpoint] - r.worker_cores for r in reports))
+    middleware = round(max(0.0, max(episode[r.checkpoint] - r.worker_cores
+                                     for r in reports)), 2)
     n = realtime.demo_workers(reports, middleware_cores=middleware)
     doc = {"workers": n, "reports": [r.to_dict() for r in reports],
            "episode_cores": episode, "middleware_cores": middleware,
            "why": realtime.workers_line(n, reports, middleware_cores=middleware)}
+    for r in reports:
+        print(f"[demo] headroom: {r.text()}", file=sys.stderr, flush=True)
     print(f"[demo] headroom: {doc['why']}", file=sys.stderr, flush=True)
     return n, doc
 

@@ -106,6 +106,12 @@ class SimArm:
         self._deadline = self._world.t + float(duration_s)
         self.n_commands += 1
 
+    def holds(self, v_xyz_m_s: np.ndarray, until_s: float) -> bool:
+        """True when the arm is commanded exactly ``v_xyz_m_s``, non-zero, until at least
+        scene time ``until_s``: the same command sent then changes nothing before it."""
+        v = np.asarray(v_xyz_m_s, dtype=float)
+        return bool(np.any(v) and np.array_equal(v, self._cmd) and self._deadline > until_s)
+
     def stop(self) -> None:
         """Command zero velocity now (the lag still applies, as on a real arm)."""
         self._cmd = np.zeros(3)
