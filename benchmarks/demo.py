@@ -462,8 +462,8 @@ def choose_workers(args, checkpoints: list[str]) -> tuple[int, Optional[dict]]:
     from aslip_ros.bringup import realtime
     reports = [realtime.measure(ck) for ck in checkpoints]
     episode = {ck: episode_cores(ck) for ck in checkpoints}
-    middleware = round(max(0.0, max(episode[r.checkpoint] - r.worker_cores
-                                     for r in reports)), 2)
+    extra = max(episode[r.checkpoint] - r.worker_cores for r in reports)
+    middleware = round(max(0.0, extra), 2)
     n = realtime.demo_workers(reports, middleware_cores=middleware)
     doc = {"workers": n, "reports": [r.to_dict() for r in reports],
            "episode_cores": episode, "middleware_cores": middleware,

@@ -47,7 +47,10 @@ from aslip_ros.nodes.controller import arm_params
 
 #: The controllers' parameters that have nothing to act on here: no slip input, no model
 #: to recalibrate. The rest (arm choice and limits, rates, timeouts) are shared.
-_SLIP_ONLY = ("slip_timeout_s", "slip_topic", "start_after_messages", "recalibrate_service")
+#: The controllers' parameters that robot_sweeps has no use for (it runs on the wall clock:
+#: no lockstep mode).
+_SLIP_ONLY = ("slip_timeout_s", "slip_topic", "start_after_messages", "recalibrate_service",
+              "lockstep")
 
 
 def _arm(v) -> Optional[str]:
