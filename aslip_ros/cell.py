@@ -23,8 +23,9 @@ import yaml
 #: The nodes that drive the arm: each gets the ``arm`` section.
 ARM_NODES = ("slip_stop", "slip_track", "robot_sweeps")
 #: The keys of ``arm``.
-ARM_KEYS = ("arm", "xarm_ip", "arm_max_speed_m_s", "xarm_connect_timeout_s",
-            "arm_workspace_min_m", "arm_workspace_max_m", "grasp_plane_in_tcp",
+ARM_KEYS = ("arm", "xarm_ip", "arm_max_speed_m_s", "arm_max_acc_m_s2",
+            "xarm_connect_timeout_s", "arm_workspace_min_m", "arm_workspace_max_m",
+            "grasp_plane_in_tcp",
             "control_rate_hz", "command_duration_s")
 #: Node sections a cell file may have.
 NODE_SECTIONS = ("audio_capture", "mocap_bridge", "slip_inference") + ARM_NODES

@@ -265,7 +265,8 @@ def test_the_shipped_yaml_holds_the_nodes_defaults():
     doc = yaml.safe_load((ROOT / "config" / "robot_sweeps.yaml").read_text())
     values = doc["robot_sweeps"]["ros__parameters"]
     # Every parameter but the arm's limits, which the file leaves to ArmLimits (written once).
-    limits = {"arm_max_speed_m_s", "arm_workspace_min_m", "arm_workspace_max_m"}
+    limits = {"arm_max_speed_m_s", "arm_max_acc_m_s2", "arm_workspace_min_m",
+              "arm_workspace_max_m"}
     assert set(values) == set(declared) - limits and limits <= set(declared)
     for name, value in values.items():
         default = declared[name].default

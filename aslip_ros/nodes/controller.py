@@ -61,6 +61,10 @@ def limit_params() -> list:
         c.from_config(ArmLimits, "max_speed_m_s", "TCP speed limit of the xArm and of "
                       "module.path arms [m/s]", c.in_range(1e-4, 1.0), read_only=True,
                       prefix=LIMIT_PREFIX),
+        c.from_config(ArmLimits, "max_acc_m_s2", "limit on the change of the commanded TCP "
+                      "velocity of the xArm and of module.path arms [m/s^2] (a stop is never "
+                      "delayed by it)", c.in_range(1e-3, 50.0), read_only=True,
+                      prefix=LIMIT_PREFIX),
         c.from_config(ArmLimits, "workspace_min_m", "workspace lower corner of the xArm and "
                       "of module.path arms (link_base) [m]", c.vector3(allow_empty=True),
                       read_only=True, prefix=LIMIT_PREFIX),
