@@ -228,3 +228,14 @@ def test_measured_calibration_is_the_held_objects_offset(rclpy_context, ros_env)
     for m in (m for m in got if motion_s(m) > slide_s):
         assert m.slipping
         assert (m.velocity.x, m.velocity.z) == pytest.approx((v[0], v[2]), abs=1e-6)
+
+
+def test_a_bridge_without_poses_says_which_streams_it_waits_for(ros_env):
+    """Issue #34: mocap_bridge logged nothing while no pose arrived, so a lab with a wrong
+    topic name saw a silent node. It names the streams it still waits for (every
+    ``WAITING_LOG_S``), and stops once both arrive (the other tests here feed them)."""
+    params = {"finger_topic": "/lab/finger_body/pose", "object_topic": "/lab/object_body/pose"}
+    with NodeProcess("mocap_bridge", ros_env, params) as node:
+        node.wait_ready()
+        assert node.wait_for("waiting for poses on /lab/finger_body/pose (finger) and "
+                             "/lab/object_body/pose (object)", 30.0), node.output

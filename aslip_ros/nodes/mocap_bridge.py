@@ -81,6 +81,10 @@ def bridge_params() -> list:
     ]
 
 
+#: How often mocap_bridge says which pose streams it is still waiting for [s].
+WAITING_LOG_S = 5.0
+
+
 class MocapBridge(Node):
     """Ground-truth slip from motion capture."""
 
@@ -199,6 +203,10 @@ class MocapBridge(Node):
             arrivals = list(self._arrival.values())
             if any(a is None for a in arrivals):
                 self.state = "waiting for poses"
+                missing = [f"{self.p[which + '_topic']} ({which})"
+                           for which, t in self._arrival.items() if t is None]
+                self.get_logger().info(f"waiting for poses on {' and '.join(missing)}",
+                                       throttle_duration_sec=WAITING_LOG_S)
                 return
             age = now - min(arrivals)
             if age > self.p["stale_timeout_s"]:
