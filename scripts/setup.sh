@@ -99,9 +99,23 @@ if env -u PYTHONPATH "$VENV/bin/python" -c 'import tf2_msgs.msg' 2>/dev/null; th
 else
   ln -sfn ../../compat/tf2_msgs .colcon/src/tf2_msgs
 fi
+# Optional message packages of the drivers labs run beside the package (ASLIP_DRIVER_MSGS:
+# space-separated package folders, e.g. audio_common_msgs and the test stand-in
+# test/msgs/mocap4r2_msgs). They are built beside aslip_ros so the driver tests can speak
+# the drivers' own messages; without them the package builds and runs as before.
+extra_keys=""
+for link in .colcon/src/*; do
+  case "$(basename "$link")" in aslip_ros|tf2_msgs) ;; *) [ -L "$link" ] && rm -f "$link" ;; esac
+done
+for pkg in ${ASLIP_DRIVER_MSGS:-}; do
+  dir="$(cd "$pkg" 2>/dev/null && pwd)" || { echo "[setup] ASLIP_DRIVER_MSGS: no folder $pkg" >&2; exit 1; }
+  name="$(basename "$dir")"
+  ln -sfn "$dir" ".colcon/src/$name"
+  extra_keys+="$name $(cat "$dir"/package.xml "$dir"/CMakeLists.txt "$dir"/msg/*.msg | sha256sum)"
+done
 build_key="$( (cat package.xml CMakeLists.txt msg/*.msg compat/tf2_msgs/msg/*.msg \
   compat/tf2_msgs/package.xml compat/tf2_msgs/CMakeLists.txt; \
-  { readlink .colcon/src/tf2_msgs || true; }; find aslip_ros launch config -type f \
+  { readlink .colcon/src/tf2_msgs || true; }; echo "$extra_keys"; find aslip_ros launch config -type f \
   -not -name '*.pyc' | LC_ALL=C sort) | sha256sum | cut -d' ' -f1)"
 # A stale install keeps a matching build key: after .colcon/ was removed its symlinks dangle,
 # after the checkout moved they (and CMake's cache) name the old place. Then rebuild it.
@@ -120,7 +134,7 @@ fi
 if [ -n "$stale" ]; then
   say "the install in install/ is stale ($stale): rebuilding"
   # build/ also holds other tools' folders (build/ros2-launch): only colcon's are removed.
-  rm -rf install build/aslip_ros build/tf2_msgs
+  rm -rf install build/aslip_ros build/tf2_msgs build/*_msgs
 fi
 if [ "$(cat install/.aslip-build 2>/dev/null)" != "$build_key" ] || [ ! -f install/setup.bash ]; then
   say "building the package with colcon into install/"
