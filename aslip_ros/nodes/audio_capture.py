@@ -13,7 +13,10 @@ opened by its factory in :data:`aslip_ros.hw.audio_source.SOURCES`, or by
   WavReplay`).
 - ``bag``: the AudioFrame messages of a rosbag2 bag, replayed in real time and restamped.
 - ``topic``: another driver's AudioFrames on ``input_topic`` (:mod:`.topic_audio`), checked
-  against ``sample_rate`` and ``channel_names``.
+  against ``sample_rate`` and ``channel_names``; with ``input_type:=audio_common``,
+  audio_common's ``AudioDataStamped`` in the format of its latched ``AudioInfo`` (on
+  ``info_topic``): its rate and channel count, published once it has come (the metadata
+  too), while the diagnostics name what the source waits for or why it refuses the audio.
 
 A lifecycle node (it owns hardware): ``configure`` opens the source (a missing device fails
 the transition with the list of inputs), ``activate`` starts streaming, ``deactivate``
@@ -52,7 +55,7 @@ from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.scene_params import scene_params
-from aslip_ros.nodes.topic_audio import open_topic
+from aslip_ros.nodes.topic_audio import INPUT_TYPES, open_topic
 from aslip_ros.scene.layouts import DEFAULT_LAYOUT, LAYOUTS
 
 #: Sources by name: the ROS-free ones of hw/ and the topic bridge.
@@ -86,7 +89,13 @@ class AudioCapture(LifecycleNode):
                     read_only=True),
             c.Param("device", "", "device: PortAudio name (substring) or index; '' = default",
                     read_only=True),
-            c.Param("input_topic", "", "topic: AudioFrame topic to bridge", read_only=True),
+            c.Param("input_topic", "", "topic: topic to bridge (AudioFrame, or audio_common's "
+                    "AudioDataStamped)", read_only=True),
+            c.Param("input_type", "aslip", "topic: aslip (AudioFrame) or audio_common "
+                    "(AudioDataStamped + AudioInfo; needs the driver's format:=wave)",
+                    c.one_of(*INPUT_TYPES), read_only=True),
+            c.Param("info_topic", "", "topic, audio_common: AudioInfo topic ('' = audio_info "
+                    "beside input_topic)", read_only=True),
             c.Param("channels", 4, "device: channel count",
                     c.int_range(1, 64), read_only=True),
             c.Param("sample_rate", 48000.0, "device, topic: sample rate [Hz]",
@@ -155,6 +164,8 @@ class AudioCapture(LifecycleNode):
             return "source bag needs bag_path"
         if v["source"] == "topic" and not v["input_topic"]:
             return "source topic needs input_topic"
+        if v["input_type"] == "audio_common" and v["source"] != "topic":
+            return "input_type audio_common is for source topic"
         return None
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -169,7 +180,8 @@ class AudioCapture(LifecycleNode):
             self._diagnose()
             return TransitionCallbackReturn.FAILURE
         self.error = ""
-        self.pub_meta.publish(String(data=json.dumps(self.meta)))
+        if self.rate:           # else it goes out with the stream's format (_learn_format)
+            self.pub_meta.publish(String(data=json.dumps(self.meta)))
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state) -> TransitionCallbackReturn:
@@ -228,7 +240,7 @@ class AudioCapture(LifecycleNode):
         self.layout = opened.layout
         self.finite = opened.finite
         self.names = list(src.channel_names)
-        self.rate = float(src.sample_rate)
+        self.rate = float(src.sample_rate)     # 0 until a stream's AudioInfo says it
         return src, meta
 
     def _pump(self) -> None:
@@ -248,6 +260,8 @@ class AudioCapture(LifecycleNode):
                     self.finished = True
                     self.get_logger().info("end of replay")
                     break
+                if _held_back(src):         # silent on purpose: no stall, now or later
+                    last_block = time.monotonic()
                 self._check_stall(time.monotonic() - last_block)
                 continue
             last_block = time.monotonic()
@@ -256,9 +270,20 @@ class AudioCapture(LifecycleNode):
                 self.stalled = 0.0
                 self._diagnose()
             if fresh:
+                self._learn_format(src)
                 self._rebase(block)
                 fresh = False
             self._publish(block)
+
+    def _learn_format(self, src) -> None:
+        """A source that learns its format from the stream (audio_common's AudioInfo)
+        knows it by its first block: the metadata goes out with it then."""
+        rate, names = float(src.sample_rate), list(src.channel_names)
+        if (rate, names) == (self.rate, self.names):
+            return
+        self.rate, self.names = rate, names
+        self.meta.update(sample_rate=rate, channel_names=names)
+        self.pub_meta.publish(String(data=json.dumps(self.meta)))
 
     def _check_stall(self, silent_s: float) -> None:
         if silent_s < self.p["stall_timeout_s"]:
@@ -341,6 +366,10 @@ class AudioCapture(LifecycleNode):
             values["stream_latency_ms"] = stream_latency * 1e3
         if self.error:
             level, message = c.Diagnostics.ERROR, self.error
+        elif getattr(self.src, "refusal", ""):
+            level, message = c.Diagnostics.ERROR, self.src.refusal
+        elif getattr(self.src, "waiting_for", ""):
+            level, message = c.Diagnostics.WARN, f"waiting for {self.src.waiting_for}"
         elif self.stalled and self._running.is_set():
             level, message = c.Diagnostics.ERROR, (f"no audio for {self.stalled:.2f} s: the "
                                                    "source stopped delivering")
@@ -355,6 +384,12 @@ class AudioCapture(LifecycleNode):
         else:
             level, message = c.Diagnostics.OK, "streaming"
         self.diag.publish(level, message, values)
+
+
+def _held_back(src) -> bool:
+    """Whether ``src`` publishes nothing on purpose (it waits for its format, or refuses
+    the stream): its diagnostics say why, and silence is no stall."""
+    return bool(getattr(src, "refusal", "") or getattr(src, "waiting_for", ""))
 
 
 def _latency(v) -> Optional[str]:
