@@ -6,11 +6,12 @@ from here. ROS-free (floor 0), so the core can name frames too.
 Tree (child -> parent) and who publishes each edge:
 
 - ``link_base`` -> ``world``: static; the scene (they coincide there). On a real cell the
-  motion-capture-to-robot calibration, e.g. from ``static_transform_publisher``.
+  motion-capture-to-robot calibration: mocap_bridge's ``base_in_world``, or
+  ``static_transform_publisher``.
 - ``aslip_tcp`` -> ``link_base``: the arm's TCP; the scene (on a real cell, the arm driver).
 - ``aslip_finger``, ``aslip_object`` -> ``world``: the motion-capture rigid bodies; the
-  scene (on a real cell, the motion-capture driver's TF, or its frame named in
-  mocap_bridge's ``finger_frame``).
+  scene; on a real cell mocap_bridge from the poses (``publish_pose_tf``), or the
+  motion-capture driver's TF with its frame named in mocap_bridge's ``finger_frame``.
 - ``aslip_grasp_plane`` -> ``aslip_finger``: static, ``grasp_plane_in_finger``; mocap_bridge,
   from the calibration it uses for the ground truth.
 - ``aslip_gripper`` -> ``aslip_grasp_plane``: static identity; mocap_bridge. The audio

@@ -125,8 +125,10 @@ def test_scene_tf_agrees_with_its_pose_topics(rclpy_context, ros_env):
     bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
     for topic in (c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC):
         bus.listen(PoseStamped, topic, c.SENSOR_QOS)
+    # As the launch files run it beside the scene: scene_sim publishes the bodies.
     with NodeProcess("scene_sim", ros_env) as scene, \
-            NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": calib}) as bridge:
+            NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": calib,
+                                                  "publish_pose_tf": False}) as bridge:
         scene.wait_ready()
         bridge.wait_ready()
         assert bus.wait(lambda: len(_static_edges(bus)) >= 3
@@ -236,3 +238,94 @@ def test_a_static_listener_keeps_every_publishers_transforms(rclpy_context):
                           reliability=c.LATCHED_QOS.reliability,
                           durability=c.LATCHED_QOS.durability)
     assert _static_listener_receives(rclpy_context, one_deep) < every
+
+
+def _tree(bus) -> dict:
+    """``child -> parent`` of every transform received on /tf and /tf_static."""
+    from aslip_ros.nodes.tf_frames import transform_pose
+    return {transform_pose(t)[2]: transform_pose(t)[1]
+            for topic in ("/tf", "/tf_static") for msg in bus.messages(topic)
+            for t in msg.transforms}
+
+
+def test_mocap_bridge_puts_a_drivers_bodies_on_tf(rclpy_context, ros_env):
+    """A driver that publishes poses only, in a frame of its own (vrpn_mocap, mocap4r2):
+    mocap_bridge publishes each body under that frame, with the pose's stamp and values,
+    that frame as world, and the cell's link_base in world, so every frame rviz shows joins
+    world (rviz on hardware showed no slip arrow: nothing joined the finger to world)."""
+    from geometry_msgs.msg import PoseStamped
+    from tf2_msgs.msg import TFMessage
+
+    from aslip_ros import frames
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes import convert
+    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS, transform_pose
+    finger_topic, object_topic = "/natnet/aslip_finger/pose", "/natnet/aslip_object/pose"
+    base = [0.5, -0.2, 0.0, 0.0, 0.0, 0.7071067811865476, 0.7071067811865476]
+    bus = Bus(rclpy_context)
+    bus.listen(TFMessage, "/tf", TF_QOS)
+    bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
+    pub_f = bus.node.create_publisher(PoseStamped, finger_topic, c.SENSOR_QOS)
+    pub_o = bus.node.create_publisher(PoseStamped, object_topic, c.SENSOR_QOS)
+    finger = [0.1, 0.2, 0.3] + _calib()[3:]
+    obj = [0.11, 0.2, 0.31, 0.0, 0.0, 0.0, 1.0]
+    sent = []
+    params = {"finger_topic": finger_topic, "object_topic": object_topic,
+              "publish_base_tf": True, "base_in_world": base}
+    with NodeProcess("mocap_bridge", ros_env, params) as bridge:
+        bridge.wait_ready()
+
+        def fed() -> bool:
+            stamp = 10**9 + len(sent) * 10**7
+            sent.append(stamp)
+            pub_f.publish(convert.pose_to_msg(finger, stamp, "mocap"))
+            pub_o.publish(convert.pose_to_msg(obj, stamp, "mocap"))
+            tree = _tree(bus)
+            return all(frames.connected(f, frames.WORLD, tree)
+                       for f in (frames.GRIPPER, frames.OBJECT, frames.BASE))
+        assert bus.wait(fed, 30), (_tree(bus), bridge.output)
+    bus.close()
+    tree = _tree(bus)
+    assert tree[frames.FINGER] == tree[frames.OBJECT] == "mocap"
+    assert tree["mocap"] == frames.WORLD and tree[frames.BASE] == frames.WORLD
+    static = _static_edges(bus)
+    assert _same_pose(static["mocap"][1], [0, 0, 0, 0, 0, 0, 1.0])
+    assert _same_pose(static[frames.BASE][1], base)
+    got = {(child, stamp): pose for msg in bus.messages("/tf") for t in msg.transforms
+           for stamp, _, child, pose in [transform_pose(t)]}
+    assert got and {s for _, s in got} <= set(sent)
+    for (child, _), pose in got.items():
+        assert _same_pose(pose, finger if child == frames.FINGER else obj, atol=1e-6)
+
+
+def test_mocap_bridge_leaves_the_bodies_to_a_driver_that_publishes_them(rclpy_context,
+                                                                        ros_env):
+    """publish_pose_tf: false (the scene, or a driver with TF): nothing on /tf from it."""
+    from geometry_msgs.msg import PoseStamped
+    from tf2_msgs.msg import TFMessage
+
+    from aslip_ros import frames
+    from aslip_ros.msg import SlipVector
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes import convert
+    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS
+    bus = Bus(rclpy_context)
+    bus.listen(TFMessage, "/tf", TF_QOS)
+    bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
+    bus.listen(SlipVector, c.SLIP_TRUTH_TOPIC, c.RELIABLE_QOS)
+    pub_f = bus.node.create_publisher(PoseStamped, c.FINGER_TOPIC, c.SENSOR_QOS)
+    pub_o = bus.node.create_publisher(PoseStamped, c.OBJECT_TOPIC, c.SENSOR_QOS)
+    n = [0]
+    with NodeProcess("mocap_bridge", ros_env, {"publish_pose_tf": False}) as bridge:
+        bridge.wait_ready()
+
+        def fed() -> bool:
+            n[0] += 1
+            stamp = 10**9 + n[0] * 10**7
+            pub_f.publish(convert.pose_to_msg([0, 0, 0, 0, 0, 0, 1.0], stamp, "mocap"))
+            pub_o.publish(convert.pose_to_msg([0, 0, 0, 0, 0, 0, 1.0], stamp, "mocap"))
+            return len(bus.messages(c.SLIP_TRUTH_TOPIC)) >= 5
+        assert bus.wait(fed, 30), bridge.output
+    bus.close()
+    assert bus.messages("/tf") == []
+    assert set(_tree(bus)) == {frames.GRASP_PLANE, frames.GRIPPER}

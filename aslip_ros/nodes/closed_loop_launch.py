@@ -57,19 +57,36 @@ def rviz_found() -> bool:
 
 
 def rviz_actions(condition=None) -> list:
-    """rviz with the package's view, or a log line when rviz2 is missing.
+    """rviz with the package's view of this graph, or a log line when rviz2 is missing.
 
-    A missing rviz2 must not take down a graph that is already commanding an arm: launch_ros
-    would fail the whole launch on an unknown package, so rviz is only added when found.
-    rviz exiting (its window closed) leaves the rest running.
+    The view is config/aslip.rviz with the graph's pose topics (the cell's, a launch
+    argument's), written by :func:`aslip_ros.nodes.rviz_view.write_view` (also without
+    rviz2, for an rviz started elsewhere). A missing rviz2 must not take down a graph that
+    is already commanding an arm: launch_ros would fail the whole launch on an unknown
+    package, so rviz is only added when found. rviz exiting (its window closed) leaves the
+    rest running.
     """
-    cfg = os.path.join(share_dir(), "config", "aslip.rviz")
+    return [OpaqueFunction(function=_rviz, condition=condition)]
+
+
+def _rviz(context) -> list:
+    from aslip_ros.nodes.rviz_view import write_view
+    try:
+        cell = load_checked_cell(arg(context, "cell"))
+    except (CellError, ValueError) as exc:
+        return fail(str(exc))
+    finger, obj = mocap_topics(context, cell)
+    if cell.get("mocap_bridge", "pose_source", "") == "rigid_bodies":
+        finger = obj = None             # no PoseStamped for rviz's Pose displays (mocap4r2)
+    placed = flag(context, "sim") or bool(cell.get("mocap_bridge", "publish_base_tf", False))
+    cfg, notes = write_view(os.path.join(share_dir(), "config", "aslip.rviz"), finger, obj,
+                            placed)
+    out = [LogInfo(msg=f"rviz view: {cfg}")] + [LogInfo(msg=f"rviz: {n}") for n in notes]
     if rviz_found():
-        return [Node(package="rviz2", executable="rviz2", name="rviz2", condition=condition,
-                     arguments=["-d", cfg], output="screen")]
-    return [LogInfo(condition=condition,
-                    msg="rviz2 is not installed: running without rviz (install "
-                        "ros-jazzy-rviz2 to see the slip arrows)")]
+        return out + [Node(package="rviz2", executable="rviz2", name="rviz2",
+                           arguments=["-d", str(cfg)], output="screen")]
+    return out + [LogInfo(msg="rviz2 is not installed: running without rviz (install "
+                              "ros-jazzy-rviz2 to see the slip arrows)")]
 
 
 class LaunchFailed(RuntimeError):
@@ -236,6 +253,8 @@ def bridge_params(context, cell: Cell, sim: bool) -> dict:
     p = cell.params("mocap_bridge")
     p["finger_topic"], p["object_topic"] = mocap_topics(context, cell)
     p["calibration"] = "metadata" if sim else p.get("calibration", "param")
+    if sim:         # scene_sim publishes the bodies and world -> link_base itself
+        p["publish_pose_tf"] = p["publish_base_tf"] = False
     return p
 
 

@@ -20,7 +20,9 @@ window give no output, a diagnostic and a throttled warning.
 TF (``publish_tf``): the calibration in use, as the static transform ``finger_frame`` ->
 ``frame_id`` (re-sent when metadata or the measurement changes it), and ``frame_id`` ->
 ``aslip_gripper`` (identity: the audio frame), so the slip arrows join the frames the
-scene or the motion-capture driver publishes (aslip_ros/frames.py).
+scene or the motion-capture driver publishes (aslip_ros/frames.py); and, where no driver
+publishes the rigid bodies on TF (``publish_pose_tf``), every accepted pose on ``/tf``
+(aslip_ros/nodes/mocap_tf.py), so rviz can place them on a real cell.
 """
 
 from __future__ import annotations
@@ -50,7 +52,8 @@ IDENTITY = [float(x) for x in poses.IDENTITY_POSE]
 def bridge_params() -> list:
     """mocap_bridge's parameter specs."""
     from aslip_ros.data.labels import DEFAULT_EPSILON_M_S, DEFAULT_MAX_GAP_S, DEFAULT_WINDOW_S
-    return [
+    from aslip_ros.nodes.mocap_tf import mocap_tf_params
+    return mocap_tf_params() + [
         c.Param("finger_topic", c.FINGER_TOPIC, "finger rigid-body PoseStamped topic",
                 c.non_empty, read_only=True),
         c.Param("object_topic", c.OBJECT_TOPIC, "object rigid-body PoseStamped topic",
@@ -125,6 +128,8 @@ class MocapBridge(Node):
             self.tf_static.set(self.p["frame_id"], frames.GRIPPER, IDENTITY)
             if self.calib is not None:
                 self._publish_calibration(self.calib)
+        from aslip_ros.nodes.mocap_tf import MocapFrames
+        self.mocap_tf = MocapFrames(self, self.p, self.tf_static)
         group = MutuallyExclusiveCallbackGroup()
         self.create_subscription(PoseStamped, self.p["finger_topic"],
                                  lambda m: self._on_pose("finger", m), c.SENSOR_QOS,
@@ -166,7 +171,7 @@ class MocapBridge(Node):
 
     def _on_pose(self, which: str, msg: PoseStamped) -> None:
         try:
-            stamp_ns, _, pose = convert.pose_from_msg(msg)
+            stamp_ns, frame_id, pose = convert.pose_from_msg(msg)
         except ValueError as exc:
             self.rejected += 1
             self.get_logger().warning(f"{which} pose rejected: {exc}", throttle_duration_sec=1.0)
@@ -180,6 +185,9 @@ class MocapBridge(Node):
             self._arrival[which] = time.monotonic()
             if self.calib is None:
                 self._collect_calibration()
+        why = self.mocap_tf.pose(which, stamp_ns, frame_id, pose)
+        if why:
+            self.get_logger().warning(f"not on TF: {why}", throttle_duration_sec=5.0)
 
     def _collect_calibration(self) -> None:
         if not self.finger or not self.obj:

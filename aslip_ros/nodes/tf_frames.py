@@ -9,6 +9,7 @@ cannot tell them apart.
 
 from __future__ import annotations
 
+import threading
 from typing import Iterable, Optional
 
 from geometry_msgs.msg import TransformStamped
@@ -77,13 +78,16 @@ class StaticFrames:
         self._node = node
         self._pub = node.create_publisher(TFMessage, TF_STATIC_TOPIC, TF_STATIC_QOS)
         self._by_child: dict = {}
+        self._lock = threading.Lock()       # callbacks of several groups may add frames
 
     def set(self, parent: str, child: str, pose, stamp_ns: Optional[int] = None) -> None:
         """Add or replace ``child``'s transform and publish the set."""
         if stamp_ns is None:
             stamp_ns = self._node.get_clock().now().nanoseconds
-        self._by_child[child] = transform_msg(parent, child, pose, stamp_ns)
-        self._pub.publish(TFMessage(transforms=list(self._by_child.values())))
+        msg = transform_msg(parent, child, pose, stamp_ns)
+        with self._lock:
+            self._by_child[child] = msg
+            self._pub.publish(TFMessage(transforms=list(self._by_child.values())))
 
 
 class DynamicFrames:
