@@ -22,5 +22,8 @@ DIAGNOSTICS = "/diagnostics"
 DIAGNOSTICS_JSON = "/aslip/diagnostics"
 TF = "/tf"
 TF_STATIC = "/tf_static"
+#: mocap4r2's drivers (OptiTrack, Vicon, Qualisys): every rigid body in one
+#: mocap4r2_msgs/RigidBodies (aslip_ros/rigid_bodies.py); the drivers' name, not the package's.
+RIGID_BODIES = "/rigid_bodies"
 #: Simulated time (rosgraph_msgs/Clock): published by scene_sim in lockstep mode.
 CLOCK = "/clock"

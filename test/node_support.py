@@ -17,6 +17,24 @@ import numpy as np
 from aslip_ros.nodes.process import NodeProcess, node_exe, ros_args  # noqa: F401 - for tests
 
 
+def driver_msgs(package: str):
+    """``<package>.msg`` of a driver's message package (audio_common_msgs, mocap4r2_msgs):
+    optional for users, so a test that needs it skips with the reason when it is not built,
+    except under ``ASLIP_REQUIRE_DRIVER_MSGS=1`` (CI builds them), where it fails instead."""
+    import importlib
+    import os
+
+    import pytest
+    try:
+        return importlib.import_module(f"{package}.msg")
+    except ImportError as exc:
+        why = (f"{package} is not built ({exc}): make setup with ASLIP_DRIVER_MSGS naming "
+               "it builds it")
+        if os.environ.get("ASLIP_REQUIRE_DRIVER_MSGS") == "1":
+            pytest.fail(f"ASLIP_REQUIRE_DRIVER_MSGS=1 but {why}")
+        pytest.skip(why)
+
+
 def header_ns(msg) -> int:
     """A stamped message's header stamp in nanoseconds."""
     from aslip_ros.audio_frame import stamp_to_ns

@@ -2,7 +2,8 @@
 
 - ``audio``: list the inputs, or record a few seconds and judge each channel's level;
 - ``taps``: tap each pad when prompted; is the channel order the one named?
-- ``mocap``: rate, jitter, dropouts and latency of the finger and object poses (ROS);
+- ``mocap``: rate, jitter, dropouts and latency of the finger and object poses (ROS;
+  PoseStamped topics, or two bodies of a mocap4r2 RigidBodies);
 - ``grasp-plane``: ``grasp_plane_in_finger`` from a recording of the object held still;
 - ``arm``: the xArm's connection, and a 1 cm move at 1 cm/s inside the limits;
 - ``realtime``: does the live inference keep its 10 ms hop, with margin, on this machine?
@@ -78,6 +79,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser('mocap', formatter_class=fmt, help='rate, jitter, dropouts and '
                        'latency of the finger and object poses (ROS 2)')
     _pose_topics(p)
+    p.add_argument('--finger-body', metavar='NAME_OR_ID', help='mocap4r2: the finger\'s '
+                   'rigid body in the RigidBodies (its name, or its numeric ID as OptiTrack '
+                   'names them); with --object-body instead of the PoseStamped topics')
+    p.add_argument('--object-body', metavar='NAME_OR_ID', help='mocap4r2: the object\'s '
+                   'rigid body')
+    p.add_argument('--rigid-bodies-topic', default=topics.RIGID_BODIES,
+                   help='mocap4r2: the RigidBodies topic')
     p.add_argument('--seconds', type=float, default=5.0, help='how long to listen [s]')
 
     p = sub.add_parser('grasp-plane', formatter_class=fmt, help='grasp_plane_in_finger '
@@ -229,11 +237,23 @@ def _realtime(args: argparse.Namespace, out) -> int:
 
 def _mocap(args: argparse.Namespace, out) -> int:
     from aslip_ros.bringup.mocap_stats import mocap_verdict, stream_stats
-    from aslip_ros.nodes.mocap_check import record
-    chosen = [args.finger_topic, args.object_topic]
-    print(f'listening to {", ".join(chosen)} for {args.seconds:g} s...', file=out, flush=True)
-    samples = record(chosen, args.seconds)
-    stats = {t: stream_stats(t, *samples[t]) for t in chosen}
+    from aslip_ros.nodes.mocap_check import record, record_bodies
+    bodies = {'finger': args.finger_body, 'object': args.object_body}
+    missing = ''
+    if any(bodies.values()):
+        if not all(bodies.values()):
+            raise ValueError('--finger-body and --object-body go together (the two rigid '
+                             'bodies of the RigidBodies)')
+        topic = args.rigid_bodies_topic
+        print(f'listening to {topic} for bodies {bodies["finger"]} (finger) and '
+              f'{bodies["object"]} (object) for {args.seconds:g} s...', file=out, flush=True)
+        samples, missing = record_bodies(topic, bodies, args.seconds)
+    else:
+        chosen = [args.finger_topic, args.object_topic]
+        print(f'listening to {", ".join(chosen)} for {args.seconds:g} s...', file=out,
+              flush=True)
+        samples = record(chosen, args.seconds)
+    stats = {t: stream_stats(t, *s) for t, s in samples.items()}
     for s in stats.values():
         print(s.text(), file=out)
-    return mocap_verdict(stats).report(out)
+    return mocap_verdict(stats, missing_bodies=missing).report(out)

@@ -86,10 +86,15 @@ def stream_stats(topic: str, receive_ns: Sequence[int], stamp_ns: Sequence[int],
 
 
 def mocap_verdict(stats: Mapping[str, StreamStats],
-                  min_rate_hz: float = MIN_RATE_HZ) -> Verdict:
+                  min_rate_hz: float = MIN_RATE_HZ, missing_bodies: str = "") -> Verdict:
     """FAIL on a silent or slow stream or one with dropouts; unsynchronised clocks and
-    differing frames fail too (the labels compare stamps and poses across the streams)."""
+    differing frames fail too (the labels compare stamps and poses across the streams), and
+    so does a rigid body missing from RigidBodies messages (``missing_bodies``, which names
+    the bodies that are there: :class:`aslip_ros.rigid_bodies.BodyTally`)."""
     verdict = Verdict()
+    if missing_bodies:
+        verdict.fail(f'{missing_bodies}: is the body tracked, and named as the driver names '
+                     'it (OptiTrack: the Motive ID)?')
     for topic, s in stats.items():
         if s.count == 0:
             verdict.fail(f'no messages on {topic}: is the mocap driver running and the rigid '

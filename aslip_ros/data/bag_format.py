@@ -160,12 +160,9 @@ def base_store():
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-@lru_cache(maxsize=1)
-def typestore():
-    """Jazzy typestore with the project's message types registered (cached, shared).
-
-    Treat it as read-only: readers that need a bag's own definitions build their own store.
-    """
+def project_store():
+    """A fresh Jazzy typestore with the project's message types registered (one of its own,
+    for a writer that registers more types: a driver's, :func:`add_installed_types`)."""
     from rosbags.typesys import get_types_from_msg
     store = base_store()
     types: dict = {}
@@ -173,6 +170,48 @@ def typestore():
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store
+
+
+@lru_cache(maxsize=1)
+def typestore():
+    """Jazzy typestore with the project's message types registered (cached, shared).
+
+    Treat it as read-only: readers that need a bag's own definitions build their own store.
+    """
+    return project_store()
+
+
+def installed_msg_texts(package: str) -> dict[str, str]:
+    """``<package>/msg/<Name>`` -> ``.msg`` text of every message of an installed interface
+    package: ``share/<package>/msg`` under the first ``AMENT_PREFIX_PATH`` entry that has it
+    (where colcon and the ROS distribution install them, and where rosbag2 reads them); {}
+    when the package is not installed."""
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        folder = Path(prefix) / "share" / package / "msg"
+        if prefix and folder.is_dir():
+            texts = {f"{package}/msg/{p.stem}": p.read_text()
+                     for p in sorted(folder.glob("*.msg"))}
+            if texts:
+                return texts
+    return {}
+
+
+def add_installed_types(store, type_name: str) -> bool:
+    """Register the messages of ``type_name``'s installed package in ``store`` (a driver's
+    type, e.g. ``mocap4r2_msgs/msg/RigidBodies``) unless the store has the type already;
+    False when it has no definition of it afterwards (the package is not installed).
+    Their own dependencies (``geometry_msgs``, ``std_msgs``) are Jazzy's, in every store."""
+    if type_name in store.types:
+        return True
+    from rosbags.typesys import get_types_from_msg
+    texts = installed_msg_texts(type_name.split("/")[0])
+    if type_name not in texts:
+        return False
+    types: dict = {}
+    for name, text in texts.items():
+        types.update(get_types_from_msg(text, name))
+    store.register(types)
+    return True
 
 
 def time_msg(store, ns: int):

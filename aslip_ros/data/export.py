@@ -70,6 +70,10 @@ class ExportConfig:
     max_gap_s: float = DEFAULT_MAX_GAP_S
     topics: Topics = DEFAULT_TOPICS
     topics_given: tuple = ()    # pose topics given: the others as a bag's metadata names them
+    # The finger's and object's bodies in a topic of mocap4r2 RigidBodies ('': as a bag's
+    # metadata names them, its "bodies": {"finger": .., "object": ..}).
+    finger_body: str = ""
+    object_body: str = ""
     overwrite: bool = False
     skip_bad: bool = False
     recover: bool = False
@@ -99,6 +103,7 @@ class BagResult:
     kept: int = 0
     dropped: dict = field(default_factory=dict)
     refused_blocks: dict = field(default_factory=dict)
+    body_notes: list = field(default_factory=list)
     error: str = ""
 
 
@@ -152,9 +157,16 @@ def _label_source(cfg: ExportConfig, meta: dict) -> str:
     return "robot" if meta.get("induced") == "robot" else "mocap"
 
 
-def _label_topics(cfg: ExportConfig, source: str) -> list[str]:
+def _label_topics(cfg: ExportConfig, source: str) -> dict:
     t = cfg.topics
-    return [t.tcp] if source == "robot" else [t.finger, t.object]
+    return {"tcp": t.tcp} if source == "robot" else {"finger": t.finger, "object": t.object}
+
+
+def _bodies(cfg: ExportConfig, meta: dict) -> dict:
+    """The finger's and object's rigid bodies: given, else as the metadata names them."""
+    named = meta.get("bodies") if isinstance(meta.get("bodies"), dict) else {}
+    given = {"finger": cfg.finger_body, "object": cfg.object_body}
+    return {r: str(given[r] or named.get(r) or "") for r in given}
 
 
 def _calibration(meta: dict, key: str, bag: Path) -> np.ndarray:
@@ -174,21 +186,21 @@ def _window_labels(rec: BagStreams, meta: dict, cfg: ExportConfig, source: str,
     topics, path = cfg.topics, rec.path
     t0 = clock.time_of(grid.starts)
     t1 = t0 + grid.n_win * clock.slope
-    track = {t: buf.track(clock.ref_ns, t) for t, buf in rec.poses.items()}
+    track = {r: buf.track(clock.ref_ns, getattr(topics, r)) for r, buf in rec.poses.items()}
     if source == "robot":
         calib = _calibration(meta, "grasp_plane_in_tcp", path)
-        labels = robot_window_velocity(track[topics.tcp], t0, t1, calib, cfg.max_gap_s)
-        rate = track[topics.tcp].rate_hz
+        labels = robot_window_velocity(track["tcp"], t0, t1, calib, cfg.max_gap_s)
+        rate = track["tcp"].rate_hz
     else:
         calib = _calibration(meta, "grasp_plane_in_finger", path)
-        labels = mocap_window_velocity(track[topics.finger], track[topics.object], t0, t1,
+        labels = mocap_window_velocity(track["finger"], track["object"], t0, t1,
                                        calib, cfg.max_gap_s)
-        rate = track[topics.finger].rate_hz
+        rate = track["finger"].rate_hz
     # The object-relative pose track on the audio file's sample axis: streaming labels.
     s_first = int(rec.seg_start[0])
     stream_track = export_track(
-        source, track[topics.tcp if source == "robot" else topics.finger], calib,
-        None if source == "robot" else track[topics.object], clock.intercept, clock.slope,
+        source, track["tcp" if source == "robot" else "finger"], calib,
+        None if source == "robot" else track["object"], clock.intercept, clock.slope,
         float(s_first - clock.idx0))
     return labels, rate, stream_track
 
@@ -239,8 +251,9 @@ def _export_bag(reader: BagReader, meta: dict, cfg: ExportConfig, writer: Datase
     source = _label_source(cfg, meta)
     res = BagResult(bag=str(reader.path), label_source=source)
     rec = read_streams(reader, cfg.topics.audio, _label_topics(cfg, source), writer, stream,
-                       bar, source)
+                       bar, source, _bodies(cfg, meta))
     res.refused_blocks = dict(rec.refused)
+    res.body_notes = list(rec.body_notes)
     clock = fit_clock(rec)
     grid = window_grid(rec, cfg.window_s, cfg.hop_s)
     labels, rate, track = _window_labels(rec, meta, cfg, source, clock, grid)
@@ -275,7 +288,7 @@ def _read_bag(reader: BagReader, cfg: ExportConfig, writer: DatasetWriter, strea
         cfg = replace(cfg, topics=cfg.topics.named_in(meta, cfg.topics_given))
         source = _label_source(cfg, meta)
         r.require([cfg.topics.audio], "audio")
-        r.require(_label_topics(cfg, source), f"labels from {source}")
+        r.require(list(_label_topics(cfg, source).values()), f"labels from {source}")
         bar.set_postfix_str(_bag_name(r.path), refresh=False)
         res, trial = _export_bag(r, meta, cfg, writer, stream, bar)
     return meta, res, trial
@@ -298,6 +311,16 @@ def _export_or_recover(path: Path, cfg: ExportConfig, writer: DatasetWriter,
     warnings.append(note)
     trial["info"]["recovered"] = note
     return meta, res, trial
+
+
+def _bag_warnings(path: Path, res: BagResult) -> list:
+    """What a summary says of an exported bag: refused AudioFrames, missing rigid bodies."""
+    out = []
+    if res.refused_blocks:
+        out.append(f"bag {path}: {sum(res.refused_blocks.values())} AudioFrame(s) refused "
+                   f"({', '.join(f'{k} {v}' for k, v in res.refused_blocks.items())}); "
+                   "their windows are dropped as audio gaps")
+    return out + res.body_notes
 
 
 def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
@@ -337,11 +360,7 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
                     raise
                 summary.bags.append(BagResult(bag=str(p), error=str(exc)))
                 continue
-            if res.refused_blocks:
-                summary.warnings.append(
-                    f"bag {p}: {sum(res.refused_blocks.values())} AudioFrame(s) refused "
-                    f"({', '.join(f'{k} {v}' for k, v in res.refused_blocks.items())}); "
-                    "their windows are dropped as audio gaps")
+            summary.warnings += _bag_warnings(p, res)
             info = trial["info"]
             if not meta:
                 summary.warnings.append(no_metadata_note(p, info, cfg))
@@ -408,6 +427,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         pose, default = name in POSE_TOPICS, getattr(DEFAULT_TOPICS, name)
         parser.add_argument(f"--{name}-topic", default=None if pose else default, help=(
             f"{name} topic (default: {'as the metadata names it, else ' * pose}{default})"))
+    for name in ("finger", "object"):
+        parser.add_argument(f"--{name}-body", default="", metavar="NAME_OR_ID", help=(
+            f"the {name}'s rigid body where the poses are mocap4r2 RigidBodies: its "
+            "rigid_body_name or numeric ID (default: as the metadata names it)"))
     parser.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
     parser.add_argument("--skip-bad", action="store_true",
                         help="skip unreadable or inconsistent bags instead of failing")
@@ -436,6 +459,7 @@ def run(args: argparse.Namespace) -> int:
         topics=Topics(**{k: getattr(args, f"{k}_topic") or getattr(DEFAULT_TOPICS, k)
                          for k in ("audio", "metadata") + POSE_TOPICS}),
         topics_given=tuple(k for k in POSE_TOPICS if getattr(args, f"{k}_topic")),
+        finger_body=args.finger_body, object_body=args.object_body,
         overwrite=args.overwrite, skip_bad=args.skip_bad, recover=args.recover,
         progress=not args.no_progress)
     try:

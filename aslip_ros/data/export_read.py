@@ -7,6 +7,12 @@ Audio blocks are checked by :func:`aslip_ros.audio_frame.decode_audio_frame`, th
 nodes' own check: a block a node would refuse (NaN/Inf, beyond full scale, empty) is left
 out and counted, so its windows become audio gaps; a malformed stream (no channel names, a
 changing format, an index going back) refuses the bag.
+
+Poses come from PoseStamped topics or, for the finger and the object, from one topic of
+mocap4r2 RigidBodies (the bodies named by :func:`aslip_ros.rigid_bodies.select_bodies`, the
+live bridge's decoding): a body missing from some messages is a dropout of its track (the
+export warns with the count), one missing from all of them refuses the bag, naming the
+bodies that are there.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import numpy as np
 from aslip_ros.audio_frame import AudioFrameError, decode_audio_frame
 from aslip_ros.data.bags import AUDIO_TYPE, POSE_TYPE, BagError, BagReader, stamp_to_ns
 from aslip_ros.data.labels import PoseTrack
+from aslip_ros.rigid_bodies import RIGID_BODIES_TYPE, ROLES, BodyTally, select_bodies
 
 #: Defects of one AudioFrame that cost that block (as in the live node), not the bag.
 REFUSED_BLOCKS = ("non_finite", "out_of_range", "empty")
@@ -101,8 +108,9 @@ class BagStreams:
     seg_file: list = field(default_factory=list)
     seg_len: list = field(default_factory=list)
     expected: int | None = None           # the index after the last block
-    poses: dict = field(default_factory=dict)       # topic -> PoseBuffer
+    poses: dict = field(default_factory=dict)       # role (finger, object, tcp) -> PoseBuffer
     refused: Counter = field(default_factory=Counter)   # AudioFrames left out, by reason
+    body_notes: list = field(default_factory=list)  # rigid bodies missing from messages
 
     def add_audio(self, msg, log_ns: int, writer, stream: StreamFormat) -> None:
         """One AudioFrame: appended to the trial's audio, or refused and counted."""
@@ -145,39 +153,86 @@ class BagStreams:
         self.blk_log.append(log_ns)
 
 
-def read_streams(reader: BagReader, audio_topic: str, label_topics: list, writer,
-                 stream: StreamFormat, bar, label_source: str) -> BagStreams:
+def _rigid_topics(reader: BagReader, roles_of: dict, bodies: dict) -> dict:
+    """topic -> {role: body} for each finger or object topic that holds RigidBodies (the
+    TCP's must be PoseStamped); BagError where a body is not named, naming the bodies of
+    the topic's first message."""
+    out = {}
+    for topic, roles in roles_of.items():
+        if reader.info.topics.get(topic) != RIGID_BODIES_TYPE or \
+                not set(roles) <= set(ROLES):
+            continue
+        unnamed = [r for r in roles if not str(bodies.get(r) or "").strip()]
+        if unnamed:
+            first = next(iter(reader.messages([topic])), None)
+            present = ", ".join(repr(b.rigid_body_name) for b in first.msg.rigidbodies) \
+                if first is not None else "none"
+            raise BagError(f"bag {reader.path}: topic {topic} holds {RIGID_BODIES_TYPE}: "
+                           f"name the {' and '.join(unnamed)} bod"
+                           f"{'ies' if len(unnamed) > 1 else 'y'} "
+                           f"({' '.join(f'--{r}-body' for r in unnamed)}, or 'bodies' in "
+                           f"the recording's metadata); bodies in its first message: "
+                           f"{present}")
+        out[topic] = {r: str(bodies[r]) for r in roles}
+    return out
+
+
+def read_streams(reader: BagReader, audio_topic: str, label_topics: dict, writer,
+                 stream: StreamFormat, bar, label_source: str,
+                 bodies: dict | None = None) -> BagStreams:
     """Read the audio and pose topics of ``reader`` once; BagError when either is unusable.
 
-    ``bar`` (tqdm) advances by fractions of one bag as the messages go by.
+    ``label_topics``: role (finger, object, tcp) -> topic; a finger or object topic of
+    RigidBodies gives the body that ``bodies`` names for the role. ``bar`` (tqdm) advances
+    by fractions of one bag as the messages go by.
     """
     path = reader.path
-    rec = BagStreams(path=path, poses={t: PoseBuffer(reader.info.counts.get(t, 0))
-                                       for t in label_topics})
-    n_msgs = max(1, sum(reader.info.counts.get(t, 0) for t in [audio_topic] + label_topics))
+    roles_of: dict = {}
+    for role, topic in label_topics.items():
+        roles_of.setdefault(topic, []).append(role)
+    rigid = _rigid_topics(reader, roles_of, bodies or {})
+    tallies = {t: BodyTally(b) for t, b in rigid.items()}
+    rec = BagStreams(path=path, poses={r: PoseBuffer(reader.info.counts.get(t, 0))
+                                       for r, t in label_topics.items()})
+    wanted = [audio_topic] + list(roles_of)
+    n_msgs = max(1, sum(reader.info.counts.get(t, 0) for t in wanted))
     pending = 0
-    for m in reader.messages([audio_topic] + label_topics, fast_poses=True):
+    for m in reader.messages(wanted, fast_poses=True):
         pending += 1
         if pending >= 512:
             bar.update(pending / n_msgs)
             pending = 0
-        expected_type = AUDIO_TYPE if m.topic == audio_topic else POSE_TYPE
+        expected_type = AUDIO_TYPE if m.topic == audio_topic else \
+            RIGID_BODIES_TYPE if m.topic in rigid else POSE_TYPE
         if m.msgtype != expected_type:
             raise BagError(f"bag {path}: topic {m.topic} holds {m.msgtype}, expected "
                            f"{expected_type}")
         if m.topic == audio_topic:
             rec.add_audio(m.msg, m.log_ns, writer, stream)
+        elif m.topic in rigid:
+            sel = select_bodies(m.msg, rigid[m.topic])
+            tallies[m.topic].add(sel)
+            for role, pose in sel.poses.items():
+                rec.poses[role].append(sel.stamp_ns, m.log_ns, pose)
         else:
-            rec.poses[m.topic].append(m.msg.stamp_ns, m.log_ns, m.msg.pose)
+            for role in roles_of[m.topic]:
+                rec.poses[role].append(m.msg.stamp_ns, m.log_ns, m.msg.pose)
     bar.update(pending / n_msgs)
     if rec.audio is None:
         raise BagError(f"bag {path}: no messages on audio topic {audio_topic}")
     if not rec.blk_idx:
         raise BagError(f"bag {path}: every AudioFrame was refused ({dict(rec.refused)})")
-    for t, buf in rec.poses.items():
+    notes = {t: tally.text(f"RigidBodies messages on {t}") for t, tally in tallies.items()}
+    for role, buf in rec.poses.items():
         if buf.n < 2:
+            t = label_topics[role]
+            if notes.get(t):
+                raise BagError(f"bag {path}: {notes[t]}; labels from {label_source} need "
+                               "both bodies")
             raise BagError(f"bag {path}: topic {t} has {buf.n} message(s); labels from "
                            f"{label_source} need a pose stream")
+    rec.body_notes = [f"bag {path}: {n}; their windows lack that pose (a dropout)"
+                      for n in notes.values() if n]
     return rec
 
 

@@ -19,8 +19,12 @@ When each topic is subscribed, and with which QoS:
 - any other topic (a motion-capture driver's own, say) once a *publisher* of it is seen (a
   subscriber alone names the topic but says nothing of the QoS to use), with the QoS every
   publisher can serve: reliable only where all of them are, transient-local only where all
-  of them are; ``pose_topics`` names PoseStamped streams of a driver's own to subscribe at
-  once like the contract's.
+  of them are; ``pose_topics`` names PoseStamped streams of a driver's own, and
+  ``rigid_bodies_topics`` mocap4r2 RigidBodies streams, to subscribe at once like the
+  contract's.
+
+A type that the project's definitions lack (a driver's: ``mocap4r2_msgs/msg/RigidBodies``)
+is recorded with the definition of its installed package, as ``ros2 bag record`` does.
 
 ``duration_s`` ends a recording by itself (the node exits 0) that long after every one of
 ``duration_topics`` (the audio and the poses, on a cell) has delivered a message: a
@@ -45,8 +49,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from aslip_ros import topics
 from aslip_ros.data import bags
+from aslip_ros.data.bag_format import add_installed_types, project_store
 from aslip_ros.data.bag_writer import BagWriter
 from aslip_ros.nodes import common as c
+from aslip_ros.rigid_bodies import RIGID_BODIES_TYPE
 
 #: What ``data_collection.launch.py`` records: the recording contract (the topics of
 #: :data:`aslip_ros.data.bags.DEFAULT_TOPICS`, which export reads) plus TF.
@@ -71,7 +77,8 @@ def record_topics(finger: str = topics.FINGER, object_: str = topics.OBJECT) -> 
     """What ``data_collection.launch.py`` records when the poses come on ``finger`` and
     ``object_`` (a motion-capture driver's own names): :data:`RECORDED_TOPICS` with those."""
     swap = {topics.FINGER: finger, topics.OBJECT: object_}
-    return [swap.get(t, t) for t in RECORDED_TOPICS]
+    # One topic may carry both bodies (mocap4r2's RigidBodies): recorded once.
+    return list(dict.fromkeys(swap.get(t, t) for t in RECORDED_TOPICS))
 
 
 #: Reader queue: a burst that arrives while the recorder is busy writing is kept.
@@ -139,6 +146,8 @@ class Recorder(Node):
             c.Param("pose_topics", [""], "PoseStamped streams among topics, subscribed at "
                     "start like the contract's (a mocap driver's own names; '' = none)",
                     read_only=True),
+            c.Param("rigid_bodies_topics", [""], "mocap4r2 RigidBodies streams among topics, "
+                    "subscribed at start like the contract's ('' = none)", read_only=True),
             c.Param("duration_s", 0.0, "end the recording duration_s after every one of "
                     "duration_topics has delivered a message [s], then exit; 0 = until "
                     "stopped", c.in_range(0.0, 86400.0), read_only=True),
@@ -151,8 +160,12 @@ class Recorder(Node):
         self.p = c.declare_params(self, specs)
         self.streams = dict(STREAMS, **{t: (bags.POSE_TYPE, False)
                                         for t in self.p["pose_topics"] if t})
+        self.streams.update({t: (RIGID_BODIES_TYPE, False)
+                             for t in self.p["rigid_bodies_topics"] if t})
         try:
-            self.writer = RawBagWriter(self.p["output"], overwrite=bool(self.p["overwrite"]))
+            # A store of its own: a driver's types are added to it as they are met.
+            self.writer = RawBagWriter(self.p["output"], overwrite=bool(self.p["overwrite"]),
+                                       store=project_store())
             self.writer.__enter__()
         except (bags.BagError, OSError) as exc:
             raise c.ConfigError(f"cannot record to {self.p['output']}: {exc}") from exc
@@ -191,8 +204,9 @@ class Recorder(Node):
             self._subscribe(topic, available[topic][0], *serve)
 
     def _subscribe(self, topic: str, type_name: str, latched: bool, reliable: bool) -> None:
-        if type_name not in self.writer._store.types:
-            self._refuse(topic, f"type {type_name} has no definition to record")
+        if not add_installed_types(self.writer._store, type_name):
+            self._refuse(topic, f"type {type_name} has no definition to record (its "
+                         "package is not installed)")
             return
         try:
             cls = message_class(type_name)

@@ -23,6 +23,8 @@ from aslip_ros import frames, poses
 from aslip_ros.audio_frame import (FULL_SCALE, NS_PER_S, AudioData,  # noqa: F401
                                    AudioFrameError, decode_audio_frame, stamp_to_ns)
 from aslip_ros.msg import AudioFrame, SlipVector
+# mocap4r2's RigidBodies -> the finger and object poses: ROS-free too (export, check).
+from aslip_ros.rigid_bodies import BodyPoses, select_bodies  # noqa: F401
 from aslip_ros.slip import ROTATION_EPSILON_RAD_S
 
 #: Default frame of slip vectors (docs/design.md, "Units and frames").
@@ -193,6 +195,18 @@ def pose_from_msg(msg: PoseStamped) -> tuple:
 
 def _pose7(pose7: Sequence[float]) -> np.ndarray:
     return poses.as_pose(pose7, "pose")
+
+
+def rigid_bodies_class():
+    """``mocap4r2_msgs/RigidBodies``, imported only where it is used: the package runs
+    without mocap4r2. ValueError saying what to install when it is missing."""
+    try:
+        from mocap4r2_msgs.msg import RigidBodies
+    except ImportError as exc:
+        raise ValueError(f"the mocap4r2_msgs package is not installed (sudo apt install "
+                         f"ros-jazzy-mocap4r2-msgs, or build it in your workspace): "
+                         f"{exc}") from None
+    return RigidBodies
 
 
 # --------------------------------------------------------------------------------- twist
