@@ -1,9 +1,12 @@
 """Export rosbags to the windowed training dataset (library and ``aslip export``).
 
 Everything about the recording comes from the bag: sample rate, channels from the
-``AudioFrame`` messages, pose rates from the stamps; scenario fields, calibrations and pose
-topic names from the metadata (``custom_data['aslip']`` or the metadata topic; without it:
-mocap labels, identity calibration, trial id = the bag's name, the rest ``"unknown"``).
+``AudioFrame`` messages (or audio_common's ``audio_stamped`` + ``audio_info``, read as the
+AudioFrames audio_capture makes of them: :mod:`aslip_ros.data.audio_common`; a bag without
+``/aslip/audio`` and with one such topic is read from it), pose rates from the stamps;
+scenario fields, calibrations and pose topic names from the metadata
+(``custom_data['aslip']`` or the metadata topic; without it: mocap labels, identity
+calibration, trial id = the bag's name, the rest ``"unknown"``).
 
 Windows follow a regular grid in the audio stream's sample index: window ``n =
 round(window_s * sample_rate)`` frames every ``hop = round(hop_s * sample_rate)`` frames
@@ -44,6 +47,7 @@ import numpy as np
 from aslip_ros.slip import ANGULAR_COMPONENT, VELOCITY_COMPONENTS
 from aslip_ros.data.bags import (CUSTOM_DATA_KEY, DEFAULT_TOPICS, POSE_TOPICS, BagDamaged,
                                  BagError, BagReader, Topics, find_bags)
+from aslip_ros.data.audio_common import audio_topic_in
 from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
 from aslip_ros.data.export_bench import measure_export_speed  # noqa: F401 (public name)
 from aslip_ros.data.export_read import (AudioClock, BagStreams, StreamFormat, WindowGrid,
@@ -286,6 +290,8 @@ def _read_bag(reader: BagReader, cfg: ExportConfig, writer: DatasetWriter, strea
     with reader as r:
         meta = r.read_metadata(cfg.topics.metadata) or {}
         cfg = replace(cfg, topics=cfg.topics.named_in(meta, cfg.topics_given))
+        audio = audio_topic_in(r, cfg.topics.audio, DEFAULT_TOPICS.audio)
+        cfg = replace(cfg, topics=replace(cfg.topics, audio=audio))
         source = _label_source(cfg, meta)
         r.require([cfg.topics.audio], "audio")
         r.require(list(_label_topics(cfg, source).values()), f"labels from {source}")

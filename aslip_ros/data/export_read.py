@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from aslip_ros.audio_frame import AudioFrameError, decode_audio_frame
+from aslip_ros.data.audio_common import AudioCommonFrames
 from aslip_ros.data.bags import AUDIO_TYPE, POSE_TYPE, BagError, BagReader, stamp_to_ns
 from aslip_ros.data.labels import PoseTrack
 from aslip_ros.rigid_bodies import RIGID_BODIES_TYPE, ROLES, BodyTally, select_bodies
@@ -187,6 +188,9 @@ def read_streams(reader: BagReader, audio_topic: str, label_topics: dict, writer
     by fractions of one bag as the messages go by.
     """
     path = reader.path
+    # audio_common's audio (audio_stamped + audio_info): read as the AudioFrames it makes.
+    pcm = AudioCommonFrames(reader, audio_topic, reader.metadata or {}) \
+        if reader.info.topics.get(audio_topic) == AudioCommonFrames.msgtype else None
     roles_of: dict = {}
     for role, topic in label_topics.items():
         roles_of.setdefault(topic, []).append(role)
@@ -202,13 +206,13 @@ def read_streams(reader: BagReader, audio_topic: str, label_topics: dict, writer
         if pending >= 512:
             bar.update(pending / n_msgs)
             pending = 0
-        expected_type = AUDIO_TYPE if m.topic == audio_topic else \
+        expected_type = (pcm.msgtype if pcm else AUDIO_TYPE) if m.topic == audio_topic else \
             RIGID_BODIES_TYPE if m.topic in rigid else POSE_TYPE
         if m.msgtype != expected_type:
             raise BagError(f"bag {path}: topic {m.topic} holds {m.msgtype}, expected "
                            f"{expected_type}")
         if m.topic == audio_topic:
-            rec.add_audio(m.msg, m.log_ns, writer, stream)
+            rec.add_audio(pcm.frame(m.msg) if pcm else m.msg, m.log_ns, writer, stream)
         elif m.topic in rigid:
             sel = select_bodies(m.msg, rigid[m.topic])
             tallies[m.topic].add(sel)
