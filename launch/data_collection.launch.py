@@ -31,6 +31,7 @@ from launch_ros.actions import Node
 from aslip_ros.cell import CellError
 from aslip_ros.topics import AUDIO
 from aslip_ros.nodes.bag_recorder import record_topics
+from aslip_ros.nodes.topic_audio import driver_topics
 from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
                                                 capture_params, cell_arguments, fail, flag,
                                                 load_checked_cell, mocap_topics,
@@ -184,7 +185,9 @@ def _nodes(context) -> list:
             LogInfo(msg=why), Shutdown(reason=why)]))
     if flag(context, "record"):
         poses = mocap_topics(context, cell)
-        actions += _recorder(context, record_topics(*poses), list(poses),
+        # audio_common's own pair too, where the cell bridges it (aslip export reads it).
+        driver = [] if sim else driver_topics(cell.params("audio_capture"))
+        actions += _recorder(context, record_topics(*poses) + driver, list(poses),
                              duration if recorded else 0.0)
     return actions
 

@@ -263,3 +263,13 @@ def open_topic(p: Mapping[str, Any], node: Any) -> OpenedSource:
     meta = dict(METADATA_BASE, sample_rate=src.sample_rate, channel_names=src.channel_names,
                 layout=p["layout"], source_topic=p["input_topic"])
     return OpenedSource(src, meta, p["layout"])
+
+
+def driver_topics(p: Mapping[str, Any]) -> list:
+    """The driver's own topics a recording keeps beside ``/aslip/audio`` for audio_capture
+    parameters ``p`` (a cell's): audio_common's audio and its latched AudioInfo with
+    ``input_type:=audio_common`` (``aslip export`` reads the pair alone too), else none."""
+    if p.get("source") != "topic" or p.get("input_type") != "audio_common" or \
+            not p.get("input_topic"):
+        return []
+    return [p["input_topic"], p.get("info_topic") or audio_info_topic(p["input_topic"])]
