@@ -5,6 +5,8 @@
 - ``mocap``: rate, jitter, dropouts and latency of the finger and object poses (ROS;
   PoseStamped topics, or two bodies of a mocap4r2 RigidBodies);
 - ``grasp-plane``: ``grasp_plane_in_finger`` from a recording of the object held still;
+- ``grasp-axes``: the grasp plane's orientation in the finger body, from a sweep of the arm,
+  written into the cell file;
 - ``arm``: the xArm's connection, and a 1 cm move at 1 cm/s inside the limits;
 - ``realtime``: does the live inference keep its 10 ms hop, with margin, on this machine?
 
@@ -20,7 +22,7 @@ import sys
 from aslip_ros import topics
 from aslip_ros.bringup import levels as lv
 
-WHAT = ('audio', 'taps', 'mocap', 'grasp-plane', 'arm', 'realtime')
+WHAT = ('audio', 'taps', 'mocap', 'grasp-plane', 'grasp-axes', 'arm', 'realtime')
 
 
 class _Help(argparse.ArgumentDefaultsHelpFormatter):
@@ -97,7 +99,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help='the object counts as still within this distance [m]')
     p.add_argument('--orientation', type=float, nargs=4, metavar=('QX', 'QY', 'QZ', 'QW'),
                    default=[0.0, 0.0, 0.0, 1.0],
-                   help='the grasp plane\'s orientation in the finger frame (not measured)')
+                   help='the grasp plane\'s orientation in the finger frame (not measured '
+                   'here: aslip check grasp-axes measures it)')
+
+    p = sub.add_parser('grasp-axes', formatter_class=fmt, help='the grasp plane\'s '
+                       'orientation in the finger body, measured by moving the arm along the '
+                       'TCP\'s grasp-plane axes; written into the cell file')
+    from aslip_ros.bringup.grasp_axes import add_arguments as grasp_axes_arguments
+    grasp_axes_arguments(p)
 
     p = sub.add_parser('arm', formatter_class=fmt, help='the xArm connection and a 1 cm '
                        'move at 1 cm/s and back, inside the limits')
@@ -172,6 +181,9 @@ def run(args: argparse.Namespace) -> int:
         return _mocap(args, out)
     if args.what == 'realtime':
         return _realtime(args, out)
+    if args.what == 'grasp-axes':
+        from aslip_ros.bringup.grasp_axes import run as grasp_axes
+        return grasp_axes(args, out, (lambda q: True) if args.yes else _confirm)
     if args.what == 'grasp-plane':
         from aslip_ros.bringup.grasp_plane import check_grasp_plane
         return check_grasp_plane(args.bag, args.finger_topic, args.object_topic, out,

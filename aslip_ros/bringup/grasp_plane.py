@@ -115,6 +115,7 @@ def check_grasp_plane(bag, finger_topic: str, object_topic: str, out,
     if verdict.ok:
         print('paste into the cell setup file:', file=out)
         print(result.setup_lines(), file=out)
-    verdict.notes.append('the orientation is not measured: it is the one given '
-                         '(--orientation, default identity)')
+    verdict.notes.append('the orientation is not measured here: it is the one given '
+                         '(--orientation, default identity); aslip check grasp-axes '
+                         'measures it')
     return verdict.report(out)
