@@ -35,6 +35,7 @@ from aslip_ros.nodes.topic_audio import driver_topics
 from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
                                                 capture_params, cell_arguments, fail, flag,
                                                 load_checked_cell, mocap_topics,
+                                                rigid_bodies_source,
                                                 recording_metadata, required, share_dir)
 
 RECORDERS = ("auto", "ros2bag", "aslip")
@@ -60,7 +61,8 @@ def _recorder_choice(context) -> str:
     return choice
 
 
-def _recorder(context, topics: list, poses: list, duration_s: float) -> list:
+def _recorder(context, topics: list, poses: list, duration_s: float,
+              rigid: tuple = ()) -> list:
     """The recorder; with ``duration_s`` > 0 (hardware, aslip recorder) it ends the
     collection once the audio spans that long."""
     choice = arg(context, "recorder")
@@ -75,9 +77,11 @@ def _recorder(context, topics: list, poses: list, duration_s: float) -> list:
         rec = ExecuteProcess(cmd=["ros2", "bag", "record", "-s", "mcap", "-o", bag] + topics,
                              name="ros2_bag_record", output="screen")
     else:
+        pose_topics = [t for t in poses if t not in rigid] or [""]
         rec = Node(package="aslip_ros", executable="bag_recorder", name="bag_recorder",
                    output="screen", parameters=[{"output": bag, "topics": list(topics),
-                                                 "pose_topics": list(poses),
+                                                 "pose_topics": pose_topics,
+                                                 "rigid_bodies_topics": list(rigid) or [""],
                                                  "duration_s": duration_s,
                                                  "duration_topics": [AUDIO] + list(poses)}])
 
@@ -187,8 +191,10 @@ def _nodes(context) -> list:
         poses = mocap_topics(context, cell)
         # audio_common's own pair too, where the cell bridges it (aslip export reads it).
         driver = [] if sim else driver_topics(cell.params("audio_capture"))
+        source = rigid_bodies_source(context, cell)     # mocap4r2: both on one topic
         actions += _recorder(context, record_topics(*poses) + driver, list(poses),
-                             duration if recorded else 0.0)
+                             duration if recorded else 0.0,
+                             (source["topic"],) if source else ())
     return actions
 
 

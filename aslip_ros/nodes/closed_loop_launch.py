@@ -5,7 +5,8 @@ install provides): the scene or the audio interface, slip_inference, mocap_bridg
 task's controller and, optionally, rviz. Also the pieces every launch file of the package
 shares: :func:`share_dir`, :func:`rviz_actions`, and the lab's cell file (``cell:=``,
 :mod:`aslip_ros.cell`) with the hardware launch arguments that override it
-(:func:`cell_arguments`, :func:`capture_params`, :func:`mocap_topics`, :func:`arm_params`).
+(:func:`cell_arguments`, :func:`capture_params`, :func:`mocap_topics`,
+:func:`rigid_bodies_source`, :func:`arm_params`).
 Precedence, for every node parameter: the node's config/*.yaml, then the cell file, then a
 launch argument that is given (an empty argument leaves the value to the cell).
 """
@@ -156,6 +157,8 @@ def load_checked_cell(path: str) -> Cell:
 def _as_type(default, value):
     if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
+    if isinstance(default, str) and isinstance(value, int) and not isinstance(value, bool):
+        return str(value)           # a name that is a number, e.g. a mocap body's ID
     if isinstance(default, list) and default and isinstance(default[0], float) and \
             isinstance(value, list):
         return [float(v) if isinstance(v, int) and not isinstance(v, bool) else v
@@ -241,8 +244,30 @@ def capture_params(context, cell: Cell, metadata: dict) -> dict:
     return p
 
 
+def rigid_bodies_source(context, cell: Cell):
+    """The cell's mocap4r2 source, ``{"topic": ..., "bodies": {"finger": .., "object": ..}}``
+    (mocap_bridge's ``pose_source: rigid_bodies``), or None for PoseStamped topics. Raises
+    CellError for a ``finger_topic:=`` / ``object_topic:=`` given beside it."""
+    from aslip_ros import rigid_bodies as rb
+    p = cell.params("mocap_bridge")
+    if p.get("pose_source", rb.POSE_STAMPED) != rb.RIGID_BODIES:
+        return None
+    given = [f"{k}_topic:=" for k in rb.ROLES if arg(context, f"{k}_topic")]
+    if given:
+        raise CellError(f"{' and '.join(given)} name PoseStamped topics, but the cell's "
+                        "mocap_bridge takes the bodies of a RigidBodies (pose_source "
+                        "rigid_bodies): set rigid_bodies_topic, finger_body and object_body "
+                        "in the cell instead")
+    return {"topic": p.get("rigid_bodies_topic", topics.RIGID_BODIES),
+            "bodies": {r: str(p.get(f"{r}_body", "")) for r in rb.ROLES}}
+
+
 def mocap_topics(context, cell: Cell) -> tuple:
-    """(finger, object) PoseStamped topics: launch argument, else cell, else the contract."""
+    """(finger, object) pose topics: launch argument, else cell, else the contract; the
+    RigidBodies topic for both where the cell takes them from one (mocap4r2)."""
+    source = rigid_bodies_source(context, cell)
+    if source is not None:
+        return source["topic"], source["topic"]
     return tuple(arg(context, f"{k}_topic") or cell.get("mocap_bridge", f"{k}_topic", d)
                  for k, d in (("finger", topics.FINGER), ("object", topics.OBJECT)))
 
@@ -251,7 +276,8 @@ def bridge_params(context, cell: Cell, sim: bool) -> dict:
     """mocap_bridge's parameters: the scene's calibration from its metadata, the cell's
     ``grasp_plane_in_finger`` on hardware."""
     p = cell.params("mocap_bridge")
-    p["finger_topic"], p["object_topic"] = mocap_topics(context, cell)
+    if rigid_bodies_source(context, cell) is None:
+        p["finger_topic"], p["object_topic"] = mocap_topics(context, cell)
     p["calibration"] = "metadata" if sim else p.get("calibration", "param")
     if sim:         # scene_sim publishes the bodies and world -> link_base itself
         p["publish_pose_tf"] = p["publish_base_tf"] = False
@@ -275,6 +301,9 @@ def recording_metadata(context, cell: Cell, **extra) -> dict:
     finger, obj = mocap_topics(context, cell)
     meta = dict(cell.recording_metadata(), **extra)
     meta["topics"] = {"finger": finger, "object": obj, "tcp": topics.TCP}
+    source = rigid_bodies_source(context, cell)
+    if source is not None:          # which bodies of the RigidBodies are the finger, object
+        meta["bodies"] = source["bodies"]
     return meta
 
 

@@ -1,7 +1,11 @@
 """``mocap_bridge``: finger and object poses -> ground-truth slip on ``/aslip/slip_truth``.
 
 Subscribes to two ``geometry_msgs/PoseStamped`` topics from any motion-capture driver
-(mocap4r2, vrpn_mocap, ...) or the scene, keeps the last ``buffer_s`` of each,
+(vrpn_mocap, ...) or the scene, or with ``pose_source: rigid_bodies`` to one
+``mocap4r2_msgs/RigidBodies`` topic (mocap4r2's OptiTrack, Vicon and Qualisys drivers), the
+finger and object picked out of it by ``finger_body`` / ``object_body`` (name or numeric
+ID, :mod:`aslip_ros.rigid_bodies`; a body missing from a message is named in a warning and
+the diagnostics, with the bodies present). It keeps the last ``buffer_s`` of each,
 and publishes the mean slip over the window ``[t - window_s, t]`` ending at the newest
 instant both streams cover -- the planar velocity and, not gated by ``slipping``, the
 angular velocity about the pad normal (``angular_velocity``; its sigma -1) -- computed by
@@ -40,7 +44,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
-from aslip_ros import frames, poses
+from aslip_ros import frames, poses, rigid_bodies
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
@@ -54,6 +58,16 @@ def bridge_params() -> list:
     from aslip_ros.data.labels import DEFAULT_EPSILON_M_S, DEFAULT_MAX_GAP_S, DEFAULT_WINDOW_S
     from aslip_ros.nodes.mocap_tf import mocap_tf_params
     return mocap_tf_params() + [
+        c.Param("pose_source", rigid_bodies.POSE_STAMPED, "pose_stamped: finger_topic and "
+                "object_topic; rigid_bodies: finger_body and object_body of a mocap4r2 "
+                "RigidBodies on rigid_bodies_topic", c.one_of(*rigid_bodies.POSE_SOURCES),
+                read_only=True),
+        c.Param("rigid_bodies_topic", c.RIGID_BODIES_TOPIC,
+                "rigid_bodies: the mocap4r2 RigidBodies topic", c.non_empty, read_only=True),
+        c.Param("finger_body", "", "rigid_bodies: the finger's rigid_body_name or numeric ID "
+                "(OptiTrack: the Motive ID, e.g. 3)", read_only=True),
+        c.Param("object_body", "", "rigid_bodies: the object's rigid_body_name or numeric ID",
+                read_only=True),
         c.Param("finger_topic", c.FINGER_TOPIC, "finger rigid-body PoseStamped topic",
                 c.non_empty, read_only=True),
         c.Param("object_topic", c.OBJECT_TOPIC, "object rigid-body PoseStamped topic",
@@ -95,7 +109,7 @@ class MocapBridge(Node):
         """``kwargs`` go to ``rclpy`` (e.g. ``parameter_overrides``, ``context``)."""
         super().__init__("mocap_bridge", **kwargs)
         self.p = c.declare_params(self, bridge_params(), self.p_update,
-                                  cross_check=_frames_differ)
+                                  cross_check=_cross_check)
         from aslip_ros.data import labels
         self._labels = labels
         self._lock = threading.Lock()
@@ -116,6 +130,14 @@ class MocapBridge(Node):
         self.stale_events = 0
         self.gap_windows = 0
         self.state = "waiting for poses"
+        rb = self.p["pose_source"] == rigid_bodies.RIGID_BODIES
+        self.bodies = {r: self.p[f"{r}_body"] for r in rigid_bodies.ROLES} if rb else {}
+        self.body_tally = rigid_bodies.BodyTally(self.bodies)
+        self.body_problem = ""
+        #: Where each pose comes from, in the node's messages.
+        self.sources = ({r: f"{self.p['rigid_bodies_topic']} body {b!r}"
+                         for r, b in self.bodies.items()} if rb else
+                        {r: self.p[f"{r}_topic"] for r in rigid_bodies.ROLES})
 
         self.pub = self.create_publisher(SlipVector, c.SLIP_TRUTH_TOPIC, c.RELIABLE_QOS)
         self.pub_marker = (self.create_publisher(MarkerArray, c.MARKER_TOPIC + "_truth",
@@ -131,19 +153,24 @@ class MocapBridge(Node):
         from aslip_ros.nodes.mocap_tf import MocapFrames
         self.mocap_tf = MocapFrames(self, self.p, self.tf_static)
         group = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(PoseStamped, self.p["finger_topic"],
-                                 lambda m: self._on_pose("finger", m), c.SENSOR_QOS,
-                                 callback_group=group)
-        self.create_subscription(PoseStamped, self.p["object_topic"],
-                                 lambda m: self._on_pose("object", m), c.SENSOR_QOS,
-                                 callback_group=group)
+        if rb:
+            # Sensor QoS: best effort serves the drivers' reliable depth-1000 publisher too.
+            self.create_subscription(_rigid_bodies_msg(), self.p["rigid_bodies_topic"],
+                                     self._on_rigid_bodies, c.SENSOR_QOS, callback_group=group)
+        else:
+            self.create_subscription(PoseStamped, self.p["finger_topic"],
+                                     lambda m: self._on_pose("finger", m), c.SENSOR_QOS,
+                                     callback_group=group)
+            self.create_subscription(PoseStamped, self.p["object_topic"],
+                                     lambda m: self._on_pose("object", m), c.SENSOR_QOS,
+                                     callback_group=group)
         if self.p["calibration"] == "metadata":
             self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata,
                                      c.LATCHED_QOS)
         self.create_timer(1.0 / self.p["rate_hz"], self._evaluate,
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(1.0, self._diagnose, callback_group=MutuallyExclusiveCallbackGroup())
-        c.ready(self, f"finger {self.p['finger_topic']}, object {self.p['object_topic']}, "
+        c.ready(self, f"finger {self.sources['finger']}, object {self.sources['object']}, "
                       f"calibration {self.p['calibration']}")
 
     def p_update(self, changed: dict) -> None:
@@ -176,6 +203,29 @@ class MocapBridge(Node):
             self.rejected += 1
             self.get_logger().warning(f"{which} pose rejected: {exc}", throttle_duration_sec=1.0)
             return
+        self._take(which, stamp_ns, frame_id, pose)
+
+    def _on_rigid_bodies(self, msg) -> None:
+        sel = convert.select_bodies(msg, self.bodies)
+        with self._lock:
+            self.body_tally.add(sel)
+            self.body_problem = missing = rigid_bodies.missing_text(
+                self.bodies, sel.missing, sel.present,
+                f"the RigidBodies on {self.p['rigid_bodies_topic']}")
+        if missing:
+            self.get_logger().warning(missing, throttle_duration_sec=1.0)
+        for which, raw in sel.poses.items():
+            try:
+                pose = poses.as_pose(raw, f"rigid body {self.bodies[which]!r}")
+            except ValueError as exc:
+                self.rejected += 1
+                self.get_logger().warning(f"{which} pose rejected: {exc}",
+                                          throttle_duration_sec=1.0)
+                continue
+            self._take(which, sel.stamp_ns, sel.frame_id, pose)
+
+    def _take(self, which: str, stamp_ns: int, frame_id: str, pose: np.ndarray) -> None:
+        """One accepted pose of ``which`` (finger or object), whatever message it came in."""
         with self._lock:
             buf = self.finger if which == "finger" else self.obj
             if buf and stamp_ns <= buf[-1][0]:
@@ -211,9 +261,10 @@ class MocapBridge(Node):
             arrivals = list(self._arrival.values())
             if any(a is None for a in arrivals):
                 self.state = "waiting for poses"
-                missing = [f"{self.p[which + '_topic']} ({which})"
+                missing = [f"{self.sources[which]} ({which})"
                            for which, t in self._arrival.items() if t is None]
-                self.get_logger().info(f"waiting for poses on {' and '.join(missing)}",
+                seen = f" ({self.body_problem})" if self.body_problem else ""
+                self.get_logger().info(f"waiting for poses on {' and '.join(missing)}{seen}",
                                        throttle_duration_sec=WAITING_LOG_S)
                 return
             age = now - min(arrivals)
@@ -274,11 +325,42 @@ class MocapBridge(Node):
                   "stale_events": self.stale_events, "gap_windows": self.gap_windows,
                   "finger_poses": len(self.finger), "object_poses": len(self.obj),
                   "state": self.state}
+        if self.bodies:
+            with self._lock:
+                values.update({"rigid_bodies_messages": self.body_tally.messages,
+                               "bodies_present": ", ".join(self.body_tally.seen),
+                               "missing_bodies": self.body_tally.text() or "none"})
         if self.calib is not None:
             values["grasp_plane_in_finger"] = json.dumps([round(x, 6) for x in self.calib])
         level = {"running": c.Diagnostics.OK, "stale": c.Diagnostics.STALE}.get(
             self.state, c.Diagnostics.WARN)
         self.diag.publish(level, self.state, values)
+
+
+def _cross_check(values: dict) -> Optional[str]:
+    return _frames_differ(values) or _bodies_named(values)
+
+
+def _bodies_named(values: dict) -> Optional[str]:
+    rb = values["pose_source"] == rigid_bodies.RIGID_BODIES
+    named = [f"{r}_body" for r in rigid_bodies.ROLES if str(values[f"{r}_body"]).strip()]
+    if rb and len(named) < 2:
+        return ("pose_source rigid_bodies needs finger_body and object_body (each a "
+                "rigid_body_name of the RigidBodies, or the body's numeric ID)")
+    if not rb and named:
+        return (f"{' and '.join(named)} only apply to pose_source rigid_bodies (pose_source "
+                f"is {values['pose_source']})")
+    if rb and rigid_bodies.body_key(values["finger_body"]) == \
+            rigid_bodies.body_key(values["object_body"]):
+        return f"finger_body and object_body are the same body ({values['finger_body']!r})"
+    return None
+
+
+def _rigid_bodies_msg():
+    try:
+        return convert.rigid_bodies_class()
+    except ValueError as exc:
+        raise c.ConfigError(f"pose_source rigid_bodies: {exc}") from None
 
 
 def _frames_differ(values: dict) -> Optional[str]:
