@@ -16,22 +16,31 @@ included), the TCP, the ground truth, TF and the metadata, which on hardware car
 cell's grasp-plane calibrations and the pose topic names (`aslip export` reads both). A
 recorder that stops while the launch runs shuts the whole launch down with the reason: a
 collection that records nothing must not look like one that works.
+
+A failed hardware trial fails the launch (exit status 1, whichever the recorder), with one
+ERROR line naming the stream, and the recorder closes its bag whole on the way out:
+`stream_watch` (nodes/stream_watch.py) exits 1 when the audio or a pose stream never
+arrives or stops mid-trial; audio_capture exits 1 when its source cannot be opened or
+fails (`exit_on_error`); robot_sweeps exits 1 when it cannot reach its arm. `ros2 launch`
+exits 0 after a Shutdown action, so each of these exits ends the launch through `fail`.
 """
 
 import os
 import shutil
+import sys
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, ExecuteProcess, LogInfo, OpaqueFunction,
                             RegisterEventHandler, Shutdown, TimerAction)
-from launch.event_handlers import OnProcessExit
+from launch.event_handlers import OnProcessExit, OnProcessIO
 from launch_ros.actions import Node
 
 from aslip_ros.cell import CellError
 from aslip_ros.topics import AUDIO
 from aslip_ros.nodes.bag_recorder import record_topics
 from aslip_ros.nodes.topic_audio import driver_topics
+from aslip_ros.nodes.process import ros_args
 from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
                                                 capture_params, cell_arguments, fail, flag,
                                                 load_checked_cell, mocap_topics,
@@ -97,19 +106,73 @@ def _recorder(context, topics: list, poses: list, duration_s: float,
             RegisterEventHandler(OnProcessExit(target_action=rec, on_exit=stopped))]
 
 
-def _ended(who: str, done: str):
-    """``on_exit`` of the node whose end is the end of the collection (``who``)."""
+def _ended(who: str, done: str, failed: str = ""):
+    """``on_exit`` of the node whose end is the end of the collection (``who``); a nonzero
+    exit fails the launch (``failed`` says what that means)."""
     def ended(event, ctx):
         if ctx.is_shutdown:
             return None
         if event.returncode != 0:
-            return fail(f"{who} exited with code {event.returncode}")
+            return fail(f"{who} exited with code {event.returncode}{failed}")
         why = f"{done}: collection finished"
         # The recorder still receives what was in flight when the node ended; then the
         # launch ends. (A launch test can also finish its checks before the launch is gone.)
         return [LogInfo(msg=why),
                 TimerAction(period=END_GRACE_S, actions=[Shutdown(reason=why)])]
     return ended
+
+
+def _stream_lost(stream: str, who: str, why: str):
+    """``on_exit`` of the node ``who`` without which ``stream`` gets nothing: the trial
+    failed."""
+    def lost(event, ctx):
+        if ctx.is_shutdown:
+            return None
+        return fail(f"{stream}: {who} exited with code {event.returncode} ({why}): the "
+                    "trial failed")
+    return lost
+
+
+def _stream_watch(poses, duration_s: float) -> list:
+    """stream_watch over the audio and both pose streams of a hardware trial; its exit
+    (code 1: a stream never arrived or stopped, its ERROR line names it) fails the launch,
+    whichever the recorder. With ``duration_s`` > 0 (``ros2 bag record``, which has no
+    duration) it ends the trial: exit 0 that long after every stream is in. Its thresholds
+    are its parameters' defaults (data/stream_watch.py). It has no installed executable
+    (CMakeLists.txt's ASLIP_NODES): it starts through the installed nodes' launcher module,
+    run by this launch's interpreter."""
+    streams = list(dict.fromkeys([AUDIO, *poses]))    # one topic may carry both bodies
+    params = {"topics": streams, "duration_s": duration_s}
+    # -P: the installed package, never a checkout in the working directory (no messages)
+    watch = ExecuteProcess(cmd=[sys.executable, "-P", "-m", "aslip_ros.nodes.launcher",
+                                "stream_watch"] + ros_args(params),
+                           name="stream_watch", output="screen")
+    done = _ended("stream_watch", f"every stream recorded {duration_s:g} s",
+                  ": a stream of the trial failed (named in its ERROR line above)")
+
+    def ended(event, ctx):
+        if ctx.is_shutdown:
+            return None
+        if event.returncode == 0 and duration_s <= 0:
+            return fail("stream_watch exited while the trial ran")
+        return done(event, ctx)
+    return [watch, RegisterEventHandler(OnProcessExit(target_action=watch, on_exit=ended))]
+
+
+def _once_ready(node, actions: list) -> list:
+    """``actions`` once ``node`` has logged its readiness line (``common.ready``: after its
+    autostart). The stream watch's deadlines count from its own start: started with the
+    launch, they would include audio_capture's start-up, measured at 8 s on a loaded
+    2-core machine (the pose streams of a running driver come within a second)."""
+    started = []
+
+    def seen(event):
+        if started or b"]: ready" not in event.text:
+            return None
+        started.append(True)
+        return actions
+    return [RegisterEventHandler(OnProcessIO(target_action=node, on_stdout=seen,
+                                             on_stderr=seen))]
 
 
 def _duration(context) -> float:
@@ -165,30 +228,41 @@ def _nodes(context) -> list:
                                                   else "robot_stationary")
         meta = recording_metadata(context, cell, object=arg(context, "object"),
                                   induced=induced, condition=condition)
-        actions.append(Node(package="aslip_ros", executable="audio_capture",
-                            name="audio_capture", output="screen", on_exit=required,
-                            parameters=[os.path.join(cfg, "audio_capture.yaml"),
-                                        capture_params(context, cell, meta)]))
+        audio = dict(capture_params(context, cell, meta), exit_on_error=True)
+        capture = Node(package="aslip_ros", executable="audio_capture",
+                       name="audio_capture", output="screen",
+                       on_exit=_stream_lost(AUDIO, "audio_capture",
+                                            "its audio source failed, see above"),
+                       parameters=[os.path.join(cfg, "audio_capture.yaml"), audio])
+        actions.append(capture)
         if robot:
             # The sweeps end the recording: their duration, then back to the start.
             sweeps = arm_params(context, cell, "robot_sweeps", sim=False)
-            sweeps.update(duration_s=duration, exit_when_done=duration > 0,
+            # exit_when_done also for duration_s:=0: an arm it cannot reach, or a fault,
+            # ends the process (code 1), and with it the trial.
+            sweeps.update(duration_s=duration, exit_when_done=True,
                           seed=int(arg(context, "seed")))
             node = Node(package="aslip_ros", executable="robot_sweeps", name="robot_sweeps",
                         output="screen",
                         parameters=[os.path.join(cfg, "robot_sweeps.yaml"), sweeps])
             actions += [node, RegisterEventHandler(OnProcessExit(
-                target_action=node, on_exit=_ended("robot_sweeps", "the sweeps are done")))]
-    # On hardware an external trial ends with its recording: duration_s of audio in the bag
-    # (ros2 bag, or no recorder: duration_s from the launch).
-    recorded = not sim and induced == "external" and flag(context, "record") and \
-        _recorder_choice(context) == "aslip"
-    if not sim and induced == "external" and duration > 0 and not recorded:
+                target_action=node, on_exit=_ended(
+                    "robot_sweeps", "the sweeps are done",
+                    ": the arm did not sweep to the end (its error above); the trial failed")))]
+    # On hardware an external trial ends duration_s after every stream is in: the aslip
+    # recorder counts it, and for ros2 bag the stream watch; no recorder: from the launch.
+    record = flag(context, "record")
+    external = not sim and induced == "external"
+    recorded = external and record and _recorder_choice(context) == "aslip"
+    watched = external and record and not recorded
+    if external and duration > 0 and not record:
         why = f"ran for duration_s:={duration:g}: collection finished"
         actions.append(TimerAction(period=duration, actions=[
             LogInfo(msg=why), Shutdown(reason=why)]))
     if flag(context, "record"):
         poses = mocap_topics(context, cell)
+        if not sim:
+            actions += _once_ready(capture, _stream_watch(poses, duration if watched else 0.0))
         # audio_common's own pair too, where the cell bridges it (aslip export reads it).
         driver = [] if sim else driver_topics(cell.params("audio_capture"))
         source = rigid_bodies_source(context, cell)     # mocap4r2: both on one topic

@@ -40,6 +40,7 @@ def _cores() -> dict:
     from aslip_ros.control.slip_stop import SlipStopConfig
     from aslip_ros.control.slip_track import SlipTrackConfig
     from aslip_ros.control.sweeps import SweepConfig
+    from aslip_ros.data.stream_watch import WatchConfig
     from aslip_ros.hw.xarm_config import XArmConfig
     from aslip_ros.scene.scenario import Scenario
     arm = [(ArmLimits, "arm_", False), (XArmConfig, "xarm_", False)]
@@ -49,6 +50,7 @@ def _cores() -> dict:
         "robot_sweeps": [(SweepConfig, "", True), (SweepConfig, "arm_", True)] + arm,
         "scene_sim": [(Scenario, "", False)],
         "audio_capture": [(Scenario, "sim.", False)],
+        "stream_watch": [(WatchConfig, "", True)],
     }
 
 
@@ -61,7 +63,7 @@ def _defaults(config) -> dict:
 
 
 @pytest.mark.parametrize("executable", ["slip_stop", "slip_track", "robot_sweeps",
-                                        "scene_sim", "audio_capture"])
+                                        "scene_sim", "audio_capture", "stream_watch"])
 def test_every_parameter_of_a_core_field_declares_the_cores_default(executable):
     from aslip_ros.nodes.introspect import declared_by_name
     declared = declared_by_name(executable)

@@ -21,7 +21,9 @@ opened by its factory in :data:`aslip_ros.hw.audio_source.SOURCES`, or by
 A lifecycle node (it owns hardware): ``configure`` opens the source (a missing device fails
 the transition with the list of inputs), ``activate`` starts streaming, ``deactivate``
 stops it. With ``autostart`` (default) it does both at start. A reader thread pulls blocks
-from the source so the PortAudio callback never waits on ROS.
+from the source so the PortAudio callback never waits on ROS. With ``exit_on_error`` (a
+launch that records the audio) a source that cannot be opened or started at autostart, or
+fails while streaming, ends the process with exit code 1 instead of leaving it up silent.
 
 Faults a real sound card meets are visible downstream, never spliced over:
 
@@ -115,6 +117,9 @@ class AudioCapture(LifecycleNode):
             c.Param("frame_id", convert.SENSOR_FRAME, "audio frame id", c.non_empty,
                     read_only=True),
             c.Param("autostart", True, "configure and activate at start", read_only=True),
+            c.Param("exit_on_error", False, "exit with code 1 when the source cannot be "
+                    "opened or started at autostart, or fails while streaming",
+                    read_only=True),
             c.Param("latency", "low", "device: PortAudio input latency: low, high or seconds",
                     _latency, read_only=True),
             c.Param("start_attempts", 3, "tries to start the stream before activation fails",
@@ -134,6 +139,8 @@ class AudioCapture(LifecycleNode):
         self.overflows = 0
         self.error = ""
         self.finished = False
+        self.done = False                      # run_node exits with exit_code once set
+        self.exit_code = 0
         self.stalled = 0.0                     # seconds without a block, once stalled
         self.restarts = 0
         self._next_index: Optional[int] = None     # after the last published block
@@ -148,8 +155,11 @@ class AudioCapture(LifecycleNode):
             self.trigger_configure()
             if self.src is not None:
                 self.trigger_activate()
-        c.ready(self, f"source {self.p['source']}, "
-                      f"{'streaming' if self._running.is_set() else 'not streaming'}")
+            if not self._running.is_set():
+                self._exit_on_error()
+        if not self.done:       # exit_on_error: on its way out, not ready
+            c.ready(self, f"source {self.p['source']}, "
+                          f"{'streaming' if self._running.is_set() else 'not streaming'}")
 
     @staticmethod
     def _cross_check(v: dict) -> Optional[str]:
@@ -254,6 +264,7 @@ class AudioCapture(LifecycleNode):
                 self.error = f"{type(exc).__name__}: {exc}"
                 self.get_logger().error(f"audio source failed: {self.error}")
                 self._diagnose()
+                self._exit_on_error()
                 break
             if block is None:
                 if getattr(src, "finished", False) or self.finite:
@@ -284,6 +295,12 @@ class AudioCapture(LifecycleNode):
         self.rate, self.names = rate, names
         self.meta.update(sample_rate=rate, channel_names=names)
         self.pub_meta.publish(String(data=json.dumps(self.meta)))
+
+    def _exit_on_error(self) -> None:
+        if self.p["exit_on_error"]:
+            self.get_logger().error(f"no audio on {c.AUDIO_TOPIC} from source "
+                                    f"{self.p['source']}: exiting with code 1 (exit_on_error)")
+            self.exit_code, self.done = 1, True
 
     def _check_stall(self, silent_s: float) -> None:
         if silent_s < self.p["stall_timeout_s"]:

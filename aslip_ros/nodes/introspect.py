@@ -23,6 +23,8 @@ EXECUTABLES = {
     "scene_sim": ("aslip_ros.nodes.scene_sim", "SceneSim"),
     "bag_recorder": ("aslip_ros.nodes.bag_recorder", "Recorder"),
     "robot_sweeps": ("aslip_ros.nodes.robot_sweeps", "RobotSweeps"),
+    # not installed yet (data_collection.launch.py starts it through nodes/launcher.py)
+    "stream_watch": ("aslip_ros.nodes.stream_watch", "StreamWatchNode"),
 }
 
 

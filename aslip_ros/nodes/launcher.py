@@ -27,3 +27,10 @@ def main(node: str) -> int:
     """Block :data:`SHUTDOWN_SIGNALS`, then import ``aslip_ros.nodes.<node>`` and run it."""
     signal.pthread_sigmask(signal.SIG_BLOCK, SHUTDOWN_SIGNALS)
     return importlib.import_module(f"aslip_ros.nodes.{node}").main()
+
+
+if __name__ == "__main__":
+    # ``python -m aslip_ros.nodes.launcher <node> [--ros-args ...]``: a node module that has
+    # no installed executable yet, started the same way (a launch file's ExecuteProcess).
+    import sys
+    raise SystemExit(main(sys.argv[1]))

@@ -20,7 +20,9 @@ leaves the node unconfigured), ``activate`` enables velocity mode and starts fro
 fresh pose; a stale pose stream (a one-shot deadline of ``pose_timeout_s``), any arm error,
 ``deactivate`` and shutdown stop the arm at once, and no velocity command follows a stop
 until the next activation. With ``exit_when_done`` the process exits once the run has
-ended (code 0 after a complete run, 1 otherwise).
+ended (code 0 after a complete run, 1 otherwise), and with code 1 at once when autostart
+could not start it (an unreachable arm): a recording must not wait for sweeps that never
+come.
 """
 
 from __future__ import annotations
@@ -157,6 +159,10 @@ class RobotSweeps(LifecycleNode):
             self.trigger_configure()
             if self.arm is not None:
                 self.trigger_activate()
+            if not self.active and self.p["exit_when_done"]:
+                self.get_logger().error(f"the sweeps cannot start ({self.arm_error}): exiting "
+                                        "with code 1 (exit_when_done)")
+                self.exit_code, self.done = 1, True
         c.ready(self, f"robot_sweeps, arm {self.p['arm']}, "
                       f"{'active' if self.active else 'not active'}")
 
