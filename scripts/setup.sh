@@ -40,14 +40,19 @@ if ((${#missing[@]})); then
 fi
 
 # --- 2. the pinned virtual environment ----------------------------------------------------
+# The CPython versions the pinned ROS 2 Jazzy wheels (requirements/venv.lock) are built for.
+SUPPORTED_PYTHONS="3.11 3.12"
 pyver="$("$PYTHON" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
-if [ "$pyver" != "3.11" ]; then
-  echo "[setup] the pinned ROS 2 Jazzy wheels need CPython 3.11; $PYTHON is $pyver." >&2
-  echo "[setup] run with PYTHON=/path/to/python3.11 make setup" >&2
-  exit 1
-fi
-if ! "$VENV/bin/python" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
-  say "creating $VENV (about 2 minutes the first time)"
+case " $SUPPORTED_PYTHONS " in
+  *" $pyver "*) ;;
+  *) echo "[setup] the pinned ROS 2 Jazzy wheels are built for CPython $SUPPORTED_PYTHONS;" \
+       "$PYTHON is $pyver." >&2
+     echo "[setup] run with PYTHON=/path/to/python3.12 (or 3.11) make setup" >&2
+     exit 1 ;;
+esac
+if [ "$("$VENV/bin/python" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null)" \
+    != "$pyver" ]; then
+  say "creating $VENV with CPython $pyver (about 2 minutes the first time)"
   rm -rf "$VENV"
   "$PYTHON" -m venv "$VENV"
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check 'setuptools==79.0.1' wheel
@@ -66,15 +71,11 @@ if [ "$(cat "$VENV/.aslip-lock" 2>/dev/null)" != "$want" ]; then
 fi
 
 # The message wheels' CMake exports name the wheel builder's Python and numpy include
-# directories; point them at this venv's own (idempotent).
+# directories, whatever its CPython version; point them at this venv's own (idempotent).
 if [ ! -f "$VENV/.aslip-cmake-fixed" ]; then
   py_inc="$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
   np_inc="$("$VENV/bin/python" -c 'import numpy; print(numpy.get_include())')"
-  { grep -l '/opt/python/cp311-cp311' "$VENV"/share/*/cmake/*Export.cmake 2>/dev/null || true; } \
-  | while read -r f; do
-    sed -i -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#${np_inc}#g" \
-           -e "s#/opt/python/cp311-cp311/include/python3.11#${py_inc}#g" "$f"
-  done
+  "$VENV/bin/python" scripts/fix_ros_wheel_cmake.py "$VENV" "$py_inc" "$np_inc" >/dev/null
   # colcon treats the venv as an underlay when it has local_setup files.
   for sh in sh bash; do
     [ -f "$VENV/local_setup.$sh" ] || printf '# the venv is an underlay for colcon\n' > "$VENV/local_setup.$sh"
