@@ -28,7 +28,7 @@ ARM_KEYS = ("arm", "xarm_ip", "arm_max_speed_m_s", "arm_max_acc_m_s2",
             "grasp_plane_in_tcp",
             "control_rate_hz", "command_duration_s")
 #: Node sections a cell file may have.
-NODE_SECTIONS = ("audio_capture", "mocap_bridge", "slip_inference") + ARM_NODES
+NODE_SECTIONS = ("audio_capture", "mocap_bridge", "slip_inference", "stream_watch") + ARM_NODES
 SECTIONS = NODE_SECTIONS + ("arm",)
 
 

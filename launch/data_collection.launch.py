@@ -133,16 +133,17 @@ def _stream_lost(stream: str, who: str, why: str):
     return lost
 
 
-def _stream_watch(poses, duration_s: float) -> list:
+def _stream_watch(cell, poses, duration_s: float) -> list:
     """stream_watch over the audio and both pose streams of a hardware trial; its exit
     (code 1: a stream never arrived or stopped, its ERROR line names it) fails the launch,
     whichever the recorder. With ``duration_s`` > 0 (``ros2 bag record``, which has no
     duration) it ends the trial: exit 0 that long after every stream is in. Its thresholds
-    are its parameters' defaults (data/stream_watch.py). It has no installed executable
-    (CMakeLists.txt's ASLIP_NODES): it starts through the installed nodes' launcher module,
-    run by this launch's interpreter."""
+    are its parameters' defaults (data/stream_watch.py) or the cell's ``stream_watch``
+    section's (a lab whose motion capture drops a body for longer). It has no installed
+    executable (CMakeLists.txt's ASLIP_NODES): it starts through the installed nodes'
+    launcher module, run by this launch's interpreter."""
     streams = list(dict.fromkeys([AUDIO, *poses]))    # one topic may carry both bodies
-    params = {"topics": streams, "duration_s": duration_s}
+    params = dict(cell.params("stream_watch"), topics=streams, duration_s=duration_s)
     # -P: the installed package, never a checkout in the working directory (no messages)
     watch = ExecuteProcess(cmd=[sys.executable, "-P", "-m", "aslip_ros.nodes.launcher",
                                 "stream_watch"] + ros_args(params),
@@ -262,7 +263,8 @@ def _nodes(context) -> list:
     if flag(context, "record"):
         poses = mocap_topics(context, cell)
         if not sim:
-            actions += _once_ready(capture, _stream_watch(poses, duration if watched else 0.0))
+            watch = _stream_watch(cell, poses, duration if watched else 0.0)
+            actions += _once_ready(capture, watch)
         # audio_common's own pair too, where the cell bridges it (aslip export reads it).
         driver = [] if sim else driver_topics(cell.params("audio_capture"))
         source = rigid_bodies_source(context, cell)     # mocap4r2: both on one topic

@@ -445,6 +445,54 @@ def test_robot_induced_recording_on_hardware_sweeps_the_arm_within_the_cells_lim
     check_parameters(ev)
 
 
+def _started_once_ready(ev: Evaluated, exe: str) -> list:
+    """What the launch starts once node ``exe`` prints its readiness line."""
+    from launch import LaunchContext
+    from launch.events.process import ProcessStderr
+    from launch.event_handlers import OnProcessIO
+    node = next(n[3] for n in ev.nodes if n[0] == exe)
+    event = ProcessStderr(text=f"[INFO] [0.0] [{exe}]: ready: x\n".encode(),
+                          action=node, name=exe, cmd=[], cwd=None, env=None, pid=0)
+    return [a for h in ev.handlers if isinstance(h, OnProcessIO) and h.matches(event)
+            for a in h.handle(event, LaunchContext()) or ()]
+
+
+@needs_launch
+@pytest.mark.parametrize("recorder", ["aslip", "ros2bag"])
+def test_a_hardware_trial_is_watched_with_the_cells_thresholds(
+        cell, tmp_path, monkeypatch, recorder):
+    """stream_watch (#34: a failed recording fails) starts once audio_capture is ready,
+    watches the audio and the cell's pose topics with the cell's thresholds, and ends a
+    ros2 bag trial duration_s after every stream is in; a threshold out of its declared
+    range stops the launch before anything starts. rosbag2 is no wheel: its stand-in
+    (test/helpers/fake_ros2bag) makes the launch take the ros2 bag route."""
+    from launch.actions import ExecuteProcess, RegisterEventHandler
+    fake = HELPERS / "fake_ros2bag"
+    monkeypatch.setenv("PATH", f"{fake / 'bin'}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("AMENT_PREFIX_PATH",
+                       f"{fake}{os.pathsep}{os.environ['AMENT_PREFIX_PATH']}")
+    path = tmp_path / "watched.yaml"
+    path.write_text(Path(cell).read_text() + "stream_watch:\n  stall_timeout_s: 2\n")
+    ev = evaluate("data_collection.launch.py", {"sim": "false", "cell": str(path),
+                                                "duration_s": "20", "recorder": recorder})
+    assert not ev.shutdowns, ev.logs
+    bagged = any(cmd[:3] == ["ros2", "bag", "record"] for cmd, _ in ev.processes)
+    assert bagged == (recorder == "ros2bag"), ev.processes
+    started = _started_once_ready(ev, "audio_capture")
+    (watch,) = [a for a in started if isinstance(a, ExecuteProcess)]
+    cmd = " ".join("".join(str(x.text) for x in part) for part in watch.cmd)
+    assert "aslip_ros.nodes.launcher stream_watch" in cmd, cmd
+    assert "topics:=[/aslip/audio, /natnet/finger/pose, /natnet/object/pose]" in cmd, cmd
+    assert "stall_timeout_s:=2.0" in cmd, cmd
+    assert ("duration_s:=20.0" if recorder == "ros2bag" else "duration_s:=0.0") in cmd
+    assert any(isinstance(a, RegisterEventHandler) for a in started)
+    assert _by_exe(ev)["audio_capture"]["exit_on_error"] is True
+    path.write_text(Path(cell).read_text() + "stream_watch:\n  stall_timeout_s: 100\n")
+    bad = evaluate("data_collection.launch.py", {"sim": "false", "cell": str(path)})
+    assert bad.shutdowns and not bad.nodes
+    assert any("stall_timeout_s" in m for m in bad.logs), bad.logs
+
+
 @needs_launch
 def test_data_collection_refuses_a_missing_ros2bag_loudly():
     ev = evaluate("data_collection.launch.py", {"recorder": "ros2bag"})
