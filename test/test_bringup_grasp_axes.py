@@ -9,6 +9,7 @@ motion as an aligned one, and as the TCP does.
 from __future__ import annotations
 
 import io
+import time
 
 import numpy as np
 import pytest
@@ -151,3 +152,124 @@ def test_cell_edit_adds_what_is_missing_and_refuses_what_it_cannot_edit(tmp_path
     with pytest.raises(CellError, match="several lines"):
         set_cell_values(cell, {"mocap_bridge": {"grasp_plane_in_finger": [0] * 6 + [1.0]}})
     assert cell.read_text().endswith("- 0\n")
+
+
+# ------------------------------------------------- mocap4r2: the finger's body of RigidBodies
+
+class _Unreachable:
+    """An xArm that cannot be reached: the check stops after choosing its finger poses."""
+
+    def __init__(self, config):
+        pass
+
+    def connect(self):
+        from aslip_ros.control.arm import ArmError
+        raise ArmError("unreachable (test)")
+
+    def close(self):
+        pass
+
+
+@pytest.mark.parametrize("cell_mocap, flags, watched", [
+    ("  pose_source: rigid_bodies\n  finger_body: 3\n  object_body: 5\n", [],
+     ("/rigid_bodies", "3")),
+    ("  pose_source: rigid_bodies\n  finger_body: 3\n  object_body: 5\n"
+     "  rigid_bodies_topic: /optitrack/rigid_bodies\n", ["--finger-body", "7"],
+     ("/optitrack/rigid_bodies", "7")),
+    ("  finger_topic: /vrpn_mocap/finger/pose\n", [], ("/vrpn_mocap/finger/pose",)),
+    ("  finger_topic: /vrpn_mocap/finger/pose\n", ["--finger-body", "3"],
+     ("/rigid_bodies", "3")),
+])
+def test_the_cell_chooses_the_finger_poses_as_mocap_bridge_does(
+        tmp_path, monkeypatch, capsys, cell_mocap, flags, watched):
+    """A cell with pose_source rigid_bodies needs no option: the check watches the finger's
+    body of its RigidBodies topic (before: always a PoseStamped topic)."""
+    from aslip_ros.cli import main
+    from aslip_ros.hw import xarm
+    from aslip_ros.nodes import finger_watch
+    made = []
+
+    class Watch:
+        def __init__(self, *args):
+            made.append(args)
+
+        def close(self):
+            pass
+    monkeypatch.setattr(xarm, "XArmAdapter", _Unreachable)
+    monkeypatch.setattr(finger_watch, "FingerWatch", Watch)
+    cell = tmp_path / "cell.yaml"
+    cell.write_text("arm:\n  xarm_ip: 192.0.2.1\nmocap_bridge:\n" + cell_mocap)
+    assert main(["check", "grasp-axes", "--setup", str(cell), "--yes", *flags]) == 1
+    assert made == [watched]
+    assert "cannot connect: unreachable (test)" in capsys.readouterr().out
+
+
+def test_a_rigid_bodies_cell_without_the_finger_body_is_refused(tmp_path, capsys):
+    from aslip_ros.cli import main
+    cell = tmp_path / "cell.yaml"
+    cell.write_text("arm:\n  xarm_ip: 192.0.2.1\nmocap_bridge:\n  pose_source: rigid_bodies\n")
+    assert main(["check", "grasp-axes", "--setup", str(cell), "--yes"]) == 1
+    assert "mocap_bridge.pose_source rigid_bodies needs finger_body" in capsys.readouterr().err
+
+
+def _driver(context, body_names, finger_pose):
+    """A stand-in of mocap4r2's OptiTrack driver: RigidBodies at 100 Hz in frame ``map``,
+    bodies named by their Motive ID; body 3 at ``finger_pose``, the others elsewhere. Returns
+    (publisher node, stop)."""
+    import threading
+
+    import rclpy
+    from node_support import driver_msgs
+    msgs = driver_msgs("mocap4r2_msgs")
+    node = rclpy.create_node("optitrack_stand_in", context=context)
+    pub = node.create_publisher(msgs.RigidBodies, "rigid_bodies", 10)
+    stop = threading.Event()
+
+    def run():
+        k = 0
+        while not stop.wait(0.01):
+            msg = msgs.RigidBodies()
+            msg.header.frame_id = "map"
+            msg.header.stamp = node.get_clock().now().to_msg()
+            msg.frame_number = k
+            for name in body_names:
+                p = finger_pose if name == "3" else [1.0, 2.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+                body = msgs.RigidBody(rigid_body_name=name)
+                body.pose.position.x, body.pose.position.y, body.pose.position.z = p[:3]
+                (body.pose.orientation.x, body.pose.orientation.y, body.pose.orientation.z,
+                 body.pose.orientation.w) = p[3:]
+                msg.rigidbodies.append(body)
+            pub.publish(msg)
+            k += 1
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+
+    def close():
+        stop.set()
+        thread.join(5)
+        node.destroy_node()
+    return pub, close
+
+
+@pytest.mark.ros
+def test_the_finger_watch_averages_its_body_of_the_rigid_bodies(
+        rclpy_context, ros_domain, monkeypatch):
+    from aslip_ros.nodes.finger_watch import FingerWatch
+    finger = [0.4, 0.1, 0.3, *Rotation.from_euler("z", 30, degrees=True).as_quat()]
+    _, close = _driver(rclpy_context, ("1", "3", "5"), finger)
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain))
+    right, wrong = FingerWatch("/rigid_bodies", "3"), FingerWatch("/rigid_bodies", "7")
+    try:
+        deadline = time.monotonic() + 30
+        while not (right.messages and wrong.messages):
+            assert time.monotonic() < deadline, "no RigidBodies reached the watches"
+            time.sleep(0.02)
+        np.testing.assert_allclose(right.mean_pose(0.3), finger, atol=1e-9)
+        with pytest.raises(ValueError) as err:
+            wrong.mean_pose(0.3)
+        assert "rigid body '7' (finger) is in none of the" in str(err.value)
+        assert "bodies present: '1', '3', '5'" in str(err.value)
+    finally:
+        right.close()
+        wrong.close()
+        close()

@@ -78,3 +78,76 @@ def test_the_printed_lines_load_as_a_cell_file(tmp_path, capsys):
     path.write_text('\n'.join(out[i:i + 2]) + '\n')
     loaded = cell.load_cell(str(path)).get('mocap_bridge', 'grasp_plane_in_finger')
     assert loaded[:3] == pytest.approx(OFFSET, abs=1e-4)
+
+
+# ------------------------------------------------- mocap4r2: the bodies of one RigidBodies
+
+def write_rigid_bodies_bag(path, seconds=2.0, rate=100.0, seed=0, names=("1", "3", "5")):
+    """The still grasp of :func:`write_bag` as mocap4r2's OptiTrack driver records it: one
+    RigidBodies per camera frame on /rigid_bodies, frame ``map``, every body named by its
+    Motive ID (1 a still marker set, 3 the finger, 5 the object; ``names`` those sent),
+    received 3 ms after the stamp; no metadata (``ros2 bag record``)."""
+    from test_data_export_rigid_bodies import RB, STILL, _rigid_bodies, _store
+    store = _store()
+    rng = np.random.default_rng(seed)
+    start = 1_700_000_000_000_000_000
+    with bags.BagWriter(path, store=store) as w:
+        for k in range(int(seconds * rate)):
+            t = k / rate
+            q = Rotation.from_euler('zyx', [30 + 5 * t, 10, -5], degrees=True).as_quat()
+            finger = np.concatenate([[0.4 + 0.01 * t, 0.1, 0.3], q])
+            rel = OFFSET + 2e-4 * rng.standard_normal(3)
+            obj = compose(finger, np.concatenate([rel, [0, 0, 0, 1]]))
+            of = {"1": STILL, "3": finger, "5": obj}
+            stamp = start + int(round(t * 1e9))
+            w.write(topics.RIGID_BODIES, RB, _rigid_bodies(
+                store, stamp, [(n, of[n]) for n in names]), stamp + 3_000_000)
+    return path
+
+
+def test_rigid_bodies_by_id_give_the_same_offset(tmp_path, capsys):
+    bag = write_rigid_bodies_bag(tmp_path / 'still')
+    rc = cli.main(['check', 'grasp-plane', str(bag), '--finger-body', '3',
+                   '--object-body', '5'])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert _setup_line(out)[:3] == pytest.approx(OFFSET, abs=1e-4)
+    assert out.splitlines()[-1] == 'verdict: OK'
+
+
+def _rigid_cell(path, **keys):
+    lines = ['mocap_bridge:', '  pose_source: rigid_bodies']
+    lines += [f'  {key}: {value}' for key, value in keys.items()]
+    path.write_text('\n'.join(lines) + '\n')
+    return str(path)
+
+
+def test_a_rigid_bodies_cell_needs_no_option(tmp_path, capsys):
+    """The cell's own keys (pose_source rigid_bodies, bodies as numbers in YAML) choose the
+    RigidBodies: the same command as a PoseStamped cell's."""
+    bag = write_rigid_bodies_bag(tmp_path / 'still')
+    cell = _rigid_cell(tmp_path / 'cell.yaml', finger_body=3, object_body=5)
+    rc = cli.main(['check', 'grasp-plane', str(bag), '--setup', cell])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert _setup_line(out)[:3] == pytest.approx(OFFSET, abs=1e-4)
+
+
+def test_a_body_the_messages_lack_is_named_with_those_present(tmp_path, capsys):
+    bag = write_rigid_bodies_bag(tmp_path / 'still', seconds=0.5)
+    cell = _rigid_cell(tmp_path / 'cell.yaml', finger_body=3, object_body=7)
+    rc = cli.main(['check', 'grasp-plane', str(bag), '--setup', cell])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1, err
+    assert "rigid body '7' (object) is in none of the 50 RigidBodies messages on " \
+        "/rigid_bodies; bodies present: '1', '3', '5'" in err[0]
+
+
+def test_a_rigid_bodies_bag_read_for_pose_topics_says_how_to_read_it(tmp_path, capsys):
+    bag = write_rigid_bodies_bag(tmp_path / 'still', seconds=0.5)
+    rc = cli.main(['check', 'grasp-plane', str(bag)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1, err
+    assert 'the bag holds mocap4r2 RigidBodies on /rigid_bodies: name the bodies' in err[0]
+    assert cli.main(['check', 'grasp-plane', str(bag), '--finger-body', '3']) == 1
+    assert '--finger-body and --object-body go together' in capsys.readouterr().err

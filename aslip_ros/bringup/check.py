@@ -19,7 +19,6 @@ import argparse
 import os
 import sys
 
-from aslip_ros import topics
 from aslip_ros.bringup import levels as lv
 
 WHAT = ('audio', 'taps', 'mocap', 'grasp-plane', 'grasp-axes', 'arm', 'realtime')
@@ -80,20 +79,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser('mocap', formatter_class=fmt, help='rate, jitter, dropouts and '
                        'latency of the finger and object poses (ROS 2)')
-    _pose_topics(p)
-    p.add_argument('--finger-body', metavar='NAME_OR_ID', help='mocap4r2: the finger\'s '
-                   'rigid body in the RigidBodies (its name, or its numeric ID as OptiTrack '
-                   'names them); with --object-body instead of the PoseStamped topics')
-    p.add_argument('--object-body', metavar='NAME_OR_ID', help='mocap4r2: the object\'s '
-                   'rigid body')
-    p.add_argument('--rigid-bodies-topic', default=topics.RIGID_BODIES,
-                   help='mocap4r2: the RigidBodies topic')
+    _pose_source(p)
     p.add_argument('--seconds', type=float, default=5.0, help='how long to listen [s]')
 
     p = sub.add_parser('grasp-plane', formatter_class=fmt, help='grasp_plane_in_finger '
                        'from a recording of the object held still in the grasp')
     p.add_argument('bag', help='rosbag2 directory or .mcap file')
-    _pose_topics(p)
+    _pose_source(p)
     from aslip_ros.bringup.grasp_plane import DEFAULT_MAX_SPREAD_M
     p.add_argument('--max-spread-m', type=float, default=DEFAULT_MAX_SPREAD_M,
                    help='the object counts as still within this distance [m]')
@@ -134,9 +126,18 @@ def _realtime_args(p: argparse.ArgumentParser) -> None:
     p.add_argument('--json', metavar='PATH', help='also write the figures here (JSON)')
 
 
-def _pose_topics(p: argparse.ArgumentParser) -> None:
-    p.add_argument('--finger-topic', default=topics.FINGER, help='finger PoseStamped topic')
-    p.add_argument('--object-topic', default=topics.OBJECT, help='object PoseStamped topic')
+def _pose_source(p: argparse.ArgumentParser) -> None:
+    from aslip_ros.bringup import mocap_source
+    p.add_argument('--setup', metavar='FILE', help='the cell file: its mocap_bridge section '
+                   'names the pose topics, or (pose_source: rigid_bodies) the RigidBodies '
+                   'topic and bodies (options override it)')
+    mocap_source.add_arguments(p)
+
+
+def _mocap_source(args: argparse.Namespace):
+    from aslip_ros.bringup.mocap_source import resolve
+    from aslip_ros.cell import load_cell
+    return resolve(args, load_cell(args.setup) if args.setup else None)
 
 
 def _arm_args(p: argparse.ArgumentParser) -> None:
@@ -186,8 +187,8 @@ def run(args: argparse.Namespace) -> int:
         return grasp_axes(args, out, (lambda q: True) if args.yes else _confirm)
     if args.what == 'grasp-plane':
         from aslip_ros.bringup.grasp_plane import check_grasp_plane
-        return check_grasp_plane(args.bag, args.finger_topic, args.object_topic, out,
-                                 args.max_spread_m, args.orientation)
+        return check_grasp_plane(args.bag, _mocap_source(args), out, args.max_spread_m,
+                                 args.orientation)
     from aslip_ros.bringup.arm_check import check_arm
     config = _arm_config(args)
     return check_arm(config, args.speed, args.distance, args.axis, out,
@@ -250,21 +251,14 @@ def _realtime(args: argparse.Namespace, out) -> int:
 def _mocap(args: argparse.Namespace, out) -> int:
     from aslip_ros.bringup.mocap_stats import mocap_verdict, stream_stats
     from aslip_ros.nodes.mocap_check import record, record_bodies
-    bodies = {'finger': args.finger_body, 'object': args.object_body}
+    source = _mocap_source(args)
     missing = ''
-    if any(bodies.values()):
-        if not all(bodies.values()):
-            raise ValueError('--finger-body and --object-body go together (the two rigid '
-                             'bodies of the RigidBodies)')
-        topic = args.rigid_bodies_topic
-        print(f'listening to {topic} for bodies {bodies["finger"]} (finger) and '
-              f'{bodies["object"]} (object) for {args.seconds:g} s...', file=out, flush=True)
-        samples, missing = record_bodies(topic, bodies, args.seconds)
+    print(f'listening to {source.text()} for {args.seconds:g} s...', file=out, flush=True)
+    if source.rigid:
+        samples, missing = record_bodies(source.rigid_bodies_topic, source.bodies,
+                                         args.seconds)
     else:
-        chosen = [args.finger_topic, args.object_topic]
-        print(f'listening to {", ".join(chosen)} for {args.seconds:g} s...', file=out,
-              flush=True)
-        samples = record(chosen, args.seconds)
+        samples = record(list(source.topics.values()), args.seconds)
     stats = {t: stream_stats(t, *s) for t, s in samples.items()}
     for s in stats.values():
         print(s.text(), file=out)

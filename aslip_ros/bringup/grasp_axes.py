@@ -24,7 +24,10 @@ clocks are off) and nothing is written.
 The grasp plane's origin in the finger body (``aslip check grasp-plane``) is kept; the
 orientation replaces the cell's. ROS-free: the arm and the finger poses come in through
 :class:`FingerPoses` and the :class:`~aslip_ros.control.arm.Arm` protocol (the xArm
-adapter and ROS on a cell, :class:`SceneCell` in the simulated scene).
+adapter and ROS on a cell, :class:`SceneCell` in the simulated scene). On a cell the finger
+body's poses come from its PoseStamped topic or, with mocap4r2, from its body of the
+RigidBodies, as the cell's ``mocap_bridge`` section or the options say
+(:mod:`aslip_ros.bringup.mocap_source`).
 """
 
 from __future__ import annotations
@@ -32,12 +35,15 @@ from __future__ import annotations
 import collections
 import time
 from dataclasses import dataclass, replace
+from types import SimpleNamespace
 from typing import Callable, Optional, Protocol, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from aslip_ros.bringup.arm_check import ArmCheck
+from aslip_ros.bringup.mocap_source import MocapSource, resolve
+from aslip_ros.bringup.mocap_source import add_arguments as add_source_arguments
 from aslip_ros.bringup.verdict import Verdict
 from aslip_ros.control.arm import ArmError
 from aslip_ros.poses import IDENTITY_POSE, as_pose
@@ -247,11 +253,16 @@ class SceneCell:
 def check_grasp_axes(cell_path: str, out, confirm: Callable[[str], bool],
                      speed: float = DEFAULT_SPEED_M_S, distance: float = DEFAULT_DISTANCE_M,
                      finger_topic: Optional[str] = None, ip: Optional[str] = None,
-                     scene_turn_deg: Optional[float] = None, write: bool = True) -> int:
+                     scene_turn_deg: Optional[float] = None, write: bool = True,
+                     finger_body: Optional[str] = None,
+                     rigid_bodies_topic: Optional[str] = None) -> int:
     """The bring-up step: sweep, measure, write into the cell file; the exit code.
 
-    ``scene_turn_deg`` not None: the simulated scene instead of the cell's arm and motion
-    capture, its finger body turned that much about the pad normal.
+    The finger's poses: ``finger_topic`` (PoseStamped), or ``finger_body`` of the RigidBodies
+    on ``rigid_bodies_topic``; else as the cell's ``mocap_bridge`` section says
+    (:func:`aslip_ros.bringup.mocap_source.resolve`). ``scene_turn_deg`` not None: the
+    simulated scene instead of the cell's arm and motion capture, its finger body turned
+    that much about the pad normal.
     """
     from aslip_ros.bringup.cell_edit import set_cell_values
     from aslip_ros.cell import load_cell
@@ -268,9 +279,12 @@ def check_grasp_axes(cell_path: str, out, confirm: Callable[[str], bool],
         v, values = measure(scene.arm, scene, current, speed, distance, out, scene.clock,
                             scene.sleep)
     else:
+        source = resolve(SimpleNamespace(finger_topic=finger_topic, finger_body=finger_body,
+                                         rigid_bodies_topic=rigid_bodies_topic), cell,
+                         ('finger',))
         if not confirm(question):
             return Verdict().fail('not confirmed; nothing moved').report(out)
-        v, values = _on_the_cell(cell, current, speed, distance, out, finger_topic, ip)
+        v, values = _on_the_cell(cell, current, speed, distance, out, source, ip)
     if values is not None and current['grasp_plane_in_tcp'] is not None:
         del values['arm']               # the reference, as the cell has it: left untouched
     if values is not None and write:
@@ -285,9 +299,8 @@ def check_grasp_axes(cell_path: str, out, confirm: Callable[[str], bool],
 
 
 def _on_the_cell(cell, current: dict, speed: float, distance: float, out,
-                 finger_topic: Optional[str], ip: Optional[str]) -> tuple:
+                 source: MocapSource, ip: Optional[str]) -> tuple:
     """The cell's xArm (its ``arm`` section) and its finger poses over ROS."""
-    from aslip_ros import topics
     from aslip_ros.bringup.arm_check import arm_config
     from aslip_ros.hw.xarm import XArmAdapter
     from aslip_ros.nodes.finger_watch import FingerWatch
@@ -298,9 +311,10 @@ def _on_the_cell(cell, current: dict, speed: float, distance: float, out,
     config = arm_config(str(ip), arm_section.get('arm_max_speed_m_s'),
                         arm_section.get('arm_workspace_min_m') or None,
                         arm_section.get('arm_workspace_max_m') or None)
-    topic = finger_topic or cell.get('mocap_bridge', 'finger_topic', topics.FINGER)
     arm = XArmAdapter(config)
-    watch = FingerWatch(topic)
+    watch = FingerWatch(source.rigid_bodies_topic, source.bodies['finger']) if source.rigid \
+        else FingerWatch(source.topics['finger'])
+    print(f'the finger\'s poses: {source.text()}', file=out, flush=True)
     try:
         try:
             arm.connect()
@@ -320,7 +334,7 @@ def add_arguments(p) -> None:
     p.add_argument('--speed', type=float, default=DEFAULT_SPEED_M_S, help='sweep speed [m/s]')
     p.add_argument('--distance', type=float, default=DEFAULT_DISTANCE_M,
                    help='length of each leg [m]')
-    p.add_argument('--finger-topic', help='finger PoseStamped topic (default: the cell\'s)')
+    add_source_arguments(p, ('finger',))
     p.add_argument('--ip', help='xArm controller IP (default: the cell\'s xarm_ip)')
     p.add_argument('--dry-run', action='store_true', help='measure, do not write the cell')
     p.add_argument('--scene', action='store_true',
@@ -335,4 +349,5 @@ def run(args, out, confirm: Callable[[str], bool]) -> int:
     return check_grasp_axes(args.setup, out, confirm, args.speed, args.distance,
                             args.finger_topic, args.ip,
                             args.scene_finger_turn_deg if args.scene else None,
-                            write=not args.dry_run)
+                            write=not args.dry_run, finger_body=args.finger_body,
+                            rigid_bodies_topic=args.rigid_bodies_topic)
