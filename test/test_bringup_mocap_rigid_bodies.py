@@ -106,3 +106,30 @@ def test_a_body_in_no_message_fails_with_the_bodies_present():
 def test_one_body_alone_is_refused(capsys):
     assert cli.main(["check", "mocap", "--finger-body", "3", "--seconds", "0.1"]) == 1
     assert "--finger-body and --object-body go together" in capsys.readouterr().err
+
+
+def test_a_rigid_bodies_cell_chooses_the_bodies_and_the_topic(tmp_path, capsys):
+    """aslip check mocap --setup: the cell's mocap_bridge keys, options overriding them."""
+    import argparse
+
+    from aslip_ros.bringup.check import add_arguments
+    from aslip_ros.bringup.mocap_source import resolve
+    from aslip_ros.cell import load_cell
+    cell = tmp_path / "cell.yaml"
+    cell.write_text("mocap_bridge:\n  pose_source: rigid_bodies\n  finger_body: 3\n"
+                    "  object_body: 5\n  rigid_bodies_topic: /optitrack/rigid_bodies\n")
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+
+    def source(*flags):
+        args = parser.parse_args(["mocap", "--setup", str(cell), *flags])
+        return resolve(args, load_cell(args.setup))
+    s = source()
+    assert s.rigid and s.bodies == BODIES and s.rigid_bodies_topic == "/optitrack/rigid_bodies"
+    assert source("--finger-body", "4", "--object-body", "6").bodies == \
+        {"finger": "4", "object": "6"}
+    assert source("--finger-topic", "/f", "--object-topic", "/o").topics == \
+        {"finger": "/f", "object": "/o"}
+    assert cli.main(["check", "mocap", "--finger-body", "3", "--object-body", "5",
+                     "--finger-topic", "/f"]) == 1
+    assert "exclude each other" in capsys.readouterr().err
