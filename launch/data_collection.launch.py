@@ -26,6 +26,7 @@ exits 0 after a Shutdown action, so each of these exits ends the launch through 
 """
 
 import os
+import re
 import shutil
 import sys
 
@@ -49,6 +50,9 @@ from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
 
 RECORDERS = ("auto", "ros2bag", "aslip")
 INDUCED = ("external", "robot")
+#: A node's readiness line (``common.ready``: ``ready`` or ``ready: ...``), whatever the
+#: console format (RCUTILS_CONSOLE_OUTPUT_FORMAT) around the message.
+READY_LINE = re.compile(rb"(?m)(?:^|\W)ready(?::|\s*$)")
 #: Seconds between the end of a finite scene run and the end of the launch.
 END_GRACE_S = 1.0
 
@@ -168,7 +172,7 @@ def _once_ready(node, actions: list) -> list:
     started = []
 
     def seen(event):
-        if started or b"]: ready" not in event.text:
+        if started or not READY_LINE.search(event.text):
             return None
         started.append(True)
         return actions
