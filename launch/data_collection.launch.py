@@ -28,7 +28,6 @@ exits 0 after a Shutdown action, so each of these exits ends the launch through 
 import os
 import re
 import shutil
-import sys
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 from launch import LaunchDescription
@@ -41,7 +40,6 @@ from aslip_ros.cell import CellError
 from aslip_ros.topics import AUDIO
 from aslip_ros.nodes.bag_recorder import record_topics
 from aslip_ros.nodes.topic_audio import driver_topics
-from aslip_ros.nodes.process import ros_args
 from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
                                                 capture_params, cell_arguments, fail, flag,
                                                 load_checked_cell, mocap_topics,
@@ -143,15 +141,11 @@ def _stream_watch(cell, poses, duration_s: float) -> list:
     whichever the recorder. With ``duration_s`` > 0 (``ros2 bag record``, which has no
     duration) it ends the trial: exit 0 that long after every stream is in. Its thresholds
     are its parameters' defaults (data/stream_watch.py) or the cell's ``stream_watch``
-    section's (a lab whose motion capture drops a body for longer). It has no installed
-    executable (CMakeLists.txt's ASLIP_NODES): it starts through the installed nodes'
-    launcher module, run by this launch's interpreter."""
+    section's (a lab whose motion capture drops a body for longer)."""
     streams = list(dict.fromkeys([AUDIO, *poses]))    # one topic may carry both bodies
     params = dict(cell.params("stream_watch"), topics=streams, duration_s=duration_s)
-    # -P: the installed package, never a checkout in the working directory (no messages)
-    watch = ExecuteProcess(cmd=[sys.executable, "-P", "-m", "aslip_ros.nodes.launcher",
-                                "stream_watch"] + ros_args(params),
-                           name="stream_watch", output="screen")
+    watch = Node(package="aslip_ros", executable="stream_watch", name="stream_watch",
+                 parameters=[params], output="screen")
     done = _ended("stream_watch", f"every stream recorded {duration_s:g} s",
                   ": a stream of the trial failed (named in its ERROR line above)")
 

@@ -182,10 +182,10 @@ say "from install/setup.bash alone: aslip on PATH, aslip_ros from the install, n
 
 # One cell of the hardware rehearsal, on the workspace's install, its test harness in the venv
 # (pytest 8: launch_testing's plugin refuses 9).
-quiet_pip "$WS/venv/bin/python" -m pip install -q pytest==8.4.2
 cat > "$W/rehearse.sh" <<EOF
 set -e
 source "$WS/install/setup.bash"
+"$WS/venv/bin/python" -m pip install -q pytest==8.4.2 2>&1 | grep -v "is ignored" || true
 cd "$WS/src/aslip_ros"
 ASLIP_REHEARSAL_CELLS=2mic ASLIP_REQUIRE_ROS=1 ASLIP_REQUIRE_LAUNCH=1 \\
   "$WS/venv/bin/python" -P -m pytest -q -p no:cacheprovider -x test/test_hardware_rehearsal.py

@@ -466,7 +466,9 @@ def test_a_hardware_trial_is_watched_with_the_cells_thresholds(
     ros2 bag trial duration_s after every stream is in; a threshold out of its declared
     range stops the launch before anything starts. rosbag2 is no wheel: its stand-in
     (test/helpers/fake_ros2bag) makes the launch take the ros2 bag route."""
-    from launch.actions import ExecuteProcess, RegisterEventHandler
+    from launch import LaunchContext
+    from launch.actions import RegisterEventHandler
+    from launch_ros.actions import Node
     fake = HELPERS / "fake_ros2bag"
     monkeypatch.setenv("PATH", f"{fake / 'bin'}{os.pathsep}{os.environ['PATH']}")
     monkeypatch.setenv("AMENT_PREFIX_PATH",
@@ -479,12 +481,13 @@ def test_a_hardware_trial_is_watched_with_the_cells_thresholds(
     bagged = any(cmd[:3] == ["ros2", "bag", "record"] for cmd, _ in ev.processes)
     assert bagged == (recorder == "ros2bag"), ev.processes
     started = _started_once_ready(ev, "audio_capture")
-    (watch,) = [a for a in started if isinstance(a, ExecuteProcess)]
-    cmd = " ".join("".join(str(x.text) for x in part) for part in watch.cmd)
-    assert "aslip_ros.nodes.launcher stream_watch" in cmd, cmd
-    assert "topics:=[/aslip/audio, /natnet/finger/pose, /natnet/object/pose]" in cmd, cmd
-    assert "stall_timeout_s:=2.0" in cmd, cmd
-    assert ("duration_s:=20.0" if recorder == "ros2bag" else "duration_s:=0.0") in cmd
+    (watch,) = [a for a in started if isinstance(a, Node)]
+    assert watch._Node__node_executable == "stream_watch"      # installed (ASLIP_NODES)
+    params = _node_params(watch, LaunchContext(), "stream_watch")
+    assert list(params["topics"]) == ["/aslip/audio", "/natnet/finger/pose",
+                                      "/natnet/object/pose"]
+    assert params["stall_timeout_s"] == 2.0
+    assert params["duration_s"] == (20.0 if recorder == "ros2bag" else 0.0)
     assert any(isinstance(a, RegisterEventHandler) for a in started)
     assert _by_exe(ev)["audio_capture"]["exit_on_error"] is True
     path.write_text(Path(cell).read_text() + "stream_watch:\n  stall_timeout_s: 100\n")
