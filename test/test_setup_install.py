@@ -35,7 +35,9 @@ def _copy_checkout(dst: Path) -> None:
 
 
 def _env() -> dict:
-    drop = ("PYTHONPATH", "AMENT_PREFIX_PATH", "CMAKE_PREFIX_PATH", "COLCON_PREFIX_PATH")
+    # ASLIP_DRIVER_MSGS too: the copy builds without the drivers' optional messages.
+    drop = ("PYTHONPATH", "AMENT_PREFIX_PATH", "CMAKE_PREFIX_PATH", "COLCON_PREFIX_PATH",
+            "ASLIP_DRIVER_MSGS")
     return {k: v for k, v in os.environ.items() if k not in drop}
 
 
