@@ -42,35 +42,40 @@ from aslip_ros.nodes import convert
 QUEUE_BLOCKS = 100
 
 
-class TopicAudio:
-    """AudioFrames received on a topic, handed out by :meth:`read` in arrival order."""
+class _QueuedTopic:
+    """Blocks received on a topic by the node's executor, handed out by :meth:`read` in
+    arrival order to the capture thread; what does not fit the queue is dropped, counted."""
 
-    def __init__(self, node, topic: str, sample_rate: float, channel_names) -> None:
+    def __init__(self, node, topic: str) -> None:
         self._node = node
         self._topic = topic
-        self.sample_rate = float(sample_rate)
-        self.channel_names = [str(n) for n in channel_names]
         self._queue: queue.Queue = queue.Queue(maxsize=QUEUE_BLOCKS)
         self._reader = _BlockReader()
-        self._sub = None
+        self._subs: list = []
         self._lock = threading.Lock()
         self.received = 0
         self.rejected = 0
         self.dropped = 0
-        self.last_error = ""
+
+    def _subscriptions(self) -> list:
+        """The subscriptions that feed the queue (created by :meth:`start`)."""
+        raise NotImplementedError
+
+    def _not_delivered(self) -> int:
+        """Blocks received but not handed out, besides those the full queue dropped."""
+        return self.rejected
 
     def start(self) -> None:
         """Subscribe (a restart subscribes again; the published index never goes back)."""
         with self._lock:
-            if self._sub is None:
-                self._sub = self._node.create_subscription(AudioFrame, self._topic,
-                                                           self._on_frame, c.SENSOR_QOS)
+            if not self._subs:
+                self._subs = self._subscriptions()
 
     def stop(self) -> None:
         """Unsubscribe; blocks still queued are discarded."""
         with self._lock:
-            sub, self._sub = self._sub, None
-        if sub is not None:
+            subs, self._subs = self._subs, []
+        for sub in subs:
             self._node.destroy_subscription(sub)
         while not self._queue.empty():
             self._queue.get_nowait()
@@ -84,11 +89,26 @@ class TopicAudio:
         return self._reader.mark(block)
 
     def stats(self) -> SourceStats:
-        """Counters for the diagnostics (rejected frames count as dropped blocks)."""
+        """Counters for the diagnostics (blocks not handed out count as dropped)."""
         return SourceStats(blocks_produced=self.received, frames_produced=0,
                            blocks_read=self._reader.blocks_read,
-                           blocks_dropped=self.rejected + self.dropped, frames_dropped=0,
-                           input_overflows=0, queue_depth=self._queue.qsize())
+                           blocks_dropped=self._not_delivered() + self.dropped,
+                           frames_dropped=0, input_overflows=0,
+                           queue_depth=self._queue.qsize())
+
+
+class TopicAudio(_QueuedTopic):
+    """AudioFrames received on a topic, handed out by :meth:`read` in arrival order."""
+
+    def __init__(self, node, topic: str, sample_rate: float, channel_names) -> None:
+        super().__init__(node, topic)
+        self.sample_rate = float(sample_rate)
+        self.channel_names = [str(n) for n in channel_names]
+        self.last_error = ""
+
+    def _subscriptions(self) -> list:
+        return [self._node.create_subscription(AudioFrame, self._topic, self._on_frame,
+                                               c.SENSOR_QOS)]
 
     def _on_frame(self, msg: AudioFrame) -> None:
         self.received += 1
@@ -120,7 +140,7 @@ AUDIO_COMMON_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_BLOCK
                               durability=DurabilityPolicy.VOLATILE)
 
 
-class AudioCommonTopic:
+class AudioCommonTopic(_QueuedTopic):
     """audio_common's ``AudioDataStamped`` + latched ``AudioInfo`` as an audio source.
 
     ``sample_rate`` is 0 and ``channel_names`` empty until the first usable AudioInfo;
@@ -129,8 +149,8 @@ class AudioCommonTopic:
     """
 
     def __init__(self, node, topic: str, info_topic: str, channel_names) -> None:
-        self._node = node
-        self._topic, self._info_topic = topic, info_topic
+        super().__init__(node, topic)
+        self._info_topic = info_topic
         self._names = [str(n) for n in channel_names]
         self.sample_rate = 0.0
         self.channel_names: list = []
@@ -139,50 +159,19 @@ class AudioCommonTopic:
         self._current_ok = False              # the latest AudioInfo is the stream's format
         self.waiting_for = f"audio_info on {info_topic}"
         self.refusal = ""
-        self._queue: queue.Queue = queue.Queue(maxsize=QUEUE_BLOCKS)
-        self._reader = _BlockReader()
-        self._subs: list = []
-        self._lock = threading.Lock()
-        self.received = 0
         self.held = 0                         # audio before a usable AudioInfo, or refused
-        self.rejected = 0
-        self.dropped = 0
 
-    def start(self) -> None:
-        """Subscribe to the AudioInfo (latched) and the audio."""
+    def _subscriptions(self) -> list:
+        """The AudioInfo (latched) and the audio."""
         from audio_common_msgs.msg import AudioDataStamped, AudioInfo
-        with self._lock:
-            if not self._subs:
-                self._subs = [
-                    self._node.create_subscription(AudioInfo, self._info_topic,
-                                                   self._on_info, c.LATCHED_QOS),
-                    self._node.create_subscription(AudioDataStamped, self._topic,
-                                                   self._on_audio, AUDIO_COMMON_QOS)]
+        return [self._node.create_subscription(AudioInfo, self._info_topic, self._on_info,
+                                               c.LATCHED_QOS),
+                self._node.create_subscription(AudioDataStamped, self._topic,
+                                               self._on_audio, AUDIO_COMMON_QOS)]
 
-    def stop(self) -> None:
-        """Unsubscribe; blocks still queued are discarded."""
-        with self._lock:
-            subs, self._subs = self._subs, []
-        for sub in subs:
-            self._node.destroy_subscription(sub)
-        while not self._queue.empty():
-            self._queue.get_nowait()
-
-    def read(self, timeout_s: Optional[float] = None) -> Optional[AudioBlock]:
-        """The next decoded block, or ``None`` if none came within ``timeout_s``."""
-        try:
-            block = self._queue.get(timeout=timeout_s)
-        except queue.Empty:
-            return None
-        return self._reader.mark(block)
-
-    def stats(self) -> SourceStats:
-        """Counters (audio held back or refused counts as dropped blocks)."""
-        return SourceStats(blocks_produced=self.received, frames_produced=0,
-                           blocks_read=self._reader.blocks_read,
-                           blocks_dropped=self.held + self.rejected + self.dropped,
-                           frames_dropped=0, input_overflows=0,
-                           queue_depth=self._queue.qsize())
+    def _not_delivered(self) -> int:
+        """Audio held back before a usable AudioInfo, or refused, counts as dropped."""
+        return self.held + self.rejected
 
     def _refuse(self, why: str) -> None:
         if why != self.refusal:
