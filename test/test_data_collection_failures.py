@@ -47,6 +47,9 @@ FAKE_ROS2BAG = HELPERS / "fake_ros2bag"
 LAUNCH_TIMEOUT_S = 90.0
 #: A failed trial's duration: long enough that only the failure can end it in time.
 FAILED_TRIAL_S = "30"
+#: The cases of a stream that stops: a first message may come this late (a loaded machine
+#: can take seconds to start a stream), so that only the stop can end the trial.
+SLOW_START = {"start_timeout_s": 30.0}
 #: rcutils' console line: [LEVEL] [stamp] [node]: message.
 LOG_LINE = re.compile(r"\[(INFO|WARN|ERROR)\] \[(\d+\.\d+)\] \[([\w.]+)\]: (.*)")
 ROUTES = ("aslip", "ros2bag")
@@ -60,12 +63,15 @@ def _wav(path: Path, seconds: float) -> None:
                   .astype(np.float32))
 
 
-def _cell(tmp_path: Path, audio: dict, arm: dict | None = None) -> Path:
+def _cell(tmp_path: Path, audio: dict, arm: dict | None = None,
+          watch: dict | None = None) -> Path:
     lines = ["audio_capture:"] + [f"  {k}: {v}" for k, v in audio.items()]
     lines += ["mocap_bridge:", f"  finger_topic: {FINGER}", f"  object_topic: {OBJECT}",
               "  grasp_plane_in_finger: [0, 0, 0, 0, 0, 0, 1]"]
     if arm:
         lines += ["arm:"] + [f"  {k}: {v}" for k, v in arm.items()]
+    if watch:
+        lines += ["stream_watch:"] + [f"  {k}: {v}" for k, v in watch.items()]
     path = tmp_path / "cell.yaml"
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -205,7 +211,7 @@ def test_a_pose_stream_that_never_arrives_fails_the_trial(trial, tmp_path, route
 
 def test_a_pose_stream_that_stops_mid_trial_fails_the_trial(trial, tmp_path):
     """The finger stream stops once the graph has read it for 1 s (ros2 bag route)."""
-    cell = _cell(tmp_path, _wav_audio(tmp_path))
+    cell = _cell(tmp_path, _wav_audio(tmp_path), watch=SLOW_START)
     t = trial("ros2bag", cell, [FINGER, OBJECT, "--stop", FINGER, "--stop-after-s", "1",
                                 "--subscribers", "3"], f"duration_s:={FAILED_TRIAL_S}")
     _failed(t)
@@ -217,8 +223,11 @@ def test_a_pose_stream_that_stops_mid_trial_fails_the_trial(trial, tmp_path):
 
 
 def test_audio_that_stops_mid_trial_fails_the_trial(trial, tmp_path):
-    """The audio interface stops delivering (the WAV replay ends; aslip recorder)."""
-    cell = _cell(tmp_path, _wav_audio(tmp_path, seconds=4.0, loop=False))
+    """The audio interface stops delivering (the WAV replay ends; aslip recorder). Found
+    beside two CPU hogs: a 4 s replay could end before the watch had subscribed, and the
+    verdict was then, rightly, "never arrived": 8 s of audio, and a first message may
+    come late."""
+    cell = _cell(tmp_path, _wav_audio(tmp_path, seconds=8.0, loop=False), watch=SLOW_START)
     t = trial("aslip", cell, [FINGER, OBJECT], f"duration_s:={FAILED_TRIAL_S}")
     _failed(t)
     (_, line), = t.lines("stream_watch", "the trial failed")
