@@ -6,8 +6,9 @@ Each case runs ``ros2 launch`` for real (sim:=false, a cell file), on both recor
 ``recorder:=aslip`` (bag_recorder) and ``recorder:=auto`` picking ``ros2 bag record``, which
 is no wheel: test/helpers/fake_ros2bag stands in for it (bag_recorder behind the same
 command line). What the cell talks to: a WAV replay as the audio interface
-(``audio_capture source:=wav``), test/helpers/pose_standin.py as the motion-capture driver
-(it can leave a stream out or stop one mid-trial), sounddevice with a device that does not
+(``audio_capture source:=wav``), test/helpers/driver_standin.py as the motion-capture driver
+and, where audio must stop mid-trial, the audio interface (it can leave a stream out or
+stop one once the graph reads it), sounddevice with a device that does not
 exist, the real xarm SDK at a TEST-NET address. Every verdict waits on the launch's exit.
 The seconds from the failure to the launch's exit are printed (``-s`` shows them).
 
@@ -42,6 +43,9 @@ else:
 
 FINGER, OBJECT = "/standin/aslip_finger/pose", "/standin/aslip_object/pose"
 AUDIO = "/aslip/audio"
+#: The stand-in audio interface's stream (test/helpers/driver_standin.py --audio).
+STANDIN_AUDIO = "/standin/audio"
+STANDIN_CHANNELS = ("m0", "m1", "m2", "m3")
 FAKE_ROS2BAG = HELPERS / "fake_ros2bag"
 #: The longest a test waits for the launch to end: a trial that hangs fails here.
 LAUNCH_TIMEOUT_S = 90.0
@@ -85,7 +89,7 @@ def _wav_audio(tmp_path: Path, seconds: float = 6.0, loop: bool = True) -> dict:
 
 class Trial:
     """``ros2 launch aslip_ros data_collection.launch.py sim:=false`` on ``route``, with the
-    pose stand-in (``standin`` args; None = no driver at all)."""
+    driver stand-in (``standin`` args; None = no driver at all)."""
 
     def __init__(self, ros_env: dict, tmp_path: Path, route: str, cell: Path,
                  standin: list | None, *args: str) -> None:
@@ -102,7 +106,7 @@ class Trial:
         self.standin_out = tmp_path / "standin.log"
         if standin is not None:
             self.standin = subprocess.Popen(
-                [sys.executable, str(HELPERS / "pose_standin.py"), *standin], env=ros_env,
+                [sys.executable, str(HELPERS / "driver_standin.py"), *standin], env=ros_env,
                 stdout=open(self.standin_out, "w"), stderr=subprocess.STDOUT)
         recorder = "aslip" if route == "aslip" else "auto"
         self.proc = subprocess.Popen(
@@ -223,17 +227,22 @@ def test_a_pose_stream_that_stops_mid_trial_fails_the_trial(trial, tmp_path):
 
 
 def test_audio_that_stops_mid_trial_fails_the_trial(trial, tmp_path):
-    """The audio interface stops delivering (the WAV replay ends; aslip recorder). Found
-    beside two CPU hogs: a 4 s replay could end before the watch had subscribed, and the
-    verdict was then, rightly, "never arrived": 8 s of audio, and a first message may
-    come late."""
-    cell = _cell(tmp_path, _wav_audio(tmp_path, seconds=8.0, loop=False), watch=SLOW_START)
-    t = trial("aslip", cell, [FINGER, OBJECT], f"duration_s:={FAILED_TRIAL_S}")
+    """The audio interface stalls (aslip recorder): the stand-in's audio stream, bridged by
+    ``audio_capture source:=topic``, stops 1 s after the recorder and the watch both read
+    /aslip/audio. Found beside two CPU hogs: a WAV replay of fixed length could end before
+    the watch had subscribed, and the verdict was then, rightly, "never arrived"; the stop
+    now waits on the graph, not on a length."""
+    cell = _cell(tmp_path, {"source": "topic", "input_topic": STANDIN_AUDIO,
+                            "sample_rate": 16000.0, "channel_names": list(STANDIN_CHANNELS),
+                            "layout": "''"}, watch=SLOW_START)
+    t = trial("aslip", cell, [FINGER, OBJECT, "--audio", STANDIN_AUDIO, "--stop",
+                              STANDIN_AUDIO, "--readers-of", AUDIO, "--subscribers", "2"],
+              f"duration_s:={FAILED_TRIAL_S}")
     _failed(t)
     (_, line), = t.lines("stream_watch", "the trial failed")
     assert line.startswith(f"{AUDIO}: no message for"), line
-    (ended, _), = t.lines("audio_capture", "end of replay")
-    assert t.since(ended, f"[aslip] {AUDIO} stopped (end of replay)") < 6.0
+    stopped = float(re.search(r"stopped \S+ at (\d+\.\d+)", t.standin_out.read_text())[1])
+    assert t.since(stopped, f"[aslip] {STANDIN_AUDIO} stopped") < 6.0
     assert t.bag_counts().get(AUDIO, 0) > 0
 
 
