@@ -242,3 +242,328 @@ def test_the_size_check_sees_a_long_function_unless_it_says_why(tmp_path):
     assert _oversized(p, "long.py") == ["long.py:1 f: 91 lines"]
     p.write_text('def f():\n    """One table of 90 lines: kept whole."""\n' + body)
     assert _oversized(p, "long.py") == []
+
+
+# --- docs/design.md against the code ------------------------------------------------------
+# The page's Layers block, learn/ table, Topics table and every module it names are read
+# from the page itself (code blocks and markdown tables), so an edit to either side that
+# the other lacks fails here with what to change.
+
+DESIGN = ROOT / "docs" / "design.md"
+#: FLOOR names that the Layers block does not list: generated messages and entry points.
+NOT_IN_LAYERS = {"msg", "__init__", "__main__"}
+
+
+def _design_section(title: str, text: str | None = None) -> str:
+    """The body of the ``## <title>...`` section of docs/design.md (up to the next ``## ``)."""
+    text = DESIGN.read_text() if text is None else text
+    m = re.search(r"^## " + re.escape(title) + r".*?$(.*?)(?=^## |\Z)", text, re.M | re.S)
+    assert m, f"docs/design.md has no section '## {title}': the checks below read it"
+    return m.group(1)
+
+
+def _code_blocks(text: str) -> list:
+    """The contents of the fenced code blocks of ``text``, in order."""
+    return re.findall(r"^```[^\n]*\n(.*?)^```", text, re.M | re.S)
+
+
+def _layers(text: str | None = None) -> dict:
+    """Name -> floor from the Layers block: ``floor N   name/ or name.py   what it holds``;
+    a line whose name column is empty continues the description above it."""
+    block = _code_blocks(_design_section("Layers", text))[0]
+    out, floor = {}, None
+    for line in block.splitlines():
+        m = re.match(r"(?:floor (\d+))?(\s+)(\w+)(/|\.py)(?=\s|$)", line)
+        if m and m.start(3) < 20:
+            floor = int(m.group(1)) if m.group(1) else floor
+            assert floor is not None, f"docs/design.md, Layers: {line!r} is on no floor"
+            out[m.group(3)] = floor
+    return out
+
+
+def test_the_design_layers_are_the_floors_checked_here():
+    """docs/design.md's Layers block and FLOOR (above) list the same names on the same
+    floors: a module moved to another floor, or a new top-level module, changes both."""
+    page, problems = _layers(), []
+    for name, floor in sorted(FLOOR.items()):
+        if name in NOT_IN_LAYERS:
+            continue
+        kind = "/" if (PKG / name).is_dir() else ".py"
+        if name not in page:
+            problems.append(f"docs/design.md, Layers: add `{name}{kind}` under floor {floor} "
+                            f"(FLOOR in test/test_architecture.py has it)")
+        elif page[name] != floor:
+            problems.append(f"docs/design.md, Layers: `{name}{kind}` is on floor {page[name]} "
+                            f"there and on floor {floor} in FLOOR: make them agree")
+    problems += [f"docs/design.md, Layers: `{name}` is listed on floor {floor} but is not in "
+                 f"FLOOR (test/test_architecture.py) or not under aslip_ros/: add it to FLOOR, "
+                 f"or remove the line" for name, floor in sorted(page.items())
+                 if name not in FLOOR or not ((PKG / name).is_dir()
+                                              or (PKG / f"{name}.py").is_file())]
+    assert not problems, "\n".join(problems)
+
+
+def _learn_table(text: str | None = None) -> list:
+    """The rows of the "`learn/` by role" block, bottom up: each a list of module names
+    (``training.data``). A name with a folder (``training/data``) sets the folder of the
+    bare names after it on its row; a row whose names end with a comma goes on below."""
+    text = DESIGN.read_text() if text is None else text
+    m = re.search(r"^`learn/` by role.*?\n```[^\n]*\n(.*?)^```", text, re.M | re.S)
+    assert m, "docs/design.md: no \"`learn/` by role\" block after the Layers block"
+    rows, more = [], False
+    for line in m.group(1).splitlines():
+        if not line.strip() or (line[0].isspace() and not more):
+            continue                       # a description's continuation
+        names = re.split(r"\s{2,}", line.strip())[0]
+        if not more:
+            rows.append([])
+        folder = ""
+        for name in filter(None, (n.strip() for n in names.split(","))):
+            name = name.removesuffix(".py")
+            if "/" in name:
+                folder = name.rsplit("/", 1)[0] + "."
+                rows[-1].append(name.replace("/", "."))
+            else:
+                rows[-1].append(folder + name)
+        more = names.rstrip().endswith(",")
+    return rows
+
+
+def _learn_imports() -> dict:
+    """learn module (``training.data``) -> the learn modules it imports, lazy ones too;
+    packages' ``__init__`` files aside (they import nothing)."""
+    prefix = "aslip_ros.learn."
+    graph = _module_graph(PKG)
+    return {m[len(prefix):]: {t[len(prefix):] for t in graph[m] if t.startswith(prefix)}
+            for path, m in _modules(PKG / "learn")
+            if m.startswith(prefix) and path.name != "__init__.py"}
+
+
+def _learn_problems(rows: list, imports: dict) -> list:
+    """What to change in the table (or the code), as the page writes names
+    (``training/data``)."""
+    row_of = {name: i for i, row in enumerate(rows) for name in row}
+    page = {name: name.replace(".", "/") for name in set(row_of) | set(imports)}
+    shown = {i: ", ".join(page[n] for n in r) for i, r in enumerate(rows)}
+    where = "docs/design.md, `learn/` by role"
+    problems = [f"{where}: `{page[name]}` is no module under aslip_ros/learn/: fix its name "
+                f"or remove it" for name in row_of if name not in imports]
+    for mod in sorted(set(imports) - set(row_of)):
+        lowest = max((row_of[t] for t in imports[mod] if t in row_of), default=0)
+        problems.append(f"{where}: add `{page[mod]}` on the row `{shown[lowest]}` or a later "
+                        f"one (it imports {[page[t] for t in sorted(imports[mod])] or 'none'})")
+    for mod in sorted(set(imports) & set(row_of)):
+        for target in sorted(imports[mod]):
+            if target in row_of and row_of[target] > row_of[mod]:
+                problems.append(
+                    f"{where}: `{page[mod]}` (row `{shown[row_of[mod]]}`) imports "
+                    f"`{page[target]}` from the later row `{shown[row_of[target]]}`: move "
+                    f"`{page[target]}` up or `{page[mod]}` down in the table, or drop the "
+                    f"import")
+    return problems
+
+
+def test_each_learn_row_imports_only_the_rows_above_it():
+    """docs/design.md, "`learn/` by role": every module of learn/ is on one row, and each
+    imports only modules of its own row and the rows above it."""
+    problems = _learn_problems(_learn_table(), _learn_imports())
+    assert not problems, "\n".join(problems)
+
+
+def test_the_learn_table_check_reads_rows_and_sees_an_arrow_up():
+    page = ("`learn/` by role, bottom up:\n\n```\n"
+            "features, stats                 what\n"
+            "training/data, loop             more\n"
+            "                                text\n"
+            "evaluate, baselines,            lines\n"
+            "synthetic                       go on\n```\n")
+    rows = _learn_table(page)
+    assert rows == [["features", "stats"], ["training.data", "training.loop"],
+                    ["evaluate", "baselines", "synthetic"]]
+    imports = {"features": set(), "stats": set(), "training.data": {"features"},
+               "training.loop": {"evaluate"}, "evaluate": set(), "baselines": set(),
+               "synthetic": set(), "selection": {"stats"}}
+    problems = _learn_problems(rows, imports)
+    assert len(problems) == 2
+    assert any("add `selection` on the row `features, stats`" in p for p in problems)
+    assert any("`training/loop`" in p and "imports `evaluate`" in p for p in problems)
+
+
+def _topics() -> dict:
+    """aslip_ros/topics.py's module constants: name -> topic."""
+    tree = ast.parse((PKG / "topics.py").read_text())
+    return {n.targets[0].id: n.value.value for n in tree.body
+            if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name)
+            and isinstance(n.value, ast.Constant) and isinstance(n.value.value, str)}
+
+
+def _table_column(section: str, column: int = 0) -> list:
+    """The cells of a markdown table's ``column`` (header and rule aside)."""
+    rows = [line.strip().strip("|").split("|") for line in section.splitlines()
+            if line.lstrip().startswith("|")]
+    return [r[column].strip() for r in rows[2:]]
+
+
+def test_the_topics_table_is_topics_py():
+    """docs/design.md's Topics table has a row for every name of aslip_ros/topics.py, and
+    no other."""
+    table = {t for cell in _table_column(_design_section("Topics"))
+             for t in re.findall(r"`(/[^`]*)`", cell)}
+    names = _topics()
+    problems = [f"docs/design.md, Topics: add a row for `{topic}` (topics.{name}): "
+                f"| `{topic}` | type | QoS | content |"
+                for name, topic in sorted(names.items()) if topic not in table]
+    problems += [f"docs/design.md, Topics: `{topic}` is no name of aslip_ros/topics.py: add "
+                 f"it there or remove the row" for topic in sorted(table - set(names.values()))]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_qos_profiles_live_where_the_page_says():
+    """The Topics section names the one module that builds the QoS profiles ("QoS in
+    `path`"); no other module of the package builds a ``QoSProfile``."""
+    m = re.search(r"QoS in `([\w/]+\.py)`", _design_section("Topics"))
+    assert m, "docs/design.md, Topics: say where the QoS profiles live: \"QoS in `x/y.py`\""
+    home = _resolve_path(m.group(1))
+    assert home, f"docs/design.md, Topics: the QoS module {m.group(1)} does not exist"
+    elsewhere = [f"{p.relative_to(ROOT)}:{n.lineno}" for p, _ in _modules() if p != home
+                 for n in ast.walk(ast.parse(p.read_text()))
+                 if isinstance(n, ast.Call) and getattr(n.func, "id", None) == "QoSProfile"]
+    assert not elsewhere, (f"these build a QoSProfile outside {home.relative_to(ROOT)}, "
+                           f"where docs/design.md (Topics) says the QoS profiles live: move "
+                           f"them there (or name their module on the page): {elsewhere}")
+
+
+#: Where a path the page names may start: the repository, the package, learn/.
+PATH_BASES = (ROOT, PKG, PKG / "learn")
+
+
+def _resolve_path(name: str):
+    """The file or folder ``name`` (``nodes/common.py``, ``training/train.py``,
+    ``benchmarks/``) names, or None."""
+    for base in PATH_BASES:
+        p = base / name
+        if p.is_file() or (name.endswith("/") and p.is_dir()):
+            return p
+    return None
+
+
+def _module_file(mod: str):
+    rel = Path(*mod.split("."))
+    for p in (ROOT / rel.with_suffix(".py"), ROOT / rel / "__init__.py"):
+        if p.is_file():
+            return p
+    return None
+
+
+def _top_level_names(path: Path) -> set:
+    """The names a module defines or imports at its top level (and a package's modules)."""
+    names = set()
+    stack = list(ast.parse(path.read_text()).body)
+    while stack:
+        n = stack.pop()
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(n.name)
+        elif isinstance(n, (ast.Assign, ast.AnnAssign)):
+            for t in (n.targets if isinstance(n, ast.Assign) else [n.target]):
+                names |= {e.id for e in ast.walk(t) if isinstance(e, ast.Name)}
+        elif isinstance(n, (ast.Import, ast.ImportFrom)):
+            names |= {(a.asname or a.name).split(".")[0] for a in n.names}
+        elif isinstance(n, (ast.If, ast.Try)):
+            stack += n.body + n.orelse + getattr(n, "finalbody", [])
+            stack += [s for h in getattr(n, "handlers", []) for s in h.body]
+    if path.name == "__init__.py":
+        names |= {p.stem for p in path.parent.iterdir()
+                  if p.suffix == ".py" or (p / "__init__.py").is_file()}
+    return names
+
+
+def _dotted_problem(ref: str) -> str | None:
+    """Why ``ref`` (``learn.models.registry.ModelBackend``, ``aslip_ros.scene``) names
+    nothing in the package, or None."""
+    parts = ref.split(".")
+    parts = parts if parts[0] == "aslip_ros" else ["aslip_ros"] + parts
+    if parts[1] == "msg":
+        return None                        # generated by rosidl at build time
+    for k in range(len(parts), 1, -1):
+        path = _module_file(".".join(parts[:k]))
+        if path:
+            rest = parts[k:]
+            if rest and rest[0] not in _top_level_names(path):
+                return f"{path.relative_to(ROOT)} has no `{rest[0]}`"
+            return None
+    return "no such module"
+
+
+def _named_paths(text: str) -> tuple:
+    """(file and folder paths, dotted module references) named in ``text``: ``x/y.py``,
+    ``x/`` (lower case, not inside a longer path) and ``learn.models.registry.X`` (first
+    name a package module or ``aslip_ros``)."""
+    files = set(re.findall(r"(?<![\w/.-])((?:[\w-]+/)*[\w-]+\.py)\b", text))
+    folders = set(re.findall(r"(?<![\w/.:-])([a-z_]+(?:/[a-z_]+)*/)(?![\w.])", text))
+    heads = "|".join(sorted(set(FLOOR) - NOT_IN_LAYERS | {"aslip_ros"}, key=len, reverse=True))
+    dotted = {m for m in re.findall(r"(?<![\w./:-])((?:%s)(?:\.\w+)+)" % heads, text)
+              if not m.endswith((".py", ".md", ".msg"))}
+    return files | folders, dotted
+
+
+def _string_constants() -> set:
+    return {n.value for p, _ in _modules() for n in ast.walk(ast.parse(p.read_text()))
+            if isinstance(n, ast.Constant) and isinstance(n.value, str)}
+
+
+def test_every_module_the_design_page_names_exists():
+    """Every file (``nodes/convert.py``), folder (``learn/``) and dotted name
+    (``learn.models.registry.ModelBackend``) on docs/design.md names something that exists;
+    a dotted name may also be a string the package uses (an entry-point group)."""
+    paths, dotted = _named_paths(DESIGN.read_text())
+    problems = [f"docs/design.md names {p}, which is no file or folder (looked under the "
+                f"repository, aslip_ros/ and aslip_ros/learn/): write its current path"
+                for p in sorted(paths) if not _resolve_path(p)]
+    strings = _string_constants() if dotted else set()
+    for ref in sorted(dotted):
+        why = _dotted_problem(ref)
+        if why and ref not in strings:
+            problems.append(f"docs/design.md names `{ref}`: {why}; write where it is now")
+    assert not problems, "\n".join(problems)
+
+
+def test_the_path_check_sees_a_moved_module():
+    paths, dotted = _named_paths("QoS in `nodes/nowhere.py`; `learn.models.registry.Nope`, "
+                                 "`control/` and `hw.audio.WavReplay`, 2 m/s, util.py")
+    assert paths == {"nodes/nowhere.py", "control/", "util.py"}
+    assert dotted == {"learn.models.registry.Nope", "hw.audio.WavReplay"}
+    assert _resolve_path("nodes/nowhere.py") is None and _resolve_path("util.py")
+    assert _resolve_path("training/train.py") and _resolve_path("control/")
+    assert "has no `Nope`" in _dotted_problem("learn.models.registry.Nope")
+    assert _dotted_problem("learn.models.registry.ModelBackend") is None
+    assert _dotted_problem("aslip_ros.scene") is None
+
+
+def _code_references(text: str):
+    """(line, name) for every ``aslip_ros.x.y`` in ``text``, a Sphinx role's name broken
+    over two lines (``:class:`~aslip_ros.hw.audio.\\n WavReplay```) joined."""
+    for m in re.finditer(r"(?<![\w.])aslip_ros(?:\.\w+)+", text):
+        yield text.count("\n", 0, m.start()) + 1, m.group(0)
+    for m in re.finditer(r":\w+:`~?(aslip_ros(?:\.\w+)*)\.\n[ \t]*(\w+(?:\.\w+)*)`", text):
+        yield text.count("\n", 0, m.start()) + 1, f"{m.group(1)}.{m.group(2)}"
+
+
+def test_every_package_name_the_code_writes_exists():
+    """A module moved or renamed leaves no stale ``aslip_ros.x.y`` behind in a docstring,
+    comment or string of the package, the benchmarks or the launch files (an entry-point
+    group or other string the package itself uses is one)."""
+    files = ([p for p, _ in _modules(PKG, ROOT / "benchmarks")]
+             + sorted((ROOT / "launch").glob("*.py")))
+    strings = _string_constants()
+    stale = [f"{p.relative_to(ROOT)}:{line} names `{ref}`: {why}; write where it is now"
+             for p in files for line, ref in _code_references(p.read_text())
+             for why in [_dotted_problem(ref)] if why and ref not in strings]
+    assert not stale, "\n".join(stale)
+
+
+def test_the_code_reference_check_joins_a_broken_role():
+    text = "x (:class:`~aslip_ros.hw.audio.\n  WavReplay`), aslip_ros.topics.AUDIO.\n"
+    refs = list(_code_references(text))
+    assert (1, "aslip_ros.hw.audio.WavReplay") in refs and (2, "aslip_ros.topics.AUDIO") in refs
+    assert "has no `WavReplay`" in _dotted_problem("aslip_ros.hw.audio.WavReplay")
+    assert _dotted_problem("aslip_ros.msg.AudioFrame") is None

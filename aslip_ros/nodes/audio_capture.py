@@ -9,8 +9,8 @@ opened by its factory in :data:`aslip_ros.hw.audio_source.SOURCES`, or by
   acquisition time derived from PortAudio's ADC time; input overflows and queue drops are
   counted and reported.
 - ``sim``: the simulated scene's audio (``sim.*`` parameters, as for ``scene_sim``).
-- ``wav``: a multi-channel WAV file, replayed in real time (:class:`~aslip_ros.hw.audio.
-  WavReplay`).
+- ``wav``: a multi-channel WAV file, replayed in real time
+  (:class:`~aslip_ros.hw.wav.WavReplay`).
 - ``bag``: the AudioFrame messages of a rosbag2 bag, replayed in real time and restamped.
 - ``topic``: another driver's AudioFrames on ``input_topic`` (:mod:`.topic_audio`), checked
   against ``sample_rate`` and ``channel_names``; with ``input_type:=audio_common``,
