@@ -163,7 +163,7 @@ class _Unreachable:
         pass
 
     def connect(self):
-        from aslip_ros.control.arm import ArmError
+        from aslip_ros.arm import ArmError
         raise ArmError("unreachable (test)")
 
     def close(self):

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.control.arm_worker import ArmWorker
 from aslip_ros.control.command import VelocityCommand
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aslip_ros.control.arm import Arm, ArmError
+from aslip_ros.arm import Arm, ArmError
 from aslip_ros.control.limits import ArmLimits, LimitedArm
 from fake_clock import FakeClock
 

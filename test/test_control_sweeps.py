@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.control.command import apply_command
 from aslip_ros.control.frames import grasp_to_base
 from aslip_ros.control.limits import ArmLimits, LimitedArm

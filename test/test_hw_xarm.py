@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aslip_ros.control.arm import Arm, ArmError
+from aslip_ros.arm import Arm, ArmError
 from aslip_ros.hw.xarm import (MODE_CARTESIAN_VELOCITY, STATE_STOP, XArmAdapter, XArmConfig,
                                XArmError, describe_code)
 from fake_clock import FakeClock
@@ -392,7 +392,7 @@ def test_real_sdk_unreachable_arm_is_contained(tmp_path):
     code = (
         'import socket, sys\n'
         'from aslip_ros.hw.xarm import XArmAdapter, XArmConfig\n'
-        'from aslip_ros.control.arm import ArmError\n'
+        'from aslip_ros.arm import ArmError\n'
         'arm = XArmAdapter(XArmConfig(ip="127.0.0.1", connect_timeout_s=5.0))\n'
         'try:\n'
         '    arm.connect()\n'

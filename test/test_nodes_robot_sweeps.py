@@ -60,7 +60,7 @@ class StreamArm:
         self.calls.append(("enable", None))
 
     def send_velocity(self, v, duration_s) -> None:
-        from aslip_ros.control.arm import ArmError
+        from aslip_ros.arm import ArmError
         with self.lock:
             self._advance()
             n = sum(1 for name, _ in self.calls if name == "velocity")

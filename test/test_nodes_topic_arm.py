@@ -51,7 +51,7 @@ def test_close_waits_for_the_readers_to_acknowledge_the_stop(rclpy_context, acke
 
 
 def test_after_close_no_velocity_is_accepted(rclpy_context):
-    from aslip_ros.control.arm import ArmError
+    from aslip_ros.arm import ArmError
     node, arm = _arm(rclpy_context, "topic_arm_closed")
     try:
         arm.enable_velocity_mode()

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from aslip_ros.control.arm import Arm, ArmError
+from aslip_ros.arm import Arm, ArmError
 from aslip_ros.scene import World, scenarios
 
 FS = 48000

@@ -155,7 +155,7 @@ def test_a_commanded_arm_sweeps_across_the_still_probe():
     import numpy as np
     import pytest
 
-    from aslip_ros.control.arm import ArmError
+    from aslip_ros.arm import ArmError
     from aslip_ros.scene import World, scenarios
     scn = scenarios.robot_induced(seed=3, duration_s=None)
     own = World(scn)

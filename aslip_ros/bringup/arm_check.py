@@ -15,8 +15,8 @@ from typing import Any, Callable, Optional, Sequence, Tuple
 
 import numpy as np
 
+from aslip_ros.arm import ArmError
 from aslip_ros.bringup.verdict import Verdict
-from aslip_ros.control.arm import ArmError
 
 #: The test move must end at least this far inside the workspace box.
 MARGIN_M = 0.005
@@ -54,7 +54,7 @@ def choose_axis(p: np.ndarray, distance: float, lo: Sequence[float], hi: Sequenc
 
 
 class ArmCheck:
-    """The test move on a connected :class:`~aslip_ros.control.arm.Arm` (a ``LimitedArm``).
+    """The test move on a connected :class:`~aslip_ros.arm.Arm` (a ``LimitedArm``).
 
     :param arm: the arm, with ``limits`` (the adapter's :class:`ArmLimits`).
     :param clock: monotonic time; ``sleep``: used between commands.

@@ -23,7 +23,7 @@ clocks are off) and nothing is written.
 
 The grasp plane's origin in the finger body (``aslip check grasp-plane``) is kept; the
 orientation replaces the cell's. ROS-free: the arm and the finger poses come in through
-:class:`FingerPoses` and the :class:`~aslip_ros.control.arm.Arm` protocol (the xArm
+:class:`FingerPoses` and the :class:`~aslip_ros.arm.Arm` protocol (the xArm
 adapter and ROS on a cell, :class:`SceneCell` in the simulated scene). On a cell the finger
 body's poses come from its PoseStamped topic or, with mocap4r2, from its body of the
 RigidBodies, as the cell's ``mocap_bridge`` section or the options say
@@ -41,11 +41,11 @@ from typing import Callable, Optional, Protocol, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from aslip_ros.arm import ArmError
 from aslip_ros.bringup.arm_check import ArmCheck
 from aslip_ros.bringup.mocap_source import MocapSource, resolve
 from aslip_ros.bringup.mocap_source import add_arguments as add_source_arguments
 from aslip_ros.bringup.verdict import Verdict
-from aslip_ros.control.arm import ArmError
 from aslip_ros.poses import IDENTITY_POSE, as_pose
 
 #: The grasp-plane axes swept, in order: two axes of the pad plane (a clamped probe slides

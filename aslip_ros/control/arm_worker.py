@@ -1,4 +1,4 @@
-"""A thread of its own for every call into an :class:`~aslip_ros.control.arm.Arm`.
+"""A thread of its own for every call into an :class:`~aslip_ros.arm.Arm`.
 
 Arm I/O blocks: the xArm SDK waits for a reply over TCP on every call. Done from a control
 callback, it would hold up every other callback of a single-dispatch executor (slip
@@ -27,7 +27,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.control.command import VelocityCommand, apply_command
 
 #: ``on_pose(pose7, monotonic_s, wall_ns)``: a TCP pose and when it was measured.

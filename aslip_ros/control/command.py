@@ -13,7 +13,7 @@ from typing import Optional
 
 import numpy as np
 
-from aslip_ros.control.arm import Arm
+from aslip_ros.arm import Arm
 
 #: Validity of a velocity command on the arm [s]: it stops by itself this long after the
 #: newest command (every controller's ``command_duration_s`` default).

@@ -1,4 +1,4 @@
-"""Speed, acceleration, workspace and rate limits around any :class:`~aslip_ros.control.arm.Arm`.
+"""Speed, acceleration, workspace and rate limits around any :class:`~aslip_ros.arm.Arm`.
 
 A driver only has to move its arm; :class:`LimitedArm` makes every command safe first, the
 same way for every arm (the xArm adapter is a ``LimitedArm`` around its SDK driver):
@@ -28,7 +28,7 @@ from typing import Any, Callable, Optional, Sequence, Tuple, Type
 
 import numpy as np
 
-from aslip_ros.control.arm import Arm, ArmError
+from aslip_ros.arm import Arm, ArmError
 from aslip_ros.control.frames import as_vector3
 
 _LOG = logging.getLogger(__name__)
@@ -86,7 +86,7 @@ class ArmLimits:
 
 
 class LimitedArm:
-    """An :class:`~aslip_ros.control.arm.Arm` whose commands obey :class:`ArmLimits`.
+    """An :class:`~aslip_ros.arm.Arm` whose commands obey :class:`ArmLimits`.
 
     Every other attribute is the wrapped arm's (``wrapped.set_pose_listener`` etc.).
     Thread-safe: commands are serialised.

@@ -3,12 +3,13 @@
 The probe is held still in the world and lightly grasped; the arm sweeps the gripper across
 it in the grasp plane, so the slip velocity is minus the TCP velocity there and the labels
 come from the TCP pose alone (``aslip export`` with ``induced: robot``). The sweeps are the
-scene's own: :func:`aslip_ros.scene.scenarios.robot_sweeps` draws them (pauses, speeds with
-their slow share, durations, raised-cosine ramps, turning back towards the start), so the
-hardware recordings and the simulated ``robot_induced`` pretraining data share one
-distribution, defined once. Its velocities are grasp-plane ``(x, z)`` of the TCP; here they
-are rotated into ``link_base`` by the start TCP orientation and ``grasp_plane_in_tcp``
-(:func:`aslip_ros.control.frames.grasp_to_base`), as the controllers map slip.
+scene's: :func:`aslip_ros.motion.robot_sweeps` draws them (pauses, speeds with their slow
+share, durations, raised-cosine ramps, turning back towards the start) for the simulated
+``robot_induced`` pretraining data and for this task alike, so the hardware recordings and
+the pretraining data share one distribution, defined once. Its velocities are grasp-plane
+``(x, z)`` of the TCP; here they are rotated into ``link_base`` by the start TCP orientation
+and ``grasp_plane_in_tcp`` (:func:`aslip_ros.control.frames.grasp_to_base`), as the
+controllers map slip.
 
 Every command is then bounded, direction kept (the label is the measured TCP motion, so a
 slower sweep is still a correct sample):
@@ -41,7 +42,7 @@ from aslip_ros.control.command import DEFAULT_DURATION_S, VelocityCommand
 from aslip_ros.control.frames import IDENTITY_POSE, as_pose, grasp_to_base, planar_slip
 from aslip_ros.control.limits import ArmLimits
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, Watchdog
-from aslip_ros.scene import scenarios
+from aslip_ros.motion import TRIAL_DURATION_S, robot_sweeps
 
 
 class SweepState(enum.Enum):
@@ -78,7 +79,7 @@ class SweepConfig:
     :param duration_s: sweeping time before the return to start; 0 = until :meth:`finish`.
     :param sweep_radius_m: the TCP stays within this distance of the start position.
     :param max_speed_m_s: speed limit of every command; the drawn sweep speeds are capped
-        at it as well (the scene caps them at its own ``max_slip_speed_m_s``).
+        at it as well (a scenario caps them at its own ``max_slip_speed_m_s``).
     :param max_acc_m_s2: deceleration the radius and workspace bounds count on (the limit
         :class:`~aslip_ros.control.limits.LimitedArm` enforces on every arm).
     :param workspace_min_m: lower corner of the TCP box; ``None`` = no box here.
@@ -92,7 +93,7 @@ class SweepConfig:
     """
 
     seed: int = 0
-    duration_s: float = scenarios.Scenario.duration_s
+    duration_s: float = TRIAL_DURATION_S
     sweep_radius_m: float = 0.02
     max_speed_m_s: float = ArmLimits.max_speed_m_s
     max_acc_m_s2: float = ArmLimits.max_acc_m_s2
@@ -224,10 +225,8 @@ class SweepTask:
             self._plane = np.column_stack([
                 grasp_to_base(planar_slip(1.0, 0.0), self._start, self._cfg.grasp_plane_in_tcp),
                 grasp_to_base(planar_slip(0.0, 1.0), self._start, self._cfg.grasp_plane_in_tcp)])
-            self._train = scenarios.robot_sweeps(
-                scenarios.robot_induced(int(self._cfg.seed),
-                                        max_slip_speed_m_s=self._cfg.max_speed_m_s),
-                np.random.default_rng(int(self._cfg.seed)))
+            self._train = robot_sweeps(np.random.default_rng(int(self._cfg.seed)),
+                                       self._cfg.max_speed_m_s)
             self._t0 = t
             self._state = SweepState.SWEEPING
 

@@ -1,6 +1,6 @@
 """aslip_ros.hw: adapters for real hardware, without ROS.
 
-- :mod:`.xarm`: :class:`~.xarm.XArmAdapter`, the xArm as a ``control.arm.Arm`` within the
+- :mod:`.xarm`: :class:`~.xarm.XArmAdapter`, the xArm as an ``aslip_ros.arm.Arm`` within the
   limits of :mod:`aslip_ros.control.limits` (:mod:`.xarm_driver`, :mod:`.xarm_config`,
   :mod:`.xarm_sdk`: the SDK calls, settings, and the SDK contained).
 - :mod:`.audio_source`: the :class:`~.audio_source.AudioSource` protocol and the sources by

@@ -1,9 +1,9 @@
-"""xArm adapter: :class:`~aslip_ros.control.arm.Arm` over xarm-python-sdk (``XArmAPI``).
+"""xArm adapter: :class:`~aslip_ros.arm.Arm` over xarm-python-sdk (``XArmAPI``).
 
 The SDK reports failures as integer return codes, never as exceptions, so a caller that
 forgets one check keeps driving an arm that has already refused. This adapter checks every
 code: a non-zero code stops the arm (best effort) and raises :class:`XArmError`, a subclass
-of :class:`~aslip_ros.control.arm.ArmError` carrying the code and its meaning.
+of :class:`~aslip_ros.arm.ArmError` carrying the code and its meaning.
 
 Safety properties:
 
@@ -42,7 +42,7 @@ from aslip_ros.hw.xarm_sdk import default_api_factory
 
 
 class XArmAdapter(LimitedArm):
-    """An xArm as an :class:`~aslip_ros.control.arm.Arm`: :class:`XArmDriver` behind the
+    """An xArm as an :class:`~aslip_ros.arm.Arm`: :class:`XArmDriver` behind the
     configured limits (:class:`~aslip_ros.control.limits.LimitedArm`). Thread-safe.
 
     The driver's extras (``connected``, ``velocity_mode_enabled``, ``config``,

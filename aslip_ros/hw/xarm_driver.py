@@ -1,4 +1,4 @@
-"""The xArm's SDK as an :class:`~aslip_ros.control.arm.Arm`, without the motion limits
+"""The xArm's SDK as an :class:`~aslip_ros.arm.Arm`, without the motion limits
 (:class:`aslip_ros.hw.xarm.XArmAdapter` adds them); docs in :mod:`aslip_ros.hw.xarm`."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from typing import Any, Callable, Optional, Sequence, Tuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.control.limits import checked_command
 from aslip_ros.hw.xarm_codes import controller_error_text as _controller_error_text
 from aslip_ros.hw.xarm_codes import controller_warn_text as _controller_warn_text
@@ -26,7 +26,7 @@ _LOG = logging.getLogger('aslip_ros.hw.xarm')
 
 
 class XArmDriver:
-    """The xArm's SDK as an :class:`~aslip_ros.control.arm.Arm`, without the motion limits
+    """The xArm's SDK as an :class:`~aslip_ros.arm.Arm`, without the motion limits
     (use :class:`XArmAdapter`, which adds them). Thread-safe.
 
     :param config: connection settings (its limits are :class:`XArmAdapter`'s).

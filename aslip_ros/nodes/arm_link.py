@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping, Optional, Tuple
 
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.control.arm_worker import ArmWorker
 
 #: What building or connecting an arm may raise: the node stays unconfigured.

@@ -39,7 +39,7 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import String
 
 from aslip_ros import frames, poses, topics
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.control.command import DEFAULT_DURATION_S, VelocityCommand
 from aslip_ros.control.limits import ArmLimits
 from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, ArrivalStats

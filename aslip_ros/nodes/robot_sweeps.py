@@ -37,7 +37,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
 from aslip_ros import frames
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.control.command import VelocityCommand
 from aslip_ros.control.sweeps import SweepConfig, SweepEnd, SweepState, SweepTask
 from aslip_ros.control.watchdog import ArrivalStats

@@ -41,7 +41,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import String
 
 from aslip_ros import frames, topics
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.hw import sources
 from aslip_ros.hw.sources import world_metadata
 from aslip_ros.msg import AudioFrame

@@ -1,4 +1,4 @@
-"""The scene's simulated arm as an :class:`aslip_ros.control.arm.Arm`: commands on a topic.
+"""The scene's simulated arm as an :class:`aslip_ros.arm.Arm`: commands on a topic.
 
 ``scene_sim`` executes ``/aslip/arm/cmd_vel`` (TwistStamped, ``link_base``) on the scene's
 arm and publishes the TCP on ``/aslip/robot/tcp_pose``, which the controller hands back
@@ -14,7 +14,7 @@ from geometry_msgs.msg import TwistStamped
 from rclpy.duration import Duration
 
 from aslip_ros import frames
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes import convert
 
@@ -24,7 +24,7 @@ ACK_TIMEOUT_S = 1.0
 
 
 class TopicArm:
-    """An :class:`aslip_ros.control.arm.Arm` whose commands go out as TwistStamped.
+    """An :class:`aslip_ros.arm.Arm` whose commands go out as TwistStamped.
 
     The receiver (``scene_sim``) holds each command for its ``command_timeout_s``, which
     plays the role of ``duration_s``; a zero twist is a stop.

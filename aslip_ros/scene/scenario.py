@@ -11,6 +11,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from aslip_ros.motion import SLOW_FRACTION, TRIAL_DURATION_S
+
 from .layouts import DEFAULT_LAYOUT, get_layout, get_object, get_pad
 from .physics import Acoustics
 
@@ -29,7 +31,7 @@ class Scenario:
     layout: str = DEFAULT_LAYOUT
     pad: str = "textured"
     condition: str = "robot_stationary"
-    duration_s: float | None = 30.0
+    duration_s: float | None = TRIAL_DURATION_S
     sample_rate: float = 48000.0
     mocap_rate_hz: float = 120.0
     mocap_latency_s: float = 0.0083
@@ -38,7 +40,7 @@ class Scenario:
     tcp_rate_hz: float = 100.0
     arm_lag_s: float = 0.02
     max_slip_speed_m_s: float = 0.1
-    slow_fraction: float = 0.3
+    slow_fraction: float = SLOW_FRACTION
     push_dir_xz: tuple[float, float] = (1.0, 0.0)
     wall_distance_m: float = 0.1
     grip_force_n: float = 15.0

@@ -2,8 +2,9 @@
 
 A :class:`Scenario` is a frozen description (seed, object, layout, pad, condition, sensor
 settings); :class:`aslip_ros.scene.World` turns it into a stream. The motion programs in this
-module generate the random pushes and sweeps lazily from the trial's own RNG, so a scenario of
-any length needs bounded memory and the same seed always gives the same motion.
+module (and the arm sweeps, :func:`aslip_ros.motion.robot_sweeps`) generate the random pushes
+and sweeps lazily from the trial's own RNG, so a scenario of any length needs bounded memory
+and the same seed always gives the same motion.
 
 - ``robot_induced``: the arm sweeps the gripper across a stationary probe held lightly between
   the pads; every arm motion is slip (labels from robot state). Only ``robot_moving``.
@@ -26,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from aslip_ros.motion import PulseTrain, direction_back, slip_speed
+
 from .layouts import get_object
 from .scenario import CONDITIONS, KINDS, Scenario  # noqa: F401 - KINDS, CONDITIONS: re-exported
 # The variants live in their own module; re-exported here, where the scenarios are.
@@ -33,8 +36,6 @@ from .variants import (COUPLING_DB, HANDLING_PATH_DB, LAB_MOCAP, VARIANTS,  # no
                        confounders_variant, contact_variant, coupling_variant,
                        mocap_variant, one_sided_variant)
 
-#: Planned object excursion from the grasp centre beyond which pushes turn back [m].
-_EXCURSION_M = 0.02
 #: Pause between an agent's touches [s] (uniform range) and the longest slide of one push [m].
 _TOUCH_GAP_S = (0.1, 0.8)
 _PUSH_TRAVEL_M = 0.04
@@ -153,61 +154,6 @@ def gravity_pivot(seed: int, object: str = "chips_can", layout: str = "4mic",
 
 # --------------------------------------------------------------------------- motion programs
 
-class PulseTrain:
-    """A lazily generated sum of smooth velocity pulses (raised-cosine trapezoids).
-
-    Each pulse: start, end, ramp time, peak vector, turn rate [rad/s] (2-D pulses only: the
-    direction rotates during the pulse, so long windows blur direction as in the paper).
-    """
-
-    def __init__(self, dim: int, generate) -> None:
-        self.dim = dim
-        self._generate = generate          # callable(t_from) -> (list of pulses, t_next)
-        self._pulses: list[tuple] = []
-        self._t_next = 0.0
-
-    def extend_to(self, t_end: float) -> None:
-        """Generate pulses until the program reaches past ``t_end``."""
-        while self._t_next <= t_end:
-            pulses, self._t_next = self._generate(self._t_next)
-            self._pulses.extend(pulses)
-
-    def evaluate(self, t: np.ndarray) -> np.ndarray:
-        """Velocity at times ``t`` (ascending), shape ``(len(t), dim)``."""
-        self.extend_to(t[-1])
-        self._pulses = [p for p in self._pulses if p[1] >= t[0]]
-        out = np.zeros((t.shape[0], self.dim))
-        for pulse in self._pulses:
-            if pulse[0] > t[-1]:
-                continue
-            lo, hi = np.searchsorted(t, [pulse[0], pulse[1]])
-            if hi > lo:
-                self._add(out[lo:hi], t[lo:hi], pulse)
-        return out
-
-    @staticmethod
-    def _add(out: np.ndarray, t: np.ndarray, pulse: tuple) -> None:
-        """Add one raised-cosine pulse to ``out`` (its samples at times ``t``). In 3-D pulses
-        (vx, vz, wy) a turn rate turns the planar part only."""
-        t0, t1, ramp, vec, turn = pulse
-        u = t - t0
-        dur = t1 - t0
-        s = np.ones_like(u)
-        m = u < ramp
-        s[m] = 0.5 * (1.0 - np.cos(np.pi * u[m] / ramp))
-        m = u > dur - ramp
-        s[m] = 0.5 * (1.0 - np.cos(np.pi * (dur - u[m]) / ramp))
-        if turn != 0.0:
-            a = turn * (u - 0.5 * dur)
-            c, sn = np.cos(a), np.sin(a)
-            v = np.column_stack([c * vec[0] - sn * vec[1], sn * vec[0] + c * vec[1]])
-            out[:, :2] += v * s[:, None]
-            if len(vec) > 2:
-                out[:, 2:] += s[:, None] * vec[None, 2:]
-        else:
-            out += s[:, None] * vec[None, :]
-
-
 class ProfileTrain(PulseTrain):
     """A lazily generated sum of sampled velocity profiles ``(t0, t1, grid, values)``,
     linearly interpolated between their samples and zero outside them."""
@@ -219,15 +165,6 @@ class ProfileTrain(PulseTrain):
             out[:, k] += np.interp(t, grid, values[:, k])
 
 
-def _direction_back(rng: np.random.Generator, planned: np.ndarray) -> np.ndarray:
-    """A random unit direction, turned back towards the centre once the excursion is large."""
-    if np.hypot(*planned) > _EXCURSION_M:
-        phi = np.arctan2(-planned[1], -planned[0]) + rng.uniform(-0.8, 0.8)
-    else:
-        phi = rng.uniform(-np.pi, np.pi)
-    return np.array([np.cos(phi), np.sin(phi)])
-
-
 def _push_direction(rng: np.random.Generator, scn: Scenario,
                     planned: np.ndarray) -> np.ndarray:
     """An agent's push direction; with ``one_sided_fraction`` most pushes go one way.
@@ -237,7 +174,7 @@ def _push_direction(rng: np.random.Generator, scn: Scenario,
     pushes go in uniformly random directions.
     """
     if scn.one_sided_fraction <= 0.0:
-        return _direction_back(rng, planned)
+        return direction_back(rng, planned)
     if rng.random() < scn.one_sided_fraction:
         phi = scn.one_sided_direction_rad + rng.uniform(-1.0, 1.0) * scn.one_sided_spread_rad
     else:
@@ -252,28 +189,8 @@ def _is_one_sided(e: np.ndarray, scn: Scenario) -> bool:
 
 
 def _slip_speed(rng: np.random.Generator, scn: Scenario, fast_max: float) -> float:
-    """Slip speed: a share of slow slip near a few mm/s, the rest up to ``fast_max``."""
-    if rng.random() < scn.slow_fraction:
-        return float(rng.uniform(1e-3, 8e-3))
-    return float(rng.uniform(8e-3, min(fast_max, scn.max_slip_speed_m_s)))
-
-
-def robot_sweeps(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
-    """Arm sweeps in the grasp plane, in grasp-plane coordinates (x, z) of the TCP."""
-    planned = np.zeros(2)          # planned probe offset relative to the grasp centre
-
-    def gen(t: float):
-        nonlocal planned
-        rest = rng.uniform(0.3, 1.6)
-        speed = _slip_speed(rng, scn, 0.1)
-        e = _direction_back(rng, -planned)            # probe moves opposite to the arm
-        dur = rng.uniform(0.25, 2.0)
-        ramp = min(rng.uniform(0.04, 0.2), dur / 3.0)
-        dur = min(dur, 0.025 / speed + ramp)
-        planned = planned - e * speed * (dur - ramp)
-        t0 = t + rest
-        return [(t0, t0 + dur, ramp, e * speed, 0.0)], t0 + dur
-    return PulseTrain(2, gen)
+    """A push's slip speed, up to ``fast_max`` and the scenario's ``max_slip_speed_m_s``."""
+    return slip_speed(rng, scn.slow_fraction, min(fast_max, scn.max_slip_speed_m_s))
 
 
 def arm_wander(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
@@ -389,7 +306,7 @@ def drag_path(scn: Scenario, rng: np.random.Generator) -> PulseTrain:
         nonlocal planned
         rest = rng.uniform(0.2, 1.0) + (hold.pop() if hold else 0.0)
         speed = rng.uniform(0.3, 1.0) * scn.drag_speed_m_s
-        e = _direction_back(rng, planned * 0.5)
+        e = direction_back(rng, planned * 0.5)
         dur = rng.uniform(0.5, 2.0)
         ramp = min(0.2, dur / 3.0)
         planned = planned + e * speed * (dur - ramp)

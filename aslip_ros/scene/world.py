@@ -16,7 +16,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 import aslip_ros.scene.scenarios as sc
-from ..control.arm import ArmError
+from ..arm import ArmError
+from ..motion import robot_sweeps
 from .layouts import get_layout, get_object, get_pad, yaw_quaternion, yaw_rotation
 from .physics import SCENE_VERSION, Synth
 
@@ -60,7 +61,7 @@ class Chunk:
 
 
 class SimArm:
-    """Simulated Cartesian velocity arm; satisfies :class:`aslip_ros.control.arm.Arm`.
+    """Simulated Cartesian velocity arm; satisfies :class:`aslip_ros.arm.Arm`.
 
     The TCP velocity follows the command with a first-order lag (``Scenario.arm_lag_s``) and
     decays to zero once ``duration_s`` has passed without a new command.
@@ -175,7 +176,7 @@ class World:
         self._v_rel_last = np.zeros(2)
         self._sweeps = self._wander = self._agent = self._touch = self._drag = None
         if scn.kind == "robot_induced" and not scn.commanded_arm:
-            self._sweeps = sc.robot_sweeps(scn, motion_rng)
+            self._sweeps = robot_sweeps(motion_rng, scn.max_slip_speed_m_s, scn.slow_fraction)
         if scn.kind == "external_induced":
             self._agent, self._touch = sc.agent_pushes(scn, agent_rng)
             if scn.condition == "robot_moving":

@@ -2,7 +2,7 @@
 is on the node processes' path).
 
 It shows everything a new arm needs: the six methods of
-:class:`aslip_ros.control.arm.Arm` and a factory ``(node, params) -> Arm``. The controller
+:class:`aslip_ros.arm.Arm` and a factory ``(node, params) -> Arm``. The controller
 wraps it in the configured speed and workspace limits, polls its TCP on the arm thread and
 republishes it. Every call is appended as one JSON line to the file named by the
 ``FAKE_ARM_LOG`` environment variable, so the test can read what reached the arm.
@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from aslip_ros.control.arm import ArmError
+from aslip_ros.arm import ArmError
 
 
 class FakeArm:

@@ -1,7 +1,8 @@
 """The one interface every arm satisfies: the xArm adapter and the scene's simulated arm.
 
 Controllers only ever talk to an :class:`Arm`; they never import a driver. All values are
-SI (metres, seconds, m/s) in the arm's base frame (``link_base``, REP 103).
+SI (metres, seconds, m/s) in the arm's base frame (``link_base``, REP 103). On floor 0
+(docs/design.md): control/, the scene's arm and hw/ take it from here, none from another.
 """
 
 from __future__ import annotations
