@@ -33,7 +33,7 @@ EXIT_INTERRUPTED = 130
 
 # name -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "simulate": ("aslip_ros.data.simulate", "record simulated scenarios to rosbag2 (mcap) files"),
+    "simulate": ("aslip_ros.scene.simulate", "record simulated scenarios to rosbag2 (mcap) files"),
     "export": ("aslip_ros.data.export", "turn rosbags into a windowed training dataset"),
     "train": ("aslip_ros.learn.training.cli",
               "train a slip model (chosen on your data, or by name)"),

@@ -4,7 +4,7 @@ Everything expensive is cached on disk and keyed by path, so an interrupted ``ma
 resumes where it stopped: a checkpoint is retrained only when it is missing (or ``force``),
 and metrics are recomputed only when older than their checkpoint.
 
-Datasets come from the data package (``data.presets.build_default_datasets`` for the 200 ms
+Datasets come from the scene (``scene.presets.build_default_datasets`` for the 200 ms
 sets, ``data.export.export`` of the same bags for other window lengths). ``synthetic=True``
 swaps them for ``learn.synthetic`` datasets with the scene's channel names: seconds instead
 of minutes, for the pipelines' own tests only (it says nothing about the scene).
@@ -103,7 +103,7 @@ class DataPlan:
             return self._own_finetune(layout, window_ms, out)
         base200 = self.path(layout, stage, 200)
         if not (base200 / "manifest.json").is_file():
-            from aslip_ros.data.presets import build_default_datasets
+            from aslip_ros.scene.presets import build_default_datasets
             self.log(f"building the {self.scale} datasets for {layout} (simulate + export)")
             build_default_datasets(self.base, self.scale, layouts=(layout,),
                                    progress=self.progress)
@@ -117,8 +117,8 @@ class DataPlan:
 
     def _own_finetune(self, layout: str, window_ms: int, out: Path) -> Path:
         from aslip_ros.data.export import ExportConfig, export
-        from aslip_ros.data.presets import PAPER_OBJECTS
-        from aslip_ros.data.simulate import simulate
+        from aslip_ros.scene.presets import PAPER_OBJECTS
+        from aslip_ros.scene.simulate import simulate
         bags = self.bags(layout, "finetune")
         self.log(f"simulating the finetuning bags of {layout} ({self.external} per object)")
         for cond, n in self.external.items():

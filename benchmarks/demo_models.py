@@ -109,7 +109,7 @@ def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True) -> P
     bags come from ``aslip simulate --kind external --twist-fraction 0.3`` (each condition)
     and ``aslip simulate --kind pivot --conditions robot_stationary``."""
     from aslip_ros.data.export import ExportConfig, export
-    from aslip_ros.data.simulate import simulate
+    from aslip_ros.scene.simulate import simulate
 
     r = RECIPE
     data = Path(data_dir) / f"scene-{scene_version()}"

@@ -97,7 +97,7 @@ def _pivots(cfg: RotationConfig, test: bool) -> int:
 def dataset(cfg: RotationConfig, layout: str, test: bool) -> Path:
     """The twisting-and-pivoting dataset of ``layout`` (training draw, or the test draw)."""
     from aslip_ros.data.export import export
-    from aslip_ros.data.simulate import simulate
+    from aslip_ros.scene.simulate import simulate
     name = _draw(cfg, test)
     ds = root(cfg) / "datasets" / layout / name
     if (ds / "manifest.json").is_file():

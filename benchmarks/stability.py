@@ -113,7 +113,7 @@ class Stability:
     def rendered(self, name: str, acoustics, pad: str, condition: str) -> Path:
         """A dataset of new externally induced trials rendered with ``acoustics``."""
         from aslip_ros.data.export import ExportConfig, export
-        from aslip_ros.data.simulate import record_world
+        from aslip_ros.scene.simulate import record_world
         from aslip_ros.scene import World, scenarios
         cfg = self.cfg
         base = Path(cfg.data.base) / "stability"

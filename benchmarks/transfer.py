@@ -96,7 +96,7 @@ def scene_dataset(cfg: TransferConfig, scene: str, log: Callable[[str], None],
     """The externally induced dataset of ``scene`` (with ``held_out``: its fresh draw, other
     seeds): simulated and exported once, then reused."""
     from aslip_ros.data.export import export
-    from aslip_ros.data.simulate import simulate
+    from aslip_ros.scene.simulate import simulate
     name = scene + ("-held-out" if held_out else "")
     bags = scene_root(cfg) / "bags" / name
     ds = scene_root(cfg) / "datasets" / name

@@ -165,7 +165,7 @@ def test_the_mocap_variant_is_a_labs_motion_capture():
 
 def test_simulate_records_the_mocap_variant(tmp_path):
     from aslip_ros.data.bags import BagReader
-    from aslip_ros.data.simulate import simulate
+    from aslip_ros.scene.simulate import simulate
     simulate(tmp_path, "external", duration_s=1.0, variant="mocap", progress=False)
     bag = next(p for p in tmp_path.iterdir() if p.is_dir())
     with BagReader(bag) as r:

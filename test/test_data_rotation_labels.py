@@ -385,7 +385,7 @@ def test_exported_labels_match_the_scenes_truth(tmp_path, noise):
     label carries ~1 mm/s of it and wy none."""
     from aslip_ros.data.dataset import Dataset
     from aslip_ros.data.export import export
-    from aslip_ros.data.simulate import record_world
+    from aslip_ros.scene.simulate import record_world
     from aslip_ros.scene import scenarios
     from aslip_ros.scene.world import World
     segments = [(0.5, 1.5, 0.0, 0.0, 2.0), (2.0, 3.0, 0.02, -0.01),

@@ -171,3 +171,10 @@ def test_the_demo_runs_the_nodes_slip_track_law():
 def test_one_layout_registry():
     from aslip_ros.scene.layouts import DEFAULT_LAYOUT, LAYOUTS, PAPER_LAYOUTS
     assert sorted(PAPER_LAYOUTS) == sorted(LAYOUTS) and PAPER_LAYOUTS[0] == DEFAULT_LAYOUT
+
+
+def test_synthetic_bags_name_the_scenes_default_layout():
+    """data/ does not import the scene, so data/synthetic.py writes the name itself."""
+    from aslip_ros.data.synthetic import DEFAULT_LAYOUT as SYNTHETIC
+    from aslip_ros.scene.layouts import DEFAULT_LAYOUT
+    assert SYNTHETIC == DEFAULT_LAYOUT

@@ -84,7 +84,7 @@ def test_the_recipe_trains_on_twisting_pushes_and_gravity_pivots(tmp_path, monke
     share of their pushes, and gravity-pivot trials join the set, in the scene-version
     folder the export reads."""
     import aslip_ros.data.export as export
-    import aslip_ros.data.simulate as simulate
+    import aslip_ros.scene.simulate as simulate
     r = demo_models.RECIPE
     assert 0.0 < r["twist_fraction"] < 1.0 and r["gravity_pivot"] >= 1
     calls, exported = [], []

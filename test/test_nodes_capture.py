@@ -157,7 +157,7 @@ def _bag_audio(path):
 
 
 def test_bag_replay_publishes_the_bags_audio_in_order(rclpy_context, ros_env, tmp_path):
-    from aslip_ros.data.simulate import simulate
+    from aslip_ros.scene.simulate import simulate
     # 960-frame blocks: the bag's own blocks are replayed whatever block_s says.
     bag = simulate(tmp_path, "external", duration_s=2.0, block_frames=960,
                    progress=False)["bags"][0]

@@ -16,9 +16,12 @@ from scipy.spatial.transform import Rotation
 
 from aslip_ros.data.bags import DEFAULT_TOPICS, BagWriter, Topics, make_metadata
 from aslip_ros.poses import IDENTITY_POSE, as_pose, compose, invert
-from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 
 DEFAULT_CHANNELS = ("left_front", "left_rear", "right_front", "right_rear")
+#: The layout name a synthetic bag carries by default: the scene's default
+#: (``scene.layouts.DEFAULT_LAYOUT``, checked equal by test/test_defaults_once.py), written
+#: here because data/ does not import the scene; the channels and the noise are its own.
+DEFAULT_LAYOUT = "4mic"
 
 
 def _in_any(t: float, intervals: Iterable[tuple[float, float]]) -> bool:

@@ -24,7 +24,7 @@ OUT = Path(tempfile.mkdtemp(prefix="aslip_launch_export_"))
 @pytest.mark.launch_test
 @pytest.mark.skipif(lc.MISSING is not None, reason=str(lc.MISSING))
 def generate_test_description():
-    from aslip_ros.data.simulate import simulate
+    from aslip_ros.scene.simulate import simulate
     summary = simulate(OUT / "bags", "external", duration_s=3.0, progress=False)
     assert summary["bags"], summary
     return lc.description("export.launch.py", {"bag": OUT / "bags", "out": OUT / "ds",

@@ -33,7 +33,9 @@ import time
 from pathlib import Path
 
 from aslip_ros.data.export import DEFAULT_HOP_S, DEFAULT_WINDOW_S, ExportConfig, export
-from aslip_ros.data.simulate import simulate
+
+from .layouts import LAYOUTS
+from .simulate import simulate
 
 PAPER_OBJECTS = ("pla_rod", "glass_cleaner", "chips_can", "mustard_container", "cracker_box")
 PROBE = "pla_rod"
@@ -52,12 +54,6 @@ SCALES = {
 }
 
 
-def _scene_layouts() -> tuple[str, ...]:
-    """Every layout of the scene (the registry: aslip_ros/scene/layouts.py)."""
-    from aslip_ros.scene.layouts import LAYOUTS
-    return tuple(LAYOUTS)
-
-
 def build_default_datasets(out_dir: str | Path, scale: str = "default",
                            layouts: tuple[str, ...] | None = None, seed: int = 0,
                            pad: str = "textured", window_s: float = DEFAULT_WINDOW_S,
@@ -73,7 +69,7 @@ def build_default_datasets(out_dir: str | Path, scale: str = "default",
         raise ValueError(f"scale must be one of {sorted(SCALES)}, got {scale!r}")
     spec = SCALES[scale]
     out = Path(out_dir)
-    layouts = tuple(layouts) if layouts else _scene_layouts()
+    layouts = tuple(layouts) if layouts else tuple(LAYOUTS)     # every layout of the scene
     cfg = ExportConfig(window_s=window_s, hop_s=hop_s, overwrite=overwrite,
                        progress=progress)
     summary: dict = {"scale": scale, "seed": seed, "pad": pad, "window_s": window_s,
@@ -123,8 +119,8 @@ def _du(path: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m aslip_ros.data.presets --out data --scale default`` (``make datasets``)."""
-    p = argparse.ArgumentParser(prog="python -m aslip_ros.data.presets",
+    """``python -m aslip_ros.scene.presets --out data --scale default`` (``make datasets``)."""
+    p = argparse.ArgumentParser(prog="python -m aslip_ros.scene.presets",
                                 description="build the default simulated datasets")
     p.add_argument("--out", type=Path, default=Path("data"), help="root (default %(default)s)")
     p.add_argument("--scale", choices=sorted(SCALES), default="default")

@@ -1,4 +1,4 @@
-"""Scene -> bags (aslip_ros.data.simulate) and the dataset presets."""
+"""Scene -> bags (aslip_ros.scene.simulate) and the dataset presets."""
 
 from dataclasses import dataclass
 
@@ -9,8 +9,8 @@ from aslip_ros import cli
 from aslip_ros.data import bags
 from aslip_ros.data.dataset import Dataset
 from aslip_ros.data.export import export
-from aslip_ros.data.presets import SCALES, build_default_datasets
-from aslip_ros.data.simulate import plan_trials, record_world, trial_seed
+from aslip_ros.scene.presets import SCALES, build_default_datasets
+from aslip_ros.scene.simulate import plan_trials, record_world, trial_seed
 
 
 @dataclass

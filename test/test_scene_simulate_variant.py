@@ -28,7 +28,7 @@ def test_variant_is_recorded_and_not_mixed_with_other_bags(tmp_path):
 
 
 def test_simulate_knows_every_scene_variant():
-    from aslip_ros.data import simulate
+    from aslip_ros.scene import simulate
     from aslip_ros.scene import variants
     assert set(simulate.VARIANTS) == set(variants.VARIANTS)
 

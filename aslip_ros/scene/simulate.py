@@ -24,6 +24,9 @@ from typing import Any, Sequence
 
 from aslip_ros.data.bags import BagError, BagReader, BagWriter
 
+from . import scenarios
+from .world import World
+
 KINDS = {"robot": "robot_induced", "external": "external_induced", "pivot": "gravity_pivot"}
 #: Trial-id prefix of each kind.
 _PREFIX = {"robot": "rob", "external": "ext", "pivot": "piv"}
@@ -140,7 +143,6 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
     """
     from tqdm import tqdm
 
-    from aslip_ros.scene import World, scenarios
     make = getattr(scenarios, KINDS[kind])
     plan = plan_trials(kind, objects, conditions, trials, seed, layout, pad, duration_s)
     out = Path(out_dir)
