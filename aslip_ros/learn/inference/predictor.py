@@ -100,45 +100,26 @@ class BatchPrediction:
                           w, w_sigma)
 
 
-class Predictor(CheckpointFacts):
-    """Slip estimation for fixed-length multi-channel windows at the checkpoint's rate."""
+class PredictorBase(CheckpointFacts):
+    """What the window and the streaming predictors share: the decision threshold (the one
+    holder of it) and the per-grasp calibration of the stream. A subclass sets
+    ``checkpoint`` and ``feature_config``, then calls ``set_threshold`` and
+    ``_open_calibration``."""
 
-    def __init__(self, ckpt: Checkpoint, threshold: float | None = None) -> None:
-        self.checkpoint = ckpt
-        meta = ckpt.meta
-        self.feature_config = FeatureConfig.from_dict(meta["feature_config"])
-        self._threshold = DEFAULT_THRESHOLD
-        self.set_threshold(threshold)
-        self.window_samples = int(meta["window_samples"])
-        self.window_s = float(meta["window_s"])
-        backend = model_backend(ckpt.model_type)
-        if backend.streaming:
-            raise ValueError(f"a {ckpt.model_type!r} checkpoint runs per audio block: "
-                             "learn.inference.stream_predictor.StreamingPredictor")
-        self.backend = backend.from_checkpoint(ckpt)
-        self.sigma_model = sigma_model(meta)
-        #: True when the model estimates the rotational slip rate (``outputs`` names wy).
-        self.estimates_rotation = estimates_rotation(meta)
-        self.angular_sigma_model = angular_sigma_model(meta)
-        self.calibration: CalibrationConstants | None = None
-        self._stream_cal: StreamCalibration | None = None
-        self._stream_ok: tuple | None = None    # (rate, names) of the last stream passed
-        if meta.get("calibration") is not None:
-            self.calibration = CalibrationConstants.from_dict(meta["calibration"])
+    feature_config: FeatureConfig
+    _threshold: float = DEFAULT_THRESHOLD
+    calibration: CalibrationConstants | None = None
+    _stream_cal: StreamCalibration | None = None
+    _stream_ok: tuple | None = None    # (rate, names) of the last stream passed
+
+    def _open_calibration(self) -> None:
+        """The checkpoint's per-grasp calibration (none when it has no ``calibration``)."""
+        ckpt = self.checkpoint
+        if ckpt.meta.get("calibration") is not None:
+            self.calibration = CalibrationConstants.from_dict(ckpt.meta["calibration"])
             self._check_calibration(ckpt.sample_rate, ckpt.channel_names)
             self._stream_cal = StreamCalibration(self.calibration, self.feature_config,
                                                  ckpt.sample_rate)
-
-    @classmethod
-    def from_checkpoint(cls, path: str | os.PathLike,
-                        threshold: float | None = None) -> "Predictor":
-        return cls(load_checkpoint(path), threshold=threshold)
-
-    @functools.cached_property
-    def logmel(self) -> LogMel:
-        """The log-mel features of the checkpoint's feature config at the stream's rate."""
-        own = getattr(self.backend, "logmel", None)
-        return own if own is not None else LogMel(self.feature_config, self.sample_rate)
 
     # --- what the checkpoint expects ------------------------------------------------------
     @property
@@ -164,7 +145,8 @@ class Predictor(CheckpointFacts):
         return t
 
     def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
-        """Raise CheckpointMismatch (a ValueError) unless the stream matches the training.
+        """Raise CheckpointMismatch (a ValueError) unless the stream matches the training:
+        rate and channel names (in order), and the calibration's features at that rate.
 
         The last stream that passed is remembered: the live path checks every block, and
         the calibration's check builds a featuriser."""
@@ -189,12 +171,6 @@ class Predictor(CheckpointFacts):
         """True when the checkpoint carries a per-grasp calibration."""
         return self.calibration is not None
 
-    def push_audio(self, block: np.ndarray) -> None:
-        """Feed one accepted block ``(n, C)`` of the stream to the calibration (no-op
-        without one). Every sample of the grasp, in order, exactly once."""
-        if self._stream_cal is not None:
-            self._stream_cal.push(block)
-
     def reset_calibration(self) -> None:
         """A new grasp (gap, restart, request): the estimate starts again from zero gain."""
         if self._stream_cal is not None:
@@ -211,6 +187,45 @@ class Predictor(CheckpointFacts):
     def calibration_summary(self) -> dict[str, Any] | None:
         """Converged, per-channel gain [dB], accepted and seen frames, resets (or None)."""
         return None if self._stream_cal is None else self._stream_cal.summary()
+
+
+class Predictor(PredictorBase):
+    """Slip estimation for fixed-length multi-channel windows at the checkpoint's rate."""
+
+    def __init__(self, ckpt: Checkpoint, threshold: float | None = None) -> None:
+        self.checkpoint = ckpt
+        meta = ckpt.meta
+        self.feature_config = FeatureConfig.from_dict(meta["feature_config"])
+        self.set_threshold(threshold)
+        self.window_samples = int(meta["window_samples"])
+        self.window_s = float(meta["window_s"])
+        backend = model_backend(ckpt.model_type)
+        if backend.streaming:
+            raise ValueError(f"a {ckpt.model_type!r} checkpoint runs per audio block: "
+                             "learn.inference.stream_predictor.StreamingPredictor")
+        self.backend = backend.from_checkpoint(ckpt)
+        self.sigma_model = sigma_model(meta)
+        #: True when the model estimates the rotational slip rate (``outputs`` names wy).
+        self.estimates_rotation = estimates_rotation(meta)
+        self.angular_sigma_model = angular_sigma_model(meta)
+        self._open_calibration()
+
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike,
+                        threshold: float | None = None) -> "Predictor":
+        return cls(load_checkpoint(path), threshold=threshold)
+
+    @functools.cached_property
+    def logmel(self) -> LogMel:
+        """The log-mel features of the checkpoint's feature config at the stream's rate."""
+        own = getattr(self.backend, "logmel", None)
+        return own if own is not None else LogMel(self.feature_config, self.sample_rate)
+
+    def push_audio(self, block: np.ndarray) -> None:
+        """Feed one accepted block ``(n, C)`` of the stream to the calibration (no-op
+        without one). Every sample of the grasp, in order, exactly once."""
+        if self._stream_cal is not None:
+            self._stream_cal.push(block)
 
     # --- inference ------------------------------------------------------------------------
     def _validate(self, windows: np.ndarray) -> np.ndarray:

@@ -29,18 +29,14 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
-from aslip_ros.slip import DEFAULT_THRESHOLD
-from aslip_ros.learn.calibration.frames import FrameCutter, StreamCalibration, window_offsets
-from aslip_ros.learn.calibration.grasp import CalibrationConstants
-from aslip_ros.learn.checkpoint import (Checkpoint, CheckpointFacts, CheckpointMismatch,
-                                        check_compatible, estimates_rotation, load_checkpoint)
+from aslip_ros.learn.calibration.frames import FrameCutter, window_offsets
+from aslip_ros.learn.checkpoint import Checkpoint, estimates_rotation, load_checkpoint
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.calibration.output import angular_sigma_model, sigma_model
-from aslip_ros.learn.inference.predictor import Prediction
+from aslip_ros.learn.inference.predictor import Prediction, PredictorBase
 from aslip_ros.learn.incremental_features import StreamingLogMel, stream_logmel
 from aslip_ros.learn.inference.audio_window import StreamGate
 from aslip_ros.learn.models.registry import model_backend
@@ -58,7 +54,7 @@ class StreamEstimate:
     raw_velocity: tuple[float, float] = (0.0, 0.0)   # ungated (vx, vz), for evaluation
 
 
-class StreamingPredictor(CheckpointFacts):
+class StreamingPredictor(PredictorBase):
     """Per-hop p(slip) and slip velocity from a stream of audio blocks."""
 
     def __init__(self, ckpt: Checkpoint, threshold: float | None = None,
@@ -78,7 +74,6 @@ class StreamingPredictor(CheckpointFacts):
         self.gate = StreamGate(max_time_jump_s)
         self.window_s = float(ckpt.meta["window_s"])
         self.hop_s = float(ckpt.meta["hop_s"])
-        self._threshold = DEFAULT_THRESHOLD
         self.set_threshold(threshold)
         self.sigma_model = sigma_model(ckpt.meta)     # None: direction_sigma -1 (unknown)
         self.estimates_rotation = estimates_rotation(ckpt.meta)
@@ -90,14 +85,7 @@ class StreamingPredictor(CheckpointFacts):
         # Per-grasp calibration (a checkpoint with ``calibration``): the same state as the
         # window models', fed every sample of the grasp; frame k is read with the state
         # after the calibration frames complete by its last sample.
-        self.calibration: CalibrationConstants | None = None
-        self._cal: StreamCalibration | None = None
-        self._stream_ok: tuple | None = None    # (rate, names) of the last stream passed
-        if ckpt.meta.get("calibration") is not None:
-            self.calibration = CalibrationConstants.from_dict(ckpt.meta["calibration"])
-            self._check_calibration(ckpt.channel_names)
-            self._cal = StreamCalibration(self.calibration, self.feature_config,
-                                          ckpt.sample_rate)
+        self._open_calibration()
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, threshold: float | None = None,
@@ -109,64 +97,10 @@ class StreamingPredictor(CheckpointFacts):
     def window_samples(self) -> int:
         return int(self.meta["window_samples"])
 
-    # --- per-grasp calibration (the window Predictor's interface) --------------------------
-    def _check_calibration(self, channel_names: Sequence[str]) -> None:
-        try:
-            hop_s = FrameCutter(self.feature_config, self.sample_rate).hop_s
-        except ValueError as exc:
-            raise CheckpointMismatch(str(exc)) from exc
-        self.calibration.check_stream(channel_names, self.feature_config.n_mels, hop_s)
-
-    @property
-    def calibrated(self) -> bool:
-        """True when the checkpoint carries a per-grasp calibration."""
-        return self._cal is not None
-
-    def reset_calibration(self) -> None:
-        """A new grasp: the calibration starts again from zero gain (features and the
-        recurrent state run on)."""
-        if self._cal is not None:
-            self._cal.reset()
-
-    def calibration_offsets(self) -> np.ndarray | None:
-        return None if self._cal is None else self._cal.offsets.copy()
-
-    @property
-    def calibration_converged(self) -> bool:
-        return self._cal is not None and self._cal.state.converged
-
-    def calibration_summary(self) -> dict | None:
-        return None if self._cal is None else self._cal.summary()
-
     @property
     def fresh(self) -> bool:
         """True when no audio was fed since the last reset (a reset would forget nothing)."""
         return self._origin is None
-
-    @property
-    def threshold(self) -> float:
-        return self._threshold
-
-    def set_threshold(self, threshold: float | None) -> float:
-        """Gate following estimates at ``threshold`` (None: the checkpoint's); ValueError
-        outside [0, 1]."""
-        t = float(self.meta.get("threshold", DEFAULT_THRESHOLD)) if threshold is None \
-            else float(threshold)
-        if not 0.0 <= t <= 1.0:
-            raise ValueError(f"threshold must be in [0, 1], got {t}")
-        self._threshold = t
-        return t
-
-    def check_stream(self, sample_rate: float, channel_names: Sequence[str]) -> None:
-        """CheckpointMismatch unless rate and channel names (in order) match the training
-        (the last stream that passed is remembered: the live path checks every block)."""
-        key = (float(sample_rate), tuple(channel_names))
-        if key == self._stream_ok:
-            return
-        check_compatible(self.meta, sample_rate, channel_names)
-        if self.calibration is not None:
-            self._check_calibration(channel_names)
-        self._stream_ok = key
 
     def reset(self, reason: str = "reset") -> None:
         """Forget the audio history, the recurrent state and the grasp's calibration."""
@@ -231,19 +165,20 @@ class StreamingPredictor(CheckpointFacts):
         ns_per = (a.end_stamp_ns - a.stamp_ns) / a.frames if a.frames else 1e9 / a.sample_rate
         block = np.asarray(a.block, np.float32)
         fed = 0                       # samples of this block given to the calibration
+        cal = self._stream_cal
         for frame, end in zip(frames, ends):
             idx = self._origin + int(end)
-            if self._cal is not None:
+            if cal is not None:
                 upto = idx - int(a.first_sample_index)
-                self._cal.push(block[fed:upto])
+                cal.push(block[fed:upto])
                 fed = upto
-                frame = frame - self._cal.offsets.astype(np.float32)[:, None]
+                frame = frame - cal.offsets.astype(np.float32)[:, None]
             p, v, w = self.stepper.step(frame)
             stamp = int(a.stamp_ns + round((idx - 1 - a.first_sample_index) * ns_per))
             out.append(StreamEstimate(stamp, idx, self._prediction(p, v, w),
                                       (float(v[0]), float(v[1]))))
-        if self._cal is not None:
-            self._cal.push(block[fed:])
+        if cal is not None:
+            cal.push(block[fed:])
         return out
 
     def _prediction(self, p: float, v: np.ndarray, w: float | None = None) -> Prediction:
