@@ -244,6 +244,67 @@ def test_the_size_check_sees_a_long_function_unless_it_says_why(tmp_path):
     assert _oversized(p, "long.py") == []
 
 
+# --- floor 1 sideways (docs/design.md, Layers) ---------------------------------------------
+#: Sideways arrows floor 1 forbids: control/ and scene/ import neither each other (the Arm
+#: protocol and the sweeps they share are on floor 0: arm.py, motion.py), and data/ does not
+#: import the scene (the scene records itself through data/: scene/simulate.py, presets.py).
+FORBIDDEN_SIDEWAYS = {("control", "scene"), ("scene", "control"), ("data", "scene")}
+
+
+def _package_of(mod: str) -> str:
+    parts = mod.split(".")
+    return parts[1] if len(parts) > 1 and parts[0] == "aslip_ros" else ""
+
+
+def _sideways(path: Path, mod: str) -> list:
+    """Every import in ``path`` (lazy ones too; ``from aslip_ros import scene`` counts as
+    ``aslip_ros.scene``) that :data:`FORBIDDEN_SIDEWAYS` forbids, as ``file:line -> target``."""
+    out = []
+    for n in ast.walk(ast.parse(path.read_text())):
+        if isinstance(n, ast.ImportFrom):
+            target = next(t for t, _ in _imports_of(n, path, mod))
+            targets = [target] if _package_of(target) else [f"{target}.{a.name}"
+                                                            for a in n.names]
+        elif isinstance(n, ast.Import):
+            targets = [a.name for a in n.names]
+        else:
+            continue
+        out += [f"{path.name}:{n.lineno} -> {t}" for t in targets
+                if (_package_of(mod), _package_of(t)) in FORBIDDEN_SIDEWAYS]
+    return out
+
+
+def test_control_scene_and_data_do_not_import_each_other_sideways():
+    found = [f"{p.relative_to(ROOT).parent}/{x}" for p, mod in _modules()
+             for x in _sideways(p, mod)]
+    assert not found, "\n".join(found)
+
+
+def test_the_sideways_check_sees_lazy_relative_and_package_imports(tmp_path):
+    p = tmp_path / "x.py"
+    p.write_text("def f():\n    from aslip_ros.scene import World\n")
+    assert _sideways(p, "aslip_ros.data.x") == ["x.py:2 -> aslip_ros.scene"]
+    p.write_text("from ..control.arm import ArmError\n")
+    assert _sideways(p, "aslip_ros.scene.x") == ["x.py:1 -> aslip_ros.control.arm"]
+    p.write_text("from aslip_ros import scene\nimport aslip_ros.scene.scenarios as sc\n")
+    assert _sideways(p, "aslip_ros.control.x") == [
+        "x.py:1 -> aslip_ros.scene", "x.py:2 -> aslip_ros.scene.scenarios"]
+    assert _sideways(p, "aslip_ros.nodes.x") == []          # floor 3 may import the scene
+    p.write_text("from aslip_ros.data.bags import BagWriter\n")
+    assert _sideways(p, "aslip_ros.scene.x") == []          # the scene records through data/
+
+
+def test_the_arm_protocol_and_its_error_live_on_floor_0():
+    """Every arm (hw/, the scene's) and every controller take ``Arm`` and ``ArmError`` from
+    one floor-0 module; no other module defines a class of either name."""
+    from aslip_ros import arm
+    assert _floor(arm.Arm.__module__) == 0 and _floor(arm.ArmError.__module__) == 0
+    defined = sorted(f"{p.relative_to(ROOT)}:{n.name}" for p, _ in _modules()
+                     for n in ast.walk(ast.parse(p.read_text()))
+                     if isinstance(n, ast.ClassDef) and n.name in ("Arm", "ArmError"))
+    assert defined == ["aslip_ros/arm.py:Arm", "aslip_ros/arm.py:ArmError"], defined
+
+
 # --- docs/design.md against the code ------------------------------------------------------
 # The page's Layers block, learn/ table, Topics table and every module it names are read
 # from the page itself (code blocks and markdown tables), so an edit to either side that
