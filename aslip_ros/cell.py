@@ -5,10 +5,11 @@ docs/hardware-quickstart.md, step 1). Sections are named after the node they con
 their keys are that node's parameters (README, "Nodes reference"), so each value is checked
 by the node's own declared range and no default is repeated here. ``arm`` holds what every
 node that drives the arm must share (the limits, the connection and the grasp plane in the
-TCP); it goes to ``slip_stop``, ``slip_track`` and ``robot_sweeps`` alike, and a section of
-one of those may not set it differently.
+TCP); it goes to every node of :mod:`aslip_ros.node_table` that drives the arm
+(``slip_stop``, ``slip_track``, ``robot_sweeps``) alike, and a section of one of those may
+not set it differently.
 
-ROS-free: the launch files (through :mod:`aslip_ros.nodes.closed_loop_launch`, which also
+ROS-free: the launch files (through :mod:`aslip_ros.launch_support.common`, which also
 checks the keys against what each node declares) and ``aslip check`` read it.
 """
 
@@ -20,16 +21,19 @@ from typing import Any, Dict, List, Optional
 
 import yaml
 
-#: The nodes that drive the arm: each gets the ``arm`` section.
-ARM_NODES = ("slip_stop", "slip_track", "robot_sweeps")
-#: The keys of ``arm``.
+from aslip_ros import node_table
+
+#: The keys of ``arm`` (its section goes to every node that drives the arm: the node table's
+#: ``arm_nodes()``).
 ARM_KEYS = ("arm", "xarm_ip", "arm_max_speed_m_s", "arm_max_acc_m_s2",
             "xarm_connect_timeout_s", "arm_workspace_min_m", "arm_workspace_max_m",
             "grasp_plane_in_tcp",
             "control_rate_hz", "command_duration_s")
-#: Node sections a cell file may have.
-NODE_SECTIONS = ("audio_capture", "mocap_bridge", "slip_inference", "stream_watch") + ARM_NODES
-SECTIONS = NODE_SECTIONS + ("arm",)
+
+
+def section_names() -> tuple:
+    """The sections a cell file may have: the node table's ``cell_sections()`` and ``arm``."""
+    return node_table.cell_sections() + ("arm",)
 
 
 class CellError(ValueError):
@@ -50,7 +54,7 @@ class Cell:
     def params(self, node: str) -> Dict[str, Any]:
         """The parameters the cell gives ``node`` (the ``arm`` section included for the
         nodes that drive the arm; ``channels`` follows ``channel_names``)."""
-        out = self.section("arm") if node in ARM_NODES else {}
+        out = self.section("arm") if node in node_table.arm_nodes() else {}
         out.update(self.section(node))
         if node == "audio_capture" and "channel_names" in out and "channels" not in out:
             out["channels"] = len(out["channel_names"])
@@ -96,12 +100,14 @@ def load_cell(path: Optional[str]) -> Cell:
         raise CellError(f"cell file {p}: not YAML ({exc})") from None
     doc = {} if doc is None else doc
     if not isinstance(doc, dict):
-        raise CellError(f"cell file {p}: must be a mapping of sections ({_names(SECTIONS)})")
+        raise CellError(f"cell file {p}: must be a mapping of sections "
+                        f"({_names(section_names())})")
     problems: List[str] = []
-    sections: Dict[str, Dict[str, Any]] = {}
+    known, arm_nodes = section_names(), node_table.arm_nodes()
+    bodies: Dict[str, Dict[str, Any]] = {}
     for name, body in doc.items():
-        if name not in SECTIONS:
-            problems.append(f"unknown section {name!r} (sections: {_names(SECTIONS)})")
+        if name not in known:
+            problems.append(f"unknown section {name!r} (sections: {_names(known)})")
             continue
         body = {} if body is None else body
         if not isinstance(body, dict):
@@ -110,10 +116,10 @@ def load_cell(path: Optional[str]) -> Cell:
         if name == "arm":
             problems += [f"arm: unknown key {k!r} (arm keys: {_names(ARM_KEYS)})"
                          for k in body if k not in ARM_KEYS]
-        elif name in ARM_NODES:
+        elif name in arm_nodes:
             problems += [f"{name}: {k!r} belongs in the 'arm' section (every node that drives "
                          "the arm must use the same value)" for k in body if k in ARM_KEYS]
-        sections[name] = dict(body)
+        bodies[name] = dict(body)
     if problems:
         raise CellError(f"cell file {p}: " + "; ".join(problems))
-    return Cell(str(p), sections)
+    return Cell(str(p), bodies)

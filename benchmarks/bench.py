@@ -15,7 +15,7 @@ the ablation (``results/ablation/cache``) are reused when they exist.
 
 Also in ``bench.json``: the scene's generation speed (x real time, peak memory;
 ``scene.bench.measure``), the export speed (``data.export.measure_export_speed``) and the
-live node's latency (``nodes.bench``). The chart and the markdown table:
+live node's latency (``node_bench``). The chart and the markdown table:
 ``bench_report.py``. Lag against accuracy (the streaming estimator against window models):
 ``python -m benchmarks.lag`` (docs/streaming.md).
 
@@ -207,20 +207,20 @@ def system_speed(cfg: BenchConfig, log: Log,
 
 
 def node_latency(checkpoint: Path | None = None) -> dict[str, Any]:
-    """The node benchmarks of :mod:`aslip_ros.nodes.bench` (slip_inference latency, the
+    """The node benchmarks of :mod:`benchmarks.node_bench` (slip_inference latency, the
     audio_capture stream). They need rclpy and the colcon build sourced, as ``make bench``
     does; without them, or when they fail, the result says why and holds no number."""
     if checkpoint is None:
         return {"error": "no CNN checkpoint to measure the inference node with"}
     try:
-        from aslip_ros.nodes import bench as node_bench
+        from benchmarks import node_bench
     except ImportError as exc:  # rclpy or the generated messages are missing
         return {"error": f"node benchmark unavailable: {exc}"}
     try:
-        return {"source": "aslip_ros.nodes.bench.measure", "checkpoint": str(checkpoint),
+        return {"source": "benchmarks.node_bench.measure", "checkpoint": str(checkpoint),
                 "result": node_bench.measure(checkpoint=str(checkpoint))}
     except Exception as exc:  # noqa: BLE001 - report it beside the other figures
-        return {"source": "aslip_ros.nodes.bench.measure",
+        return {"source": "benchmarks.node_bench.measure",
                 "error": f"{type(exc).__name__}: {exc}"}
 
 

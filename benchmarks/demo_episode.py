@@ -231,12 +231,13 @@ class _Recorder:
 
         from aslip_ros.msg import SlipVector
         from aslip_ros.nodes import common as c
+        from aslip_ros.runtime.qos import LATCHED_QOS
         from aslip_ros.nodes.slip_stop import RESULT_TOPIC
         self.node = Node("aslip_demo_recorder")
         self.slip: list[tuple] = []
         self.result: Optional[dict] = None
         self.node.create_subscription(SlipVector, c.SLIP_TOPIC, self._on_slip, 100)
-        self.node.create_subscription(String, RESULT_TOPIC, self._on_result, c.LATCHED_QOS)
+        self.node.create_subscription(String, RESULT_TOPIC, self._on_result, LATCHED_QOS)
 
     def _on_slip(self, msg) -> None:
         st = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -310,7 +311,7 @@ class StallProbe:
     def summary(self) -> dict:
         """Gaps and pauses in ms: p50, p99, p99.9, max (the live bench's ``tail_stats``),
         and what exceeded 50 ms."""
-        from aslip_ros.nodes.bench import tail_stats
+        from benchmarks.node_bench import tail_stats
         g = np.asarray(self.gaps, dtype=float) * 1e3
         pauses = np.asarray([d for _, d in self.gc_pauses], dtype=float) * 1e3
         full = [d * 1e3 for gen, d in self.gc_pauses if gen == 2]

@@ -54,6 +54,7 @@ class _Probe:
         from std_msgs.msg import String
 
         from aslip_ros.nodes import common as c
+        from aslip_ros.runtime.qos import LATCHED_QOS, RELIABLE_QOS
         from aslip_ros.nodes.slip_stop import RESULT_TOPIC
         self.ctx = Context()
         rclpy.init(context=self.ctx, domain_id=domain)
@@ -62,9 +63,9 @@ class _Probe:
         self.results: list = []
         self.meta: Optional[dict] = None
         self.node.create_subscription(TwistStamped, c.CMD_VEL_TOPIC, self._on_cmd,
-                                      c.RELIABLE_QOS)
-        self.node.create_subscription(String, RESULT_TOPIC, self._on_result, c.LATCHED_QOS)
-        self.node.create_subscription(String, c.METADATA_TOPIC, self._on_meta, c.LATCHED_QOS)
+                                      RELIABLE_QOS)
+        self.node.create_subscription(String, RESULT_TOPIC, self._on_result, LATCHED_QOS)
+        self.node.create_subscription(String, c.METADATA_TOPIC, self._on_meta, LATCHED_QOS)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
         self._stop = threading.Event()
@@ -137,7 +138,7 @@ def run_episode(kind: str, checkpoint: str, seed: int, rng: random.Random,
     ``pose_timeout_s``: the controller's slip and pose watchdogs (default: the node's)."""
     from domain_coordinator import domain_id
 
-    from aslip_ros.nodes.process import NodeProcess
+    from aslip_ros.runtime.child import NodeProcess
 
     from benchmarks.demo_episode import StopSettings
     from aslip_ros.scene.layouts import get_object

@@ -1,6 +1,6 @@
 """The tail of the live path: ``make latency`` (``python -m benchmarks.tail_latency``).
 
-For every checkpoint (default: the three shipped ones), ``nodes.bench.measure_node_latency``
+For every checkpoint (default: the three shipped ones), ``node_bench.measure_node_latency``
 runs ``audio_capture`` (simulated scene, 4 channels at 48 kHz) and ``slip_inference`` as
 separate processes for ``--duration`` seconds, one checkpoint after the other (never two
 at once), optionally beside ``--hogs`` CPU-busy processes (``yes > /dev/null``, as the
@@ -51,7 +51,7 @@ def stop_hogs(procs: list) -> None:
 
 def run_one(checkpoint: str, duration_s: float, hogs: int) -> dict:
     """``measure_node_latency`` of one checkpoint beside ``hogs`` busy processes."""
-    from aslip_ros.nodes.bench import measure_node_latency
+    from benchmarks.node_bench import measure_node_latency
     load_before = list(os.getloadavg())
     procs = start_hogs(hogs)
     try:

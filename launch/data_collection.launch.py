@@ -40,11 +40,11 @@ from aslip_ros.cell import CellError
 from aslip_ros.topics import AUDIO
 from aslip_ros.nodes.bag_recorder import record_topics
 from aslip_ros.nodes.topic_audio import driver_topics
-from aslip_ros.nodes.closed_loop_launch import (arg, arm_params, bridge_params,
-                                                capture_params, cell_arguments, fail, flag,
-                                                load_checked_cell, mocap_topics,
-                                                rigid_bodies_source,
-                                                recording_metadata, required, share_dir)
+from aslip_ros.launch_support.common import (arg, arm_params, bridge_params,
+                                             capture_params, cell_arguments, fail, flag,
+                                             load_checked_cell, mocap_topics,
+                                             rigid_bodies_source,
+                                             recording_metadata, required, share_dir)
 
 RECORDERS = ("auto", "ros2bag", "aslip")
 INDUCED = ("external", "robot")

@@ -12,7 +12,7 @@ closed-loop launch files, without that graph failing).
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 
-from aslip_ros.nodes.closed_loop_launch import cell_arguments, rviz_actions
+from aslip_ros.launch_support.common import cell_arguments, rviz_actions
 
 
 def generate_launch_description():

@@ -13,7 +13,7 @@ is a model trained on your own recordings:
         checkpoint:=my_model.pt direction:="[1.0, 0.0, 0.0]"
 """
 
-from aslip_ros.nodes.closed_loop_launch import closed_loop_description
+from aslip_ros.launch_support.closed_loop import closed_loop_description
 
 
 def generate_launch_description():

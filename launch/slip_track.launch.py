@@ -9,7 +9,7 @@ Hardware (xArm, audio interface, motion capture; docs/hardware-quickstart.md):
         checkpoint:=my_model.pt
 """
 
-from aslip_ros.nodes.closed_loop_launch import closed_loop_description
+from aslip_ros.launch_support.closed_loop import closed_loop_description
 
 
 def generate_launch_description():

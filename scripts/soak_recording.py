@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from aslip_ros.data.bags import BagReader
-from aslip_ros.nodes.process import NodeProcess
+from aslip_ros.runtime.child import NodeProcess
 from aslip_ros import topics
 
 DURATION_S = 6.0

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aslip_ros.nodes.process import NodeProcess, node_exe, ros_args  # noqa: F401 - for tests
+from aslip_ros.runtime.child import NodeProcess, node_exe, ros_args  # noqa: F401 - for tests
 
 
 def driver_msgs(package: str):

@@ -65,7 +65,7 @@ def test_node_latency_without_a_checkpoint_reports_why_and_no_number():
 
 @pytest.mark.ros
 def test_node_latency_reports_a_failing_node_benchmark(monkeypatch, tmp_path):
-    from aslip_ros.nodes import bench as node_bench
+    from benchmarks import node_bench
 
     def broken(checkpoint):
         raise RuntimeError("node did not start")
@@ -76,7 +76,7 @@ def test_node_latency_reports_a_failing_node_benchmark(monkeypatch, tmp_path):
 
 @pytest.mark.ros
 def test_node_latency_passes_the_checkpoint_to_the_node_benchmark(monkeypatch, tmp_path):
-    from aslip_ros.nodes import bench as node_bench
+    from benchmarks import node_bench
     seen = []
     monkeypatch.setattr(node_bench, "measure", lambda checkpoint: seen.append(checkpoint) or
                         {"slip_inference": {"p99_ms": 1.0}})

@@ -14,13 +14,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_cells_acceleration_limit_is_every_arm_nodes_limit(tmp_path):
-    from aslip_ros.cell import ARM_NODES, load_cell
+    from aslip_ros.cell import load_cell
+    from aslip_ros.node_table import arm_nodes
     from aslip_ros.nodes.arms import limits
     from aslip_ros.nodes.introspect import declared_by_name
     path = tmp_path / "cell.yaml"
     path.write_text("arm:\n  xarm_ip: 10.0.0.7\n  arm_max_acc_m_s2: 0.4\n")
     cell = load_cell(str(path))
-    for node in ARM_NODES:
+    for node in arm_nodes():
         declared = declared_by_name(node)
         values = {name: p.default for name, p in declared.items()}
         values.update(cell.params(node))

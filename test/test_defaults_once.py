@@ -153,9 +153,10 @@ def test_a_config_file_restates_defaults_never_changes_them(path: Path):
 
 
 def test_the_arm_section_of_a_cell_is_every_arm_nodes_parameters():
-    from aslip_ros.cell import ARM_KEYS, ARM_NODES
+    from aslip_ros.cell import ARM_KEYS
+    from aslip_ros.node_table import arm_nodes
     from aslip_ros.nodes.introspect import declared_by_name
-    for node in ARM_NODES:
+    for node in arm_nodes():
         assert set(ARM_KEYS) <= set(declared_by_name(node)), node
     assert not [k for k in ARM_KEYS if k.startswith("xarm_") and "ip" not in k
                 and "connect" not in k], "the limits are every arm's: arm_*, not xarm_*"

@@ -63,6 +63,7 @@ def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_l
 
     from benchmarks.demo_episode import StopSettings
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import LATCHED_QOS, RELIABLE_QOS
     from aslip_ros.nodes.slip_stop import RESULT_TOPIC
     from aslip_ros.scene.layouts import get_object
 
@@ -71,10 +72,10 @@ def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_l
     length = get_object(obj).length_m
     tmp_path.mkdir(parents=True, exist_ok=True)
     bus = Bus(rclpy_context, name=f"aslip_test_bus_{tmp_path.name}")
-    bus.listen(String, RESULT_TOPIC, c.LATCHED_QOS)
+    bus.listen(String, RESULT_TOPIC, LATCHED_QOS)
     if slip_log is not None:
         from aslip_ros.msg import SlipVector
-        bus.listen(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
+        bus.listen(SlipVector, c.SLIP_TOPIC, RELIABLE_QOS)
     traj = tmp_path / "wall_push.npz"
     ctl_params = {"approach_speed_m_s": s.approach_speed_m_s,
                   "retract_distance_m": s.retract_distance_m,

@@ -28,12 +28,13 @@ def test_an_arm_from_test_code_is_driven_within_the_limits(rclpy_context, ros_en
 
     from aslip_ros.msg import SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     from aslip_ros.nodes import convert
     log = tmp_path / "arm.jsonl"
     env = dict(ros_env, FAKE_ARM_LOG=str(log))
     bus = Bus(rclpy_context)
-    bus.listen(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
-    pub = bus.node.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
+    bus.listen(PoseStamped, c.TCP_TOPIC, SENSOR_QOS)
+    pub = bus.node.create_publisher(SlipVector, c.SLIP_TOPIC, RELIABLE_QOS)
     alive = threading.Event()
     alive.set()
 

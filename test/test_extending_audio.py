@@ -22,8 +22,9 @@ def _listen(bus):
 
     from aslip_ros.msg import AudioFrame
     from aslip_ros.nodes import common as c
-    bus.listen(AudioFrame, AUDIO, c.SENSOR_QOS)
-    bus.listen(String, c.METADATA_TOPIC, c.LATCHED_QOS)
+    from aslip_ros.runtime.qos import LATCHED_QOS, SENSOR_QOS
+    bus.listen(AudioFrame, AUDIO, SENSOR_QOS)
+    bus.listen(String, c.METADATA_TOPIC, LATCHED_QOS)
 
 
 def test_a_source_from_test_code_streams_through_audio_capture(rclpy_context, ros_env):
@@ -60,11 +61,11 @@ def test_an_unknown_or_unimportable_source_is_refused(ros_env):
 
 def test_topic_source_bridges_another_drivers_audio(rclpy_context, ros_env):
     from aslip_ros.msg import AudioFrame
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import SENSOR_QOS
     from aslip_ros.nodes import convert
     bus = Bus(rclpy_context)
     _listen(bus)
-    pub = bus.node.create_publisher(AudioFrame, "/driver/audio", c.SENSOR_QOS)
+    pub = bus.node.create_publisher(AudioFrame, "/driver/audio", SENSOR_QOS)
     names = ["a", "b"]
     params = {"source": "topic", "input_topic": "/driver/audio", "sample_rate": 16000.0,
               "channel_names": names, "layout": "pair", "frame_id": "aslip_gripper"}

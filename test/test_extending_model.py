@@ -167,6 +167,7 @@ def test_slip_inference_runs_a_model_declared_as_an_entry_point(
         dataset, rclpy_context, ros_env, tmp_path):
     from aslip_ros.msg import AudioFrame, SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     from aslip_ros.nodes import convert
     from node_support import Bus, NodeProcess
 
@@ -177,8 +178,8 @@ def test_slip_inference_runs_a_model_declared_as_an_entry_point(
     finally:
         backends.unregister_model(LevelModel.model_type)
     bus = Bus(rclpy_context)
-    bus.listen(SlipVector, "/aslip/slip", c.RELIABLE_QOS)
-    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+    bus.listen(SlipVector, "/aslip/slip", RELIABLE_QOS)
+    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
     rng = np.random.default_rng(0)
     n = int(ds.sample_rate * 0.01)
     with NodeProcess("slip_inference", _child_env(tmp_path, ros_env),
@@ -236,6 +237,7 @@ def test_a_model_from_test_code_is_trained_evaluated_and_served_through_the_comm
 
     from aslip_ros.msg import AudioFrame, SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     from aslip_ros.nodes import convert
     from node_support import Bus, NodeProcess
 
@@ -243,8 +245,8 @@ def test_a_model_from_test_code_is_trained_evaluated_and_served_through_the_comm
     speed = ds.speed(np.arange(len(ds)))
     loud = ds.window_audio(np.flatnonzero(speed > 0.02)[:1], np.arange(len(ds.channel_names)))[0]
     bus = Bus(rclpy_context)
-    bus.listen(SlipVector, "/aslip/slip", c.RELIABLE_QOS)
-    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+    bus.listen(SlipVector, "/aslip/slip", RELIABLE_QOS)
+    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
     n = int(ds.sample_rate * 0.01)
     with NodeProcess("slip_inference", _child_env(tmp_path / "node", ros_env),
                      {"checkpoint": str(ckpt)}) as node:

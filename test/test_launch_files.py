@@ -86,7 +86,7 @@ def evaluate(launch_file: str, args: dict) -> Evaluated:
     from launch.utilities import perform_substitutions
     from launch_ros.actions import Node
 
-    from aslip_ros.nodes.closed_loop_launch import LaunchFailed
+    from aslip_ros.launch_support.common import LaunchFailed
     ns = runpy.run_path(str(ROOT / "launch" / launch_file))
     desc = ns["generate_launch_description"]()
     context = LaunchContext()
@@ -165,10 +165,12 @@ def _type_error(spec, value):
 
 def check_parameters(ev: Evaluated) -> None:
     """Every node parameter is declared, of the declared type and valid."""
-    from aslip_ros.nodes.introspect import EXECUTABLES, declared_by_name
+    from aslip_ros.node_table import nodes
+    from aslip_ros.nodes.introspect import declared_by_name
     problems = []
     for exe, name, params, _ in ev.nodes:
-        if exe not in EXECUTABLES:
+        exe = exe if exe in nodes() else name          # a registered node: the interpreter
+        if exe not in nodes():
             continue                                   # rviz2: not ours
         declared = declared_by_name(exe)
         for key, value in params.items():
@@ -507,7 +509,7 @@ def test_data_collection_refuses_a_missing_ros2bag_loudly():
 
 @needs_launch
 def test_rviz_is_started_only_where_installed():
-    from aslip_ros.nodes.closed_loop_launch import rviz_found
+    from aslip_ros.launch_support.common import rviz_found
     for launch_file, args in (("rviz.launch.py", {}), ("slip_track.launch.py", {"rviz": "true"})):
         ev = evaluate(launch_file, args)
         started = "rviz2" in _by_exe(ev)
@@ -587,19 +589,19 @@ def test_a_node_stuck_inside_a_c_call_still_exits_after_a_signal(ros_env):
     code = (
         "import ctypes\n"
         "from rclpy.node import Node\n"
-        "from aslip_ros.nodes import common as c\n"
+        "from aslip_ros.runtime.process import ready, run_node\n"
         "libc = ctypes.CDLL(None)\n"
         "mutex = ctypes.create_string_buffer(64)      # PTHREAD_MUTEX_INITIALIZER: zeros\n"
         "class Stuck(Node):\n"
         "    def __init__(self):\n"
         "        super().__init__('stuck_in_c')\n"
         "        self.create_timer(0.5, self.tick)\n"
-        "        c.ready(self)\n"
+        "        ready(self)\n"
         "    def tick(self):\n"
         "        print('stuck now', flush=True)\n"
         "        libc.pthread_mutex_lock(mutex)\n"
         "        libc.pthread_mutex_lock(mutex)        # a default mutex: never returns\n"
-        "raise SystemExit(c.run_node(Stuck))\n")
+        "raise SystemExit(run_node(Stuck))\n")
     proc = subprocess.Popen([sys.executable, "-c", code], env=ros_env, cwd=str(HELPERS),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
@@ -628,14 +630,14 @@ def test_a_node_whose_cleanup_hangs_still_exits_after_a_signal(ros_env):
     code = (
         "import time\n"
         "from rclpy.node import Node\n"
-        "from aslip_ros.nodes import common as c\n"
+        "from aslip_ros.runtime.process import ready, run_node\n"
         "class Stuck(Node):\n"
         "    def __init__(self):\n"
         "        super().__init__('stuck')\n"
-        "        c.ready(self)\n"
+        "        ready(self)\n"
         "    def before_shutdown(self):\n"
         "        time.sleep(60)\n"
-        "raise SystemExit(c.run_node(Stuck))\n")
+        "raise SystemExit(run_node(Stuck))\n")
     proc = subprocess.Popen([sys.executable, "-c", code], env=ros_env, cwd=str(HELPERS),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:

@@ -138,6 +138,7 @@ def _node_estimates(context, ckpt, blocks, expected_counts):
 
     from aslip_ros.msg import AudioFrame, SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     from aslip_ros.nodes import convert
     from aslip_ros.nodes.slip_inference import SlipInference
     from node_support import Bus, deep
@@ -150,8 +151,8 @@ def _node_estimates(context, ckpt, blocks, expected_counts):
             got.append(msg)
             cond.notify_all()
 
-    bus.node.create_subscription(SlipVector, c.SLIP_TOPIC, on_slip, deep(c.RELIABLE_QOS))
-    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+    bus.node.create_subscription(SlipVector, c.SLIP_TOPIC, on_slip, deep(RELIABLE_QOS))
+    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
     from rclpy.parameter import Parameter
     node = SlipInference(context=context, parameter_overrides=[
         Parameter("checkpoint", value=str(ckpt))])

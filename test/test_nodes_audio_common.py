@@ -30,12 +30,13 @@ def rig(rclpy_context):
 
     from aslip_ros.msg import AudioFrame
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import LATCHED_QOS, RELIABLE_QOS, SENSOR_QOS
     from aslip_ros.nodes.audio_capture import AudioCapture
     acm = driver_msgs("audio_common_msgs")
     bus = Bus(rclpy_context)
-    bus.listen(AudioFrame, AUDIO, c.SENSOR_QOS)
-    bus.listen(String, c.METADATA_TOPIC, c.LATCHED_QOS)
-    bus.listen(String, c.DIAG_JSON_TOPIC, c.RELIABLE_QOS)
+    bus.listen(AudioFrame, AUDIO, SENSOR_QOS)
+    bus.listen(String, c.METADATA_TOPIC, LATCHED_QOS)
+    bus.listen(String, c.DIAG_JSON_TOPIC, RELIABLE_QOS)
     # The driver's QoS: rclcpp's QoS(10) for the audio, KeepLast(1).transient_local() info.
     audio_pub = bus.node.create_publisher(acm.AudioDataStamped, STAMPED, 10)
     info_pub = bus.node.create_publisher(acm.AudioInfo, INFO, QoSProfile(

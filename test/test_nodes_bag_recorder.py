@@ -68,8 +68,9 @@ def _metadata_reader(graph: Graph):
     from std_msgs.msg import String
 
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import LATCHED_QOS
     node = graph.node("metadata_reader")
-    node.create_subscription(String, c.METADATA_TOPIC, lambda m: None, c.LATCHED_QOS)
+    node.create_subscription(String, c.METADATA_TOPIC, lambda m: None, LATCHED_QOS)
     return node
 
 
@@ -78,8 +79,9 @@ def _latch_metadata(graph: Graph):
     from std_msgs.msg import String
 
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import LATCHED_QOS
     node = graph.node("metadata_source")
-    pub = node.create_publisher(String, c.METADATA_TOPIC, c.LATCHED_QOS)
+    pub = node.create_publisher(String, c.METADATA_TOPIC, LATCHED_QOS)
     pub.publish(String(data=json.dumps(META)))
     return node
 
@@ -156,18 +158,19 @@ def test_a_topic_named_only_by_a_subscriber_waits_for_its_publisher(rclpy_contex
     from rclpy.qos import ReliabilityPolicy
 
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     driver = "/mocap/finger/pose"
     graph = Graph(rclpy_context)
     try:
         reader = graph.node("pose_reader")
-        reader.create_subscription(PoseStamped, driver, lambda m: None, c.SENSOR_QOS)
+        reader.create_subscription(PoseStamped, driver, lambda m: None, SENSOR_QOS)
         rec = _recorder(graph, tmp_path / "bag", [c.METADATA_TOPIC, driver])
         graph.until(lambda: driver in dict(rec.get_topic_names_and_types()),
                     "the subscriber's topic in the graph")
         for _ in range(10):
             graph.ex.spin_once(timeout_sec=0.06)     # discovery runs every 50 ms
         assert driver not in rec.counts
-        graph.node("pose_source").create_publisher(PoseStamped, driver, c.RELIABLE_QOS)
+        graph.node("pose_source").create_publisher(PoseStamped, driver, RELIABLE_QOS)
         graph.until(lambda: driver in rec.counts, "driver topic subscription")
         mine = [i for i in rec.get_subscriptions_info_by_topic(driver)
                 if i.node_name == "bag_recorder"]
@@ -188,6 +191,7 @@ def test_a_timed_recording_counts_from_its_streams_not_the_start_up(rclpy_contex
     from aslip_ros.data.bags import BagReader
     from aslip_ros.msg import AudioFrame
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import SENSOR_QOS
     from aslip_ros.nodes.bag_recorder import Recorder
     graph = Graph(rclpy_context)
     rec = graph.add(Recorder(context=graph.context, parameter_overrides=[
@@ -197,10 +201,10 @@ def test_a_timed_recording_counts_from_its_streams_not_the_start_up(rclpy_contex
         Parameter("duration_topics", value=[c.AUDIO_TOPIC, "/driver/pose"]),
         Parameter("duration_s", value=0.3)]))
     pub = graph.node("audio_source").create_publisher(AudioFrame, c.AUDIO_TOPIC,
-                                                      c.SENSOR_QOS)
+                                                      SENSOR_QOS)
     from geometry_msgs.msg import PoseStamped
     poses = graph.node("mocap_driver").create_publisher(PoseStamped, "/driver/pose",
-                                                        c.SENSOR_QOS)
+                                                        SENSOR_QOS)
     graph.until(lambda: pub.get_subscription_count() > 0 and
                 poses.get_subscription_count() > 0, "match")
     # Audio alone for longer than duration_s: the poses are not in yet, not done.

@@ -1,6 +1,6 @@
 """Block-continuity counting used by the node benchmarks."""
 
-from aslip_ros.nodes.bench import _dropped_blocks
+from benchmarks.node_bench import _dropped_blocks
 
 
 def test_no_gap_no_drop():

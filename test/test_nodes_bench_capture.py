@@ -2,7 +2,7 @@
 
 import pytest
 
-from aslip_ros.nodes.bench import _capture_latency
+from benchmarks.node_bench import _capture_latency
 
 
 def test_capture_latency_summary_in_milliseconds():

@@ -89,6 +89,7 @@ def live(tmp_path_factory):
 
     from aslip_ros.msg import AudioFrame, SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     ckpt = calibrated_checkpoint(tmp_path_factory.mktemp("cal") / "cal.pt")
     with domain_id() as did:
         env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -96,9 +97,9 @@ def live(tmp_path_factory):
         ctx = Context()
         rclpy.init(context=ctx, domain_id=did)
         bus = Bus(ctx)
-        bus.listen(SlipVector, SLIP, c.RELIABLE_QOS)
-        bus.listen(String, DIAG, c.RELIABLE_QOS)
-        pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+        bus.listen(SlipVector, SLIP, RELIABLE_QOS)
+        bus.listen(String, DIAG, RELIABLE_QOS)
+        pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
         proc = NodeProcess("slip_inference", env, {"checkpoint": str(ckpt), "threshold": 0.0,
                                                    "diagnostics_period_s": 0.1})
         try:

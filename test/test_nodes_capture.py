@@ -21,9 +21,10 @@ def _listen(bus):
 
     from aslip_ros.msg import AudioFrame
     from aslip_ros.nodes import common as c
-    bus.listen(AudioFrame, AUDIO, c.SENSOR_QOS)
-    bus.listen(String, c.METADATA_TOPIC, c.LATCHED_QOS)
-    bus.listen(String, "/aslip/diagnostics", c.RELIABLE_QOS)
+    from aslip_ros.runtime.qos import LATCHED_QOS, RELIABLE_QOS, SENSOR_QOS
+    bus.listen(AudioFrame, AUDIO, SENSOR_QOS)
+    bus.listen(String, c.METADATA_TOPIC, LATCHED_QOS)
+    bus.listen(String, "/aslip/diagnostics", RELIABLE_QOS)
 
 
 def _decoded(bus):

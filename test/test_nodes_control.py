@@ -35,7 +35,8 @@ class SlipSource:
     def __init__(self, bus, velocity=(0.02, 0.0), angular=None) -> None:
         from aslip_ros.msg import SlipVector
         from aslip_ros.nodes import common as c
-        self.pub = bus.node.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
+        from aslip_ros.runtime.qos import RELIABLE_QOS
+        self.pub = bus.node.create_publisher(SlipVector, c.SLIP_TOPIC, RELIABLE_QOS)
         self.velocity = velocity
         self.angular = angular
         self.last_sent = None
@@ -65,10 +66,10 @@ def _listen(bus):
     from geometry_msgs.msg import PoseStamped, TwistStamped
     from std_msgs.msg import String
 
-    from aslip_ros.nodes import common as c
-    bus.listen(TwistStamped, CMD, c.RELIABLE_QOS)
-    bus.listen(PoseStamped, TCP, c.SENSOR_QOS)
-    bus.listen(String, "/aslip/diagnostics", c.RELIABLE_QOS)
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
+    bus.listen(TwistStamped, CMD, RELIABLE_QOS)
+    bus.listen(PoseStamped, TCP, SENSOR_QOS)
+    bus.listen(String, "/aslip/diagnostics", RELIABLE_QOS)
 
 
 def _v(m):
@@ -139,10 +140,11 @@ def test_watchdog_stops_the_arm_when_slip_goes_stale(rclpy_context, ros_env):
     from geometry_msgs.msg import PoseStamped
 
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import SENSOR_QOS
     from aslip_ros.nodes import convert
     bus = Bus(rclpy_context)
     _listen(bus)
-    pub_tcp = bus.node.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
+    pub_tcp = bus.node.create_publisher(PoseStamped, c.TCP_TOPIC, SENSOR_QOS)
     stop = threading.Event()
 
     def tcp_loop():
@@ -187,10 +189,10 @@ def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env):
     """Retract, settle, approach (direction from the scene metadata), stop on slip."""
     from std_msgs.msg import String
 
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import LATCHED_QOS
     bus = Bus(rclpy_context)
     _listen(bus)
-    bus.listen(String, "/aslip/slip_stop/result", c.LATCHED_QOS)
+    bus.listen(String, "/aslip/slip_stop/result", LATCHED_QOS)
     src = SlipSource(bus, velocity=(0.0, 0.0))
     params = {"retract_distance_m": 0.01, "retract_speed_m_s": 0.05, "settle_s": 0.1,
               "approach_speed_m_s": 0.05, "max_approach_distance_m": 0.03,
@@ -220,10 +222,10 @@ def _wall_push_result(rclpy_context, ros_env, extra: dict) -> dict:
     ``slipping`` but turns at 1 rad/s from the retract on; the final result."""
     from std_msgs.msg import String
 
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import LATCHED_QOS
     bus = Bus(rclpy_context)
     _listen(bus)
-    bus.listen(String, "/aslip/slip_stop/result", c.LATCHED_QOS)
+    bus.listen(String, "/aslip/slip_stop/result", LATCHED_QOS)
     src = SlipSource(bus, velocity=(0.0, 0.0), angular=0.0)
     params = {"retract_distance_m": 0.01, "retract_speed_m_s": 0.05, "settle_s": 0.1,
               "approach_speed_m_s": 0.05, "max_approach_distance_m": 0.03,

@@ -103,6 +103,7 @@ def test_arm_io_never_holds_up_slip_and_pose_callbacks(ros_domain, monkeypatch):
     from aslip_ros.hw import xarm
     from aslip_ros.msg import SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     from aslip_ros.nodes import convert
     from aslip_ros.nodes.slip_track import SlipTrackNode
 
@@ -122,8 +123,8 @@ def test_arm_io_never_holds_up_slip_and_pose_callbacks(ros_domain, monkeypatch):
         sdk.gate.clear()                      # the first moving command sticks in the SDK
         peer = rclpy.create_node("aslip_test_peer")
         tcp = []
-        peer.create_subscription(PoseStamped, c.TCP_TOPIC, tcp.append, c.SENSOR_QOS)
-        pub = peer.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
+        peer.create_subscription(PoseStamped, c.TCP_TOPIC, tcp.append, SENSOR_QOS)
+        pub = peer.create_publisher(SlipVector, c.SLIP_TOPIC, RELIABLE_QOS)
         ex = EventsExecutor()
         ex.add_node(node)
         ex.add_node(peer)
@@ -214,6 +215,7 @@ def test_stale_slip_stop_leaves_at_the_deadline_not_at_the_next_control_tick(
     from aslip_ros.hw import xarm
     from aslip_ros.msg import SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS
     from aslip_ros.nodes import convert
     from aslip_ros.nodes.slip_track import SlipTrackNode
 
@@ -235,7 +237,7 @@ def test_stale_slip_stop_leaves_at_the_deadline_not_at_the_next_control_tick(
         node = SlipTrackNode()
         sdk = sdks[0]
         peer = rclpy.create_node("aslip_test_peer")
-        pub = peer.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
+        pub = peer.create_publisher(SlipVector, c.SLIP_TOPIC, RELIABLE_QOS)
         ex = EventsExecutor()
         ex.add_node(node)
         ex.add_node(peer)

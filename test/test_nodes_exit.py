@@ -18,7 +18,7 @@ import pytest
 pytestmark = pytest.mark.ros
 
 PRELUDE = ("import sys, time\n"
-           "from aslip_ros.nodes import common\n"
+           "from aslip_ros.runtime import process\n"
            "time.sleep(1.0)                 # the parent closes our pipes meanwhile\n"
            "sys.stdout.write('x' * 100)     # buffered: the exit's flush meets the broken pipe\n")
 
@@ -41,13 +41,13 @@ def _run_with_broken_pipes(code: str, env) -> tuple[int, float]:
 
 
 def test_the_final_exit_survives_a_broken_stdout(ros_env):
-    rc, _ = _run_with_broken_pipes("common._leave(3)\n", ros_env)
+    rc, _ = _run_with_broken_pipes("process._leave(3)\n", ros_env)
     assert rc == 3
 
 
 def test_the_forced_exit_survives_a_broken_stderr(ros_env):
     # A shutdown that hangs: only the forced exit can end the process.
-    rc, took = _run_with_broken_pipes("common._exit_after(0.5, 'x')\ntime.sleep(120)\n",
+    rc, took = _run_with_broken_pipes("process._exit_after(0.5, 'x')\ntime.sleep(120)\n",
                                       ros_env)
     assert rc == 0, f"the process did not exit by itself ({took:.0f} s)"
 
@@ -61,15 +61,15 @@ def test_every_thread_of_a_node_executable_leaves_the_signals_to_the_signal_thre
     ``sigwait``."""
     import signal
 
-    from aslip_ros.nodes import common
+    from aslip_ros.runtime import process
     from node_support import NodeProcess
     with NodeProcess("mocap_bridge", ros_env) as node:
         node.wait_ready()
         pid = node.proc.pid
-        threads = common.threads_receiving({signal.SIGINT, signal.SIGTERM}, str(pid))
+        threads = process.threads_receiving({signal.SIGINT, signal.SIGTERM}, str(pid))
         n_threads = len(list(__import__("pathlib").Path(f"/proc/{pid}/task").iterdir()))
         assert n_threads > 2
-        signals = [t for t in threads if _thread_name(pid, t) == common.SIGNAL_THREAD]
+        signals = [t for t in threads if _thread_name(pid, t) == process.SIGNAL_THREAD]
         assert threads == signals and len(signals) == 1, \
             [(t, _thread_name(pid, t)) for t in threads]
 
@@ -89,7 +89,7 @@ def test_a_shutdown_stuck_in_c_with_the_gil_still_exits_with_a_stack_dump(ros_en
 
     from conftest import HELPERS
 
-    from aslip_ros.nodes.common import C_EXIT_MARGIN_S, EXIT_GRACE_S
+    from aslip_ros.runtime.process import C_EXIT_MARGIN_S, EXIT_GRACE_S
     from aslip_ros.util import die_with_parent
     proc = subprocess.Popen([sys.executable, str(HELPERS / "stuck_node.py")], env=ros_env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,

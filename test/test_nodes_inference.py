@@ -38,9 +38,10 @@ def _listen(bus):
 
     from aslip_ros.msg import SlipVector
     from aslip_ros.nodes import common as c
-    bus.listen(SlipVector, SLIP, c.RELIABLE_QOS)
-    bus.listen(String, DIAG, c.RELIABLE_QOS)
-    bus.listen(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
+    from aslip_ros.runtime.qos import MARKER_QOS, RELIABLE_QOS
+    bus.listen(SlipVector, SLIP, RELIABLE_QOS)
+    bus.listen(String, DIAG, RELIABLE_QOS)
+    bus.listen(MarkerArray, c.MARKER_TOPIC, MARKER_QOS)
 
 
 def test_scene_audio_to_slip_vector(rclpy_context, ros_env, known_ckpt):
@@ -90,6 +91,7 @@ def _inference_graph(known_ckpt):
 
     from aslip_ros.msg import AudioFrame
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import SENSOR_QOS
     with domain_id() as did:
         env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                    PYTHONUNBUFFERED="1")
@@ -97,7 +99,7 @@ def _inference_graph(known_ckpt):
         rclpy.init(context=ctx, domain_id=did)
         bus = Bus(ctx)
         _listen(bus)
-        pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+        pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
         proc = NodeProcess("slip_inference", env, {"checkpoint": str(known_ckpt),
                                                    "diagnostics_period_s": 0.1})
         try:
@@ -350,11 +352,12 @@ def test_threshold_parameter_decides_slipping(rclpy_context, ros_env, tmp_path):
     message reports the threshold it was decided at; back to the checkpoint's at run time."""
     from aslip_ros.msg import AudioFrame
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import SENSOR_QOS
     ckpt = make_checkpoint(tmp_path / "p065.pt", slip_logit=math.log(0.65 / 0.35),
                            velocity=(0.02, 0.0))
     bus = Bus(rclpy_context)
     _listen(bus)
-    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
     feeder = Feeder(bus, pub)
     with NodeProcess("slip_inference", ros_env, {"checkpoint": str(ckpt), "threshold": 0.8,
                                                  "diagnostics_period_s": 0.1}) as inf:

@@ -37,14 +37,15 @@ class Graph:
 
         from aslip_ros.msg import AudioFrame, SlipVector
         from aslip_ros.nodes import common as c
+        from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
         from aslip_ros.nodes.slip_inference import SlipInference
         self.node = SlipInference(context=context, parameter_overrides=[
             Parameter("checkpoint", value=str(checkpoint))])
         self.peer = rclpy.create_node("audio_source", context=context)
         self.estimates: list = []
         self.peer.create_subscription(SlipVector, c.SLIP_TOPIC, self.estimates.append,
-                                      c.RELIABLE_QOS)
-        self.pub = self.peer.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+                                      RELIABLE_QOS)
+        self.pub = self.peer.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
         self.ex = SingleThreadedExecutor(context=context)
         self.ex.add_node(self.node)
         self.ex.add_node(self.peer)

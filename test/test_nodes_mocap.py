@@ -23,9 +23,10 @@ class PoseStreamer:
         from geometry_msgs.msg import PoseStamped
 
         from aslip_ros.nodes import common as c
+        from aslip_ros.runtime.qos import SENSOR_QOS
         self.motion = motion
-        self.pub_f = bus.node.create_publisher(PoseStamped, c.FINGER_TOPIC, c.SENSOR_QOS)
-        self.pub_o = bus.node.create_publisher(PoseStamped, c.OBJECT_TOPIC, c.SENSOR_QOS)
+        self.pub_f = bus.node.create_publisher(PoseStamped, c.FINGER_TOPIC, SENSOR_QOS)
+        self.pub_o = bus.node.create_publisher(PoseStamped, c.OBJECT_TOPIC, SENSOR_QOS)
         self.period = 1.0 / rate_hz
         self.running = threading.Event()
         self.running.set()
@@ -72,10 +73,10 @@ def test_known_motion_gives_known_slip_then_stale_gives_silence(rclpy_context, r
     from std_msgs.msg import String
 
     from aslip_ros.msg import SlipVector
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS
     bus = Bus(rclpy_context)
-    bus.listen(SlipVector, TRUTH, c.RELIABLE_QOS)
-    bus.listen(String, "/aslip/diagnostics", c.RELIABLE_QOS)
+    bus.listen(SlipVector, TRUTH, RELIABLE_QOS)
+    bus.listen(String, "/aslip/diagnostics", RELIABLE_QOS)
     with NodeProcess("mocap_bridge", ros_env, {"window_s": 0.1}) as node:
         node.wait_ready()
         streamer = PoseStreamer(bus, _yawed_grasp)
@@ -118,9 +119,9 @@ def test_turning_object_publishes_its_angular_velocity(rclpy_context, ros_env):
     """A pure rotation: the truth carries angular_velocity (rad/s about +y of the grasp
     plane) while the planar decision says not slipping."""
     from aslip_ros.msg import SlipVector
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS
     bus = Bus(rclpy_context)
-    bus.listen(SlipVector, TRUTH, c.RELIABLE_QOS)
+    bus.listen(SlipVector, TRUTH, RELIABLE_QOS)
     with NodeProcess("mocap_bridge", ros_env, {"window_s": 0.1}) as node:
         node.wait_ready()
         streamer = PoseStreamer(bus, _turning)
@@ -135,9 +136,9 @@ def test_turning_object_publishes_its_angular_velocity(rclpy_context, ros_env):
 
 def test_still_object_is_not_slipping_and_bad_params_refused(rclpy_context, ros_env):
     from aslip_ros.msg import SlipVector
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS
     bus = Bus(rclpy_context)
-    bus.listen(SlipVector, TRUTH, c.RELIABLE_QOS)
+    bus.listen(SlipVector, TRUTH, RELIABLE_QOS)
 
     def still(t):
         f = np.array([0.4, 0.1 * t, 0.3, 0, 0, 0, 1.0])
@@ -190,12 +191,12 @@ def test_measured_calibration_is_the_held_objects_offset(rclpy_context, ros_env)
     from std_msgs.msg import String
 
     from aslip_ros.msg import SlipVector
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS
     q_param = Rotation.from_euler("y", 90, degrees=True)
     param = [0.5, 0.5, 0.5] + list(q_param.as_quat())        # position: not used
     bus = Bus(rclpy_context)
-    bus.listen(SlipVector, TRUTH, c.RELIABLE_QOS)
-    bus.listen(String, "/aslip/diagnostics", c.RELIABLE_QOS)
+    bus.listen(SlipVector, TRUTH, RELIABLE_QOS)
+    bus.listen(String, "/aslip/diagnostics", RELIABLE_QOS)
     params = {"calibration": "measure", "calibration_s": 0.4, "window_s": 0.1,
               "grasp_plane_in_finger": param}
     with NodeProcess("mocap_bridge", ros_env, params) as node:

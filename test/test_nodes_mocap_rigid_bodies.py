@@ -88,7 +88,7 @@ class Loop:
         from rclpy.parameter import Parameter
 
         from aslip_ros.msg import SlipVector
-        from aslip_ros.nodes import common as c
+        from aslip_ros.runtime.qos import RELIABLE_QOS
         from aslip_ros.nodes.mocap_bridge import MocapBridge
         self.bridge = MocapBridge(context=context, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
@@ -96,7 +96,7 @@ class Loop:
         self.listener = rclpy.create_node("truth_listener", context=context)
         self.truth = []
         self.listener.create_subscription(SlipVector, TRUTH, self.truth.append,
-                                          c.RELIABLE_QOS)
+                                          RELIABLE_QOS)
         self.ex = SingleThreadedExecutor(context=context)
         for n in (self.bridge, driver.node, self.listener):
             self.ex.add_node(n)
@@ -175,7 +175,7 @@ def test_a_missing_body_is_named_with_the_bodies_present(rclpy_context):
 def test_an_incomplete_body_choice_is_refused(rclpy_context, params, why):
     from rclpy.parameter import Parameter
 
-    from aslip_ros.nodes.common import ConfigError
+    from aslip_ros.runtime.process import ConfigError
     from aslip_ros.nodes.mocap_bridge import MocapBridge
     with pytest.raises(ConfigError, match=why):
         MocapBridge(context=rclpy_context, parameter_overrides=[

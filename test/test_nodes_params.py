@@ -145,7 +145,7 @@ def test_a_node_takes_parameter_overrides_through_its_constructor(rclpy_context)
     ``**kwargs`` reach rclpy's Node), checked by the same declarations as from a launch."""
     from rclpy.parameter import Parameter
 
-    from aslip_ros.nodes.common import ConfigError
+    from aslip_ros.runtime.process import ConfigError
     from aslip_ros.nodes.mocap_bridge import MocapBridge
     node = MocapBridge(context=rclpy_context,
                        parameter_overrides=[Parameter("rate_hz", value=50.0)])

@@ -234,7 +234,7 @@ def test_a_finite_run_returns_to_the_start_and_is_done(rclpy_context):
 def test_parameters_declare_their_ranges_and_are_checked(rclpy_context):
     from rclpy.parameter import Parameter
 
-    from aslip_ros.nodes.common import ConfigError
+    from aslip_ros.runtime.process import ConfigError
     run = InProcess(rclpy_context, autostart=False)
     try:
         d = {x.name: x for x in run.node.describe_parameters(
@@ -288,11 +288,12 @@ def test_the_executable_sweeps_within_limits_and_stops_on_sigint(rclpy_context, 
 
     from aslip_ros import frames
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import SENSOR_QOS
     from aslip_ros.nodes import convert
     log = tmp_path / "arm.jsonl"
     env = dict(ros_env, FAKE_ARM_LOG=str(log))
     bus = Bus(rclpy_context)
-    bus.listen(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
+    bus.listen(PoseStamped, c.TCP_TOPIC, SENSOR_QOS)
     params = {"arm": "fake_arm:make_arm", "arm_max_speed_m_s": 0.05, "seed": 4,
               "duration_s": 0.0, "pose_timeout_s": POSE_TIMEOUT_S, "sweep_radius_m": 0.01}
     with NodeProcess("robot_sweeps", env, params) as node:

@@ -28,6 +28,7 @@ def test_the_scene_waits_for_its_recorder_only_when_asked(rclpy_context, hold):
 
     from aslip_ros.msg import AudioFrame
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import SENSOR_QOS
     from aslip_ros.nodes.scene_sim import SceneSim
 
     sim = SceneSim(context=rclpy_context, parameter_overrides=[
@@ -43,7 +44,7 @@ def test_the_scene_waits_for_its_recorder_only_when_asked(rclpy_context, hold):
             assert sim.world.t > 0.0          # without the hold the scene runs unheard
             return
         assert sim.world.t == 0.0
-        rec.create_subscription(AudioFrame, c.AUDIO_TOPIC, got.append, c.SENSOR_QOS)
+        rec.create_subscription(AudioFrame, c.AUDIO_TOPIC, got.append, SENSOR_QOS)
         ex = SingleThreadedExecutor(context=rclpy_context)
         ex.add_node(rec)
         assert _wait(lambda: sim.pub_audio.get_subscription_count() > 0)

@@ -78,6 +78,7 @@ def live():
 
     from aslip_ros.msg import AudioFrame, SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     assert STREAM_CKPT.is_file(), STREAM_CKPT
     with domain_id() as did:
         env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -85,9 +86,9 @@ def live():
         ctx = Context()
         rclpy.init(context=ctx, domain_id=did)
         bus = Bus(ctx)
-        bus.listen(SlipVector, SLIP, c.RELIABLE_QOS)
-        bus.listen(String, DIAG, c.RELIABLE_QOS)
-        pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+        bus.listen(SlipVector, SLIP, RELIABLE_QOS)
+        bus.listen(String, DIAG, RELIABLE_QOS)
+        pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
         # threshold 0: every estimate is "slipping", so its velocity is published too.
         proc = NodeProcess("slip_inference", env, {"checkpoint": str(STREAM_CKPT),
                                                    "threshold": 0.0,

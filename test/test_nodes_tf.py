@@ -69,7 +69,7 @@ def test_mocap_bridge_latches_its_calibration_on_tf_static(rclpy_context, ros_en
     from tf2_msgs.msg import TFMessage
 
     from aslip_ros import frames
-    from aslip_ros.nodes.tf_frames import TF_STATIC_LISTENER_QOS, TF_STATIC_QOS
+    from aslip_ros.runtime.qos import TF_STATIC_LISTENER_QOS, TF_STATIC_QOS
     calib = _calib()
     with NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": calib}) as node:
         node.wait_ready()
@@ -118,13 +118,15 @@ def test_scene_tf_agrees_with_its_pose_topics(rclpy_context, ros_env):
     from aslip_ros import frames
     from aslip_ros.control.frames import compose
     from aslip_ros.nodes import common as c
-    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS, transform_pose
+    from aslip_ros.runtime.qos import SENSOR_QOS
+    from aslip_ros.nodes.tf_frames import transform_pose
+    from aslip_ros.runtime.qos import TF_QOS, TF_STATIC_LISTENER_QOS
     calib = _calib()
     bus = Bus(rclpy_context)
     bus.listen(TFMessage, "/tf", TF_QOS)
     bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
     for topic in (c.FINGER_TOPIC, c.OBJECT_TOPIC, c.TCP_TOPIC):
-        bus.listen(PoseStamped, topic, c.SENSOR_QOS)
+        bus.listen(PoseStamped, topic, SENSOR_QOS)
     # As the launch files run it beside the scene: scene_sim publishes the bodies.
     with NodeProcess("scene_sim", ros_env) as scene, \
             NodeProcess("mocap_bridge", ros_env, {"grasp_plane_in_finger": calib,
@@ -227,16 +229,16 @@ def test_a_static_listener_keeps_every_publishers_transforms(rclpy_context):
     from rclpy.qos import QoSProfile
 
     from aslip_ros import frames
-    from aslip_ros.nodes import common as c
-    from aslip_ros.nodes.tf_frames import TF_STATIC_LISTENER_QOS
+    from aslip_ros.runtime.qos import LATCHED_QOS
+    from aslip_ros.runtime.qos import TF_STATIC_LISTENER_QOS
     every = {frames.BASE, frames.GRIPPER, frames.GRASP_PLANE}
     assert _static_listener_receives(rclpy_context, TF_STATIC_LISTENER_QOS) == every
     if launch_case.MISSING is None:
         probe_qos = launch_case.rviz_topics([])["/tf_static"][2]
         assert probe_qos.depth >= TF_STATIC_LISTENER_QOS.depth
-    one_deep = QoSProfile(history=c.LATCHED_QOS.history, depth=1,
-                          reliability=c.LATCHED_QOS.reliability,
-                          durability=c.LATCHED_QOS.durability)
+    one_deep = QoSProfile(history=LATCHED_QOS.history, depth=1,
+                          reliability=LATCHED_QOS.reliability,
+                          durability=LATCHED_QOS.durability)
     assert _static_listener_receives(rclpy_context, one_deep) < every
 
 
@@ -257,16 +259,17 @@ def test_mocap_bridge_puts_a_drivers_bodies_on_tf(rclpy_context, ros_env):
     from tf2_msgs.msg import TFMessage
 
     from aslip_ros import frames
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import SENSOR_QOS
     from aslip_ros.nodes import convert
-    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS, transform_pose
+    from aslip_ros.nodes.tf_frames import transform_pose
+    from aslip_ros.runtime.qos import TF_QOS, TF_STATIC_LISTENER_QOS
     finger_topic, object_topic = "/natnet/aslip_finger/pose", "/natnet/aslip_object/pose"
     base = [0.5, -0.2, 0.0, 0.0, 0.0, 0.7071067811865476, 0.7071067811865476]
     bus = Bus(rclpy_context)
     bus.listen(TFMessage, "/tf", TF_QOS)
     bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
-    pub_f = bus.node.create_publisher(PoseStamped, finger_topic, c.SENSOR_QOS)
-    pub_o = bus.node.create_publisher(PoseStamped, object_topic, c.SENSOR_QOS)
+    pub_f = bus.node.create_publisher(PoseStamped, finger_topic, SENSOR_QOS)
+    pub_o = bus.node.create_publisher(PoseStamped, object_topic, SENSOR_QOS)
     finger = [0.1, 0.2, 0.3] + _calib()[3:]
     obj = [0.11, 0.2, 0.31, 0.0, 0.0, 0.0, 1.0]
     sent = []
@@ -307,14 +310,15 @@ def test_mocap_bridge_leaves_the_bodies_to_a_driver_that_publishes_them(rclpy_co
     from aslip_ros import frames
     from aslip_ros.msg import SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     from aslip_ros.nodes import convert
-    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS
+    from aslip_ros.runtime.qos import TF_QOS, TF_STATIC_LISTENER_QOS
     bus = Bus(rclpy_context)
     bus.listen(TFMessage, "/tf", TF_QOS)
     bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
-    bus.listen(SlipVector, c.SLIP_TRUTH_TOPIC, c.RELIABLE_QOS)
-    pub_f = bus.node.create_publisher(PoseStamped, c.FINGER_TOPIC, c.SENSOR_QOS)
-    pub_o = bus.node.create_publisher(PoseStamped, c.OBJECT_TOPIC, c.SENSOR_QOS)
+    bus.listen(SlipVector, c.SLIP_TRUTH_TOPIC, RELIABLE_QOS)
+    pub_f = bus.node.create_publisher(PoseStamped, c.FINGER_TOPIC, SENSOR_QOS)
+    pub_o = bus.node.create_publisher(PoseStamped, c.OBJECT_TOPIC, SENSOR_QOS)
     n = [0]
     with NodeProcess("mocap_bridge", ros_env, {"publish_pose_tf": False}) as bridge:
         bridge.wait_ready()

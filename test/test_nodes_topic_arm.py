@@ -69,10 +69,11 @@ def test_a_reader_has_the_stop_when_close_returns(rclpy_context):
     from rclpy.node import Node
 
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS
     got = []
     reader = Node("topic_arm_reader", context=rclpy_context)
     reader.create_subscription(TwistStamped, c.CMD_VEL_TOPIC,
-                               lambda m: got.append(m.twist.linear.x), c.RELIABLE_QOS)
+                               lambda m: got.append(m.twist.linear.x), RELIABLE_QOS)
     ex = SingleThreadedExecutor(context=rclpy_context)
     ex.add_node(reader)
     node, arm = _arm(rclpy_context, "topic_arm_writer")

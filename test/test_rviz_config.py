@@ -71,7 +71,7 @@ def test_the_written_view_follows_the_graphs_pose_topics(tmp_path):
     """rviz on a cell subscribes to its driver's topics, not the contract's (it showed no
     finger or object on hardware); the rest of the shipped view is kept."""
     from aslip_ros import topics
-    from aslip_ros.nodes.rviz_view import display_topic, displays, write_view
+    from aslip_ros.launch_support.rviz_view import display_topic, displays, write_view
     env = {"ROS_HOME": str(tmp_path)}
     finger, obj = "/vrpn_mocap/aslip_finger/pose", "/vrpn_mocap/aslip_object/pose"
     path, notes = write_view(RVIZ, finger, obj, tcp_placed=True, env=env)
@@ -91,7 +91,7 @@ def test_the_written_view_follows_the_graphs_pose_topics(tmp_path):
 
 def test_the_tcp_display_is_left_out_where_nothing_places_link_base(tmp_path):
     from aslip_ros import topics
-    from aslip_ros.nodes.rviz_view import display_topic, displays, write_view
+    from aslip_ros.launch_support.rviz_view import display_topic, displays, write_view
     path, notes = write_view(RVIZ, topics.FINGER, topics.OBJECT, tcp_placed=False,
                              env={"ROS_HOME": str(tmp_path)})
     shown = [display_topic(d) for d in displays(yaml.safe_load(path.read_text()))]
@@ -103,7 +103,7 @@ def test_pose_displays_are_left_out_where_the_mocap_publishes_no_posestamped(tmp
     """mocap4r2 (one RigidBodies topic): rviz's Pose displays cannot read it; the bodies
     show through the TF display (mocap_bridge puts them on /tf)."""
     from aslip_ros import topics
-    from aslip_ros.nodes.rviz_view import display_topic, displays, write_view
+    from aslip_ros.launch_support.rviz_view import display_topic, displays, write_view
     path, notes = write_view(RVIZ, None, None, tcp_placed=True,
                              env={"ROS_HOME": str(tmp_path)})
     doc = yaml.safe_load(path.read_text())

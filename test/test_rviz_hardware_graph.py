@@ -85,10 +85,11 @@ def test_every_frame_the_view_displays_joins_world_on_a_hardware_graph(ros_env,
 
     import test_hardware_rehearsal as hr
     from aslip_ros import frames, topics
-    from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import MARKER_QOS, SENSOR_QOS
     from aslip_ros.nodes import convert
-    from aslip_ros.nodes.rviz_view import display_topic, displays
-    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS, transform_pose
+    from aslip_ros.launch_support.rviz_view import display_topic, displays
+    from aslip_ros.nodes.tf_frames import transform_pose
+    from aslip_ros.runtime.qos import TF_QOS, TF_STATIC_LISTENER_QOS
     cell = tmp_path / "cell.yaml"
     _cell(cell)
     env = dict(ros_env, ROS_HOME=str(tmp_path / "ros_home"),
@@ -120,7 +121,7 @@ def test_every_frame_the_view_displays_joins_world_on_a_hardware_graph(ros_env,
         for topic in shown:
             marker = "marker" in topic
             bus.listen(MarkerArray if marker else PoseStamped, topic,
-                       c.MARKER_QOS if marker else c.SENSOR_QOS)
+                       MARKER_QOS if marker else SENSOR_QOS)
 
         def stamped_frames() -> dict:
             """Display topic -> the frames its messages are stamped in. No slip_inference

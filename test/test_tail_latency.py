@@ -8,7 +8,7 @@ import threading
 import numpy as np
 import pytest
 
-from aslip_ros.nodes.bench import pair_estimates, paired_latency_ms, tail_stats
+from benchmarks.node_bench import pair_estimates, paired_latency_ms, tail_stats
 from node_support import SCENE_NAMES, make_checkpoint
 
 BLOCK_NS = 10_000_000                 # 480 frames at 48 kHz
@@ -99,6 +99,7 @@ def _diagnostics_after_estimates(context, ckpt, n_estimates: int = 5) -> dict:
     from aslip_ros import topics
     from aslip_ros.msg import AudioFrame, SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
     from aslip_ros.nodes import convert
     from aslip_ros.nodes.slip_inference import SlipInference
     from node_support import Bus, deep
@@ -119,10 +120,10 @@ def _diagnostics_after_estimates(context, ckpt, n_estimates: int = 5) -> dict:
                 got["diag"] = doc["values"]
                 cond.notify_all()
 
-    bus.node.create_subscription(SlipVector, c.SLIP_TOPIC, on_slip, deep(c.RELIABLE_QOS))
+    bus.node.create_subscription(SlipVector, c.SLIP_TOPIC, on_slip, deep(RELIABLE_QOS))
     bus.node.create_subscription(String, topics.DIAGNOSTICS_JSON, on_diag,
-                                 deep(c.RELIABLE_QOS))
-    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
+                                 deep(RELIABLE_QOS))
+    pub = bus.node.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
     node = SlipInference(context=context, parameter_overrides=[
         Parameter("checkpoint", value=str(ckpt)), Parameter("diagnostics_period_s", value=0.1)])
     ex = MultiThreadedExecutor(context=context)

@@ -55,6 +55,8 @@ from aslip_ros.hw import audio_source
 from aslip_ros.hw.audio import check_latency
 from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ready, run_node
+from aslip_ros.runtime.qos import LATCHED_QOS, SENSOR_QOS
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.scene_params import scene_params
 from aslip_ros.nodes.topic_audio import INPUT_TYPES, open_topic
@@ -147,8 +149,8 @@ class AudioCapture(LifecycleNode):
         self._next_time = 0.0                      # its host time [s]
         self._base = 0                             # published index - source index
         self.capture_latency = collections.deque(maxlen=1000)
-        self.pub = self.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
-        self.pub_meta = self.create_publisher(String, c.METADATA_TOPIC, c.LATCHED_QOS)
+        self.pub = self.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
+        self.pub_meta = self.create_publisher(String, c.METADATA_TOPIC, LATCHED_QOS)
         self.diag = c.Diagnostics(self, "aslip: audio_capture", self.p["source"])
         self.create_timer(1.0, self._diagnose, callback_group=MutuallyExclusiveCallbackGroup())
         if self.p["autostart"]:
@@ -158,8 +160,8 @@ class AudioCapture(LifecycleNode):
             if not self._running.is_set():
                 self._exit_on_error()
         if not self.done:       # exit_on_error: on its way out, not ready
-            c.ready(self, f"source {self.p['source']}, "
-                          f"{'streaming' if self._running.is_set() else 'not streaming'}")
+            ready(self, f"source {self.p['source']}, "
+                        f"{'streaming' if self._running.is_set() else 'not streaming'}")
 
     @staticmethod
     def _cross_check(v: dict) -> Optional[str]:
@@ -426,7 +428,7 @@ def _json_object(v) -> Optional[str]:
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``ros2 run aslip_ros audio_capture``."""
-    return c.run_node(AudioCapture, args)
+    return run_node(AudioCapture, args)
 
 
 if __name__ == "__main__":

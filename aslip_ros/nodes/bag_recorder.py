@@ -45,13 +45,15 @@ import time
 from typing import Optional
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 
 from aslip_ros import topics
 from aslip_ros.data import bags
 from aslip_ros.data.bag_format import add_installed_types, project_store
 from aslip_ros.data.bag_writer import BagWriter
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ConfigError, ready, run_node
+from aslip_ros.runtime.qos import reader_qos
 from aslip_ros.rigid_bodies import RIGID_BODIES_TYPE
 
 #: What ``data_collection.launch.py`` records: the recording contract (the topics of
@@ -79,19 +81,6 @@ def record_topics(finger: str = topics.FINGER, object_: str = topics.OBJECT) -> 
     swap = {topics.FINGER: finger, topics.OBJECT: object_}
     # One topic may carry both bodies (mocap4r2's RigidBodies): recorded once.
     return list(dict.fromkeys(swap.get(t, t) for t in RECORDED_TOPICS))
-
-
-#: Reader queue: a burst that arrives while the recorder is busy writing is kept.
-QUEUE_DEPTH = 1000
-
-
-def reader_qos(latched: bool, reliable: bool) -> QoSProfile:
-    """The recorder's subscription QoS: transient-local (latched) readers are reliable."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
-        reliability=ReliabilityPolicy.RELIABLE if (reliable or latched)
-        else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
 def qos_for_publishers(infos) -> Optional[tuple]:
@@ -168,7 +157,7 @@ class Recorder(Node):
                                        store=project_store())
             self.writer.__enter__()
         except (bags.BagError, OSError) as exc:
-            raise c.ConfigError(f"cannot record to {self.p['output']}: {exc}") from exc
+            raise ConfigError(f"cannot record to {self.p['output']}: {exc}") from exc
         self._lock = threading.Lock()
         self._closed = False
         self.done = False
@@ -181,7 +170,7 @@ class Recorder(Node):
         self.create_timer(self.p["discovery_period_s"], self._discover)
         self.create_timer(1.0, self._diagnose)
         self._discover()
-        c.ready(self, f"recording {len(self.p['topics'])} topics to {self.p['output']}")
+        ready(self, f"recording {len(self.p['topics'])} topics to {self.p['output']}")
 
     def _discover(self) -> None:
         available = None
@@ -283,7 +272,7 @@ class Recorder(Node):
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``ros2 run aslip_ros bag_recorder``."""
-    return c.run_node(Recorder, args)
+    return run_node(Recorder, args)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,8 @@ from aslip_ros.control.watchdog import DEFAULT_TIMEOUT_S, ArrivalStats
 from aslip_ros.hw.xarm_config import XArmConfig
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ready
+from aslip_ros.runtime.qos import CLOCK_QOS, LATCHED_QOS, RELIABLE_QOS, SENSOR_QOS
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.arm_link import OPEN_ERRORS, close_arm, open_arm
 from aslip_ros.nodes.arms import ARMS, LIMIT_PREFIX, resolve_arm
@@ -168,16 +170,16 @@ class ControllerNode(LifecycleNode):
                                             clock=self.now_s)
         # One dispatch thread (common._executor): callback groups would change nothing.
         self.create_subscription(SlipVector, self.p["slip_topic"], self._on_slip,
-                                 c.RELIABLE_QOS)
-        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS)
+                                 RELIABLE_QOS)
+        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, LATCHED_QOS)
         if self.arm_kind.pose_from_topic:
-            self.create_subscription(PoseStamped, c.TCP_TOPIC, self._on_tcp, c.SENSOR_QOS)
+            self.create_subscription(PoseStamped, c.TCP_TOPIC, self._on_tcp, SENSOR_QOS)
         else:
-            self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
+            self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, SENSOR_QOS)
         self._slip_deadline = self._pose_deadline = None
         if self.lockstep:
             # Every tick is a control step, which also judges staleness (no deadlines).
-            self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, c.CLOCK_QOS)
+            self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, CLOCK_QOS)
         else:
             steady = Clock(clock_type=ClockType.STEADY_TIME)
             self.create_timer(1.0 / self.p["control_rate_hz"], self._control, clock=steady)
@@ -194,8 +196,8 @@ class ControllerNode(LifecycleNode):
             self.trigger_configure()
             if self.arm is not None:
                 self.trigger_activate()
-        c.ready(self, f"{self.task_name}, arm {self.p['arm']}, "
-                      f"{'active' if self.active else 'not active'}")
+        ready(self, f"{self.task_name}, arm {self.p['arm']}, "
+                    f"{'active' if self.active else 'not active'}")
 
     # -- time --------------------------------------------------------------------------------
 

@@ -26,7 +26,7 @@ class FingerWatch:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
 
-        from aslip_ros.nodes import common as c
+        from aslip_ros.runtime.qos import SENSOR_QOS
         from aslip_ros.nodes import convert
         self.topic = topic
         self._convert = convert
@@ -40,7 +40,7 @@ class FingerWatch:
         rclpy.init(context=self._ctx)
         self._node = rclpy.create_node('aslip_check_grasp_axes', context=self._ctx)
         self._node.create_subscription(msg_type, topic, self._on_rigid_bodies if body
-                                       is not None else self._on_pose, c.SENSOR_QOS)
+                                       is not None else self._on_pose, SENSOR_QOS)
         self._ex = SingleThreadedExecutor(context=self._ctx)
         self._ex.add_node(self._node)
         self._thread = threading.Thread(target=self._spin, daemon=True)

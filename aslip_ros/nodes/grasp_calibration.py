@@ -19,7 +19,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from aslip_ros import topics
-from aslip_ros.nodes import common as c
+from aslip_ros.runtime.qos import LATCHED_QOS
 
 #: How long a task start waits for the service to be discovered before it gives up [s].
 SERVICE_WAIT_S = 5.0
@@ -35,7 +35,7 @@ class GraspCalibration:
         self.node = node
         self.clock = clock
         self.client = node.create_client(Trigger, service) if service else None
-        node.create_subscription(String, topics.CALIBRATION, self._on_state, c.LATCHED_QOS)
+        node.create_subscription(String, topics.CALIBRATION, self._on_state, LATCHED_QOS)
         self.service = service
         self.calibrated: Optional[bool] = None     # None until slip_inference has said
         self.grasp = 0                             # slip_inference's newest grasp number

@@ -13,19 +13,7 @@ import importlib
 from typing import Dict, List
 from unittest import mock
 
-#: Executable name -> (module, node class), as CMakeLists.txt installs them.
-EXECUTABLES = {
-    "audio_capture": ("aslip_ros.nodes.audio_capture", "AudioCapture"),
-    "mocap_bridge": ("aslip_ros.nodes.mocap_bridge", "MocapBridge"),
-    "slip_inference": ("aslip_ros.nodes.slip_inference", "SlipInference"),
-    "slip_stop": ("aslip_ros.nodes.slip_stop", "SlipStopNode"),
-    "slip_track": ("aslip_ros.nodes.slip_track", "SlipTrackNode"),
-    "scene_sim": ("aslip_ros.nodes.scene_sim", "SceneSim"),
-    "bag_recorder": ("aslip_ros.nodes.bag_recorder", "Recorder"),
-    "robot_sweeps": ("aslip_ros.nodes.robot_sweeps", "RobotSweeps"),
-    # not installed yet (data_collection.launch.py starts it through nodes/launcher.py)
-    "stream_watch": ("aslip_ros.nodes.stream_watch", "StreamWatchNode"),
-}
+from aslip_ros import node_table
 
 
 class _Declared(Exception):
@@ -35,13 +23,14 @@ class _Declared(Exception):
 
 
 def declared_params(executable: str) -> List:
-    """The :class:`aslip_ros.nodes.params.Param` specs ``executable`` declares."""
+    """The :class:`aslip_ros.nodes.params.Param` specs ``executable`` (a node of
+    :mod:`aslip_ros.node_table`) declares."""
     from rclpy.lifecycle import LifecycleNode
     from rclpy.node import Node
 
     from aslip_ros.nodes import common
-    module, name = EXECUTABLES[executable]
-    cls = getattr(importlib.import_module(module), name)
+    row = node_table.spec(executable)
+    cls = getattr(importlib.import_module(row.module), row.node_class)
 
     def capture(node, specs, *args, **kwargs):
         raise _Declared(specs)

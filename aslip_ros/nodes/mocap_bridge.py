@@ -47,6 +47,8 @@ from visualization_msgs.msg import MarkerArray
 from aslip_ros import frames, poses, rigid_bodies
 from aslip_ros.msg import SlipVector
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ConfigError, ready, run_node
+from aslip_ros.runtime.qos import LATCHED_QOS, MARKER_QOS, RELIABLE_QOS, SENSOR_QOS
 from aslip_ros.nodes import convert
 from aslip_ros.slip import DEFAULT_THRESHOLD
 
@@ -139,9 +141,9 @@ class MocapBridge(Node):
                          for r, b in self.bodies.items()} if rb else
                         {r: self.p[f"{r}_topic"] for r in rigid_bodies.ROLES})
 
-        self.pub = self.create_publisher(SlipVector, c.SLIP_TRUTH_TOPIC, c.RELIABLE_QOS)
+        self.pub = self.create_publisher(SlipVector, c.SLIP_TRUTH_TOPIC, RELIABLE_QOS)
         self.pub_marker = (self.create_publisher(MarkerArray, c.MARKER_TOPIC + "_truth",
-                                                 c.MARKER_QOS) if self.p["marker"] else None)
+                                                 MARKER_QOS) if self.p["marker"] else None)
         self.diag = c.Diagnostics(self, "aslip: mocap_bridge", "motion capture")
         self.tf_static = None
         if self.p["publish_tf"]:
@@ -156,22 +158,22 @@ class MocapBridge(Node):
         if rb:
             # Sensor QoS: best effort serves the drivers' reliable depth-1000 publisher too.
             self.create_subscription(_rigid_bodies_msg(), self.p["rigid_bodies_topic"],
-                                     self._on_rigid_bodies, c.SENSOR_QOS, callback_group=group)
+                                     self._on_rigid_bodies, SENSOR_QOS, callback_group=group)
         else:
             self.create_subscription(PoseStamped, self.p["finger_topic"],
-                                     lambda m: self._on_pose("finger", m), c.SENSOR_QOS,
+                                     lambda m: self._on_pose("finger", m), SENSOR_QOS,
                                      callback_group=group)
             self.create_subscription(PoseStamped, self.p["object_topic"],
-                                     lambda m: self._on_pose("object", m), c.SENSOR_QOS,
+                                     lambda m: self._on_pose("object", m), SENSOR_QOS,
                                      callback_group=group)
         if self.p["calibration"] == "metadata":
             self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata,
-                                     c.LATCHED_QOS)
+                                     LATCHED_QOS)
         self.create_timer(1.0 / self.p["rate_hz"], self._evaluate,
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(1.0, self._diagnose, callback_group=MutuallyExclusiveCallbackGroup())
-        c.ready(self, f"finger {self.sources['finger']}, object {self.sources['object']}, "
-                      f"calibration {self.p['calibration']}")
+        ready(self, f"finger {self.sources['finger']}, object {self.sources['object']}, "
+                    f"calibration {self.p['calibration']}")
 
     def p_update(self, changed: dict) -> None:
         """Apply accepted run-time parameter changes."""
@@ -360,7 +362,7 @@ def _rigid_bodies_msg():
     try:
         return convert.rigid_bodies_class()
     except ValueError as exc:
-        raise c.ConfigError(f"pose_source rigid_bodies: {exc}") from None
+        raise ConfigError(f"pose_source rigid_bodies: {exc}") from None
 
 
 def _frames_differ(values: dict) -> Optional[str]:
@@ -372,7 +374,7 @@ def _frames_differ(values: dict) -> Optional[str]:
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``ros2 run aslip_ros mocap_bridge``."""
-    return c.run_node(MocapBridge, args)
+    return run_node(MocapBridge, args)
 
 
 if __name__ == "__main__":

@@ -18,17 +18,14 @@ from typing import Dict, List, Optional, Tuple
 import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 
 from aslip_ros.audio_frame import stamp_to_ns
-from aslip_ros.nodes import common as c
+from aslip_ros.runtime.qos import READER_DEPTH, SENSOR_QOS, deeper
 from aslip_ros.rigid_bodies import BodyTally, select_bodies
 
 #: Per topic: (receive times [ns], header stamps [ns], frame ids), in arrival order.
 Samples = Tuple[List[int], List[int], List[str]]
-
-QUEUE_DEPTH = 1000
 
 
 class MocapCheck(Node):
@@ -42,9 +39,7 @@ class MocapCheck(Node):
         super().__init__('aslip_mocap_check', **kwargs)
         self._lock = threading.Lock()
         self._samples: Dict[str, Samples] = {t: ([], [], []) for t in topics}
-        qos = QoSProfile(history=c.SENSOR_QOS.history, depth=QUEUE_DEPTH,
-                         reliability=c.SENSOR_QOS.reliability,
-                         durability=c.SENSOR_QOS.durability)
+        qos = deeper(SENSOR_QOS, READER_DEPTH)
         for topic in topics:
             self.create_subscription(PoseStamped, topic,
                                      lambda msg, t=topic: self._on_pose(t, msg), qos)

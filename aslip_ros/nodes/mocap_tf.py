@@ -21,6 +21,7 @@ from typing import Optional
 
 from aslip_ros import frames, poses
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ConfigError
 
 IDENTITY = [float(x) for x in poses.IDENTITY_POSE]
 
@@ -51,8 +52,8 @@ class MocapFrames:
         self._tf = tf_frames
         self._child = {"finger": p["finger_frame"], "object": p["object_frame"]}
         if self._child["finger"] == self._child["object"]:
-            raise c.ConfigError(f"finger_frame and object_frame must differ (both "
-                                f"{self._child['finger']!r})")
+            raise ConfigError(f"finger_frame and object_frame must differ (both "
+                              f"{self._child['finger']!r})")
         self._poses = bool(p["publish_pose_tf"])
         self._static = static
         self._dynamic = tf_frames.DynamicFrames(node) if self._poses else None

@@ -42,6 +42,8 @@ from aslip_ros.control.command import VelocityCommand
 from aslip_ros.control.sweeps import SweepConfig, SweepEnd, SweepState, SweepTask
 from aslip_ros.control.watchdog import ArrivalStats
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ready, run_node
+from aslip_ros.runtime.qos import SENSOR_QOS
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.arm_link import OPEN_ERRORS, close_arm, open_arm
 from aslip_ros.nodes.arms import LIMIT_PREFIX, resolve_arm
@@ -146,9 +148,9 @@ class RobotSweeps(LifecycleNode):
         self.arm_kind = resolve_arm(self.p["arm"])
         self.pub_tcp = None
         if self.arm_kind.pose_from_topic:
-            self.create_subscription(PoseStamped, c.TCP_TOPIC, self._on_tcp, c.SENSOR_QOS)
+            self.create_subscription(PoseStamped, c.TCP_TOPIC, self._on_tcp, SENSOR_QOS)
         else:
-            self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
+            self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, SENSOR_QOS)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(1.0 / self.p["control_rate_hz"], self._control, clock=steady)
         # Re-armed by every pose: a silent pose stream stops the arm when it goes stale.
@@ -163,8 +165,8 @@ class RobotSweeps(LifecycleNode):
                 self.get_logger().error(f"the sweeps cannot start ({self.arm_error}): exiting "
                                         "with code 1 (exit_when_done)")
                 self.exit_code, self.done = 1, True
-        c.ready(self, f"robot_sweeps, arm {self.p['arm']}, "
-                      f"{'active' if self.active else 'not active'}")
+        ready(self, f"robot_sweeps, arm {self.p['arm']}, "
+                    f"{'active' if self.active else 'not active'}")
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -358,7 +360,7 @@ class RobotSweeps(LifecycleNode):
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``ros2 run aslip_ros robot_sweeps``."""
-    return c.run_node(RobotSweeps, args)
+    return run_node(RobotSweeps, args)
 
 
 if __name__ == "__main__":

@@ -46,17 +46,19 @@ from aslip_ros.hw import sources
 from aslip_ros.hw.sources import world_metadata
 from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ConfigError, ready, run_node
+from aslip_ros.runtime.qos import CLOCK_QOS, LATCHED_QOS, RELIABLE_QOS, SENSOR_QOS
 from aslip_ros.nodes import convert
 from aslip_ros.nodes.scene_params import scene_params
 
 
 def build_world(values: dict, prefix: str = ""):
     """A :class:`aslip_ros.scene.World` from scene parameter values; unusable ones are a
-    :class:`~aslip_ros.nodes.common.ConfigError` (the node refuses to start)."""
+    :class:`~aslip_ros.runtime.process.ConfigError` (the node refuses to start)."""
     try:
         return sources.build_world(values, prefix)
     except ValueError as exc:
-        raise c.ConfigError(str(exc)) from exc
+        raise ConfigError(str(exc)) from exc
 
 
 def merge_chunks(pieces: list):
@@ -163,18 +165,18 @@ class SceneSim(Node):
         self.n_commands = 0
         self.n_rejected = 0
 
-        self.pub_audio = self.create_publisher(AudioFrame, c.AUDIO_TOPIC, c.SENSOR_QOS)
-        self.pub_finger = self.create_publisher(PoseStamped, c.FINGER_TOPIC, c.SENSOR_QOS)
-        self.pub_object = self.create_publisher(PoseStamped, c.OBJECT_TOPIC, c.SENSOR_QOS)
-        self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, c.SENSOR_QOS)
-        self.pub_meta = self.create_publisher(String, c.METADATA_TOPIC, c.LATCHED_QOS)
+        self.pub_audio = self.create_publisher(AudioFrame, c.AUDIO_TOPIC, SENSOR_QOS)
+        self.pub_finger = self.create_publisher(PoseStamped, c.FINGER_TOPIC, SENSOR_QOS)
+        self.pub_object = self.create_publisher(PoseStamped, c.OBJECT_TOPIC, SENSOR_QOS)
+        self.pub_tcp = self.create_publisher(PoseStamped, c.TCP_TOPIC, SENSOR_QOS)
+        self.pub_meta = self.create_publisher(String, c.METADATA_TOPIC, LATCHED_QOS)
         self.diag = c.Diagnostics(self, "aslip: scene_sim", "scene")
         from aslip_ros.nodes import tf_frames
         self._tf_msg = tf_frames.transform_msg
         self.tf = tf_frames.DynamicFrames(self)
         self.tf_static = tf_frames.StaticFrames(self)
         self.tf_static.set(frames.WORLD, frames.BASE, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
-        self.create_subscription(TwistStamped, c.CMD_VEL_TOPIC, self._on_cmd, c.RELIABLE_QOS,
+        self.create_subscription(TwistStamped, c.CMD_VEL_TOPIC, self._on_cmd, RELIABLE_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.pub_meta.publish(String(data=json.dumps(self.meta)))
         self._hold = bool(self.p["start_with_subscriber"])
@@ -188,15 +190,15 @@ class SceneSim(Node):
         self.command_delay_s = 0.0
         self.tcp_published = 0
         if self.lockstep:
-            self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, c.CLOCK_QOS)
+            self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS)
             self.lockstep_clock(0.0)
         else:
             # The stepping timer and the diagnostics timer never block each other.
             self.create_timer(self.scene.block_s / 2.0, self._tick,
                               callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(1.0, self._diagnose, callback_group=MutuallyExclusiveCallbackGroup())
-        c.ready(self, f"scenario {self.world.scenario.kind}, {len(self.names)} channels at "
-                      f"{fs:g} Hz, {self.block_frames}-frame blocks")
+        ready(self, f"scenario {self.world.scenario.kind}, {len(self.names)} channels at "
+                    f"{fs:g} Hz, {self.block_frames}-frame blocks")
 
     def _on_change(self, changed: dict) -> None:
         if "command_timeout_s" in changed:
@@ -373,7 +375,7 @@ class SceneSim(Node):
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``ros2 run aslip_ros scene_sim``."""
-    return c.run_node(SceneSim, args)
+    return run_node(SceneSim, args)
 
 
 if __name__ == "__main__":

@@ -94,7 +94,6 @@ from typing import NamedTuple, Optional
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
@@ -104,15 +103,9 @@ from aslip_ros.lag import LagMeter
 from aslip_ros.learn.inference.live import Estimate, Job, LiveConfig, LiveEstimator, load_predictor
 from aslip_ros.msg import AudioFrame, SlipVector
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ConfigError, ready, run_node
+from aslip_ros.runtime.qos import AUDIO_QOS, LATCHED_QOS, MARKER_QOS, RELIABLE_QOS
 from aslip_ros.nodes import convert
-
-#: The audio subscription: the sensor QoS (best effort, volatile) with a 1 s queue at 10 ms
-#: blocks. With the default 10-deep queue, a process starved of CPU for 100 ms (two busy
-#: processes on a 2-core host do it) lost blocks, and each gap restarts the window: a 200 ms
-#: model then published nothing for 200 ms, tripping the controllers' stale-input stop. A
-#: backlog is cheap to catch up with (a hop supersedes the waiting one); lost audio is not.
-AUDIO_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                       reliability=c.SENSOR_QOS.reliability, durability=c.SENSOR_QOS.durability)
 
 #: Estimates the latency figures are computed over: 60 s at the 100 Hz hop rate, so p99.9
 #: rests on the 6 slowest of them rather than on the single maximum.
@@ -206,7 +199,7 @@ class SlipInference(Node):
             # Warms the model up before anything is subscribed (first torch calls are slow).
             self.est = LiveEstimator(pr, config)
         except (OSError, ValueError) as exc:
-            raise c.ConfigError(f"cannot load checkpoint {self.p['checkpoint']!r}: {exc}") \
+            raise ConfigError(f"cannot load checkpoint {self.p['checkpoint']!r}: {exc}") \
                 from exc
         self.predictor = pr
         self.source = pr.model_type
@@ -231,9 +224,9 @@ class SlipInference(Node):
         self._arrival_s = time.time
         self.skipped_behind = 0
         self.lag_s = 0.0
-        self.pub_slip = self.create_publisher(SlipVector, c.SLIP_TOPIC, c.RELIABLE_QOS)
-        self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, c.MARKER_QOS)
-        self.pub_calibration = self.create_publisher(String, topics.CALIBRATION, c.LATCHED_QOS)
+        self.pub_slip = self.create_publisher(SlipVector, c.SLIP_TOPIC, RELIABLE_QOS)
+        self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, MARKER_QOS)
+        self.pub_calibration = self.create_publisher(String, topics.CALIBRATION, LATCHED_QOS)
         self._grasp = 0                          # grasps begun (resets of the calibration)
         # The audio, model and service threads all report the estimator's events: one at a
         # time, so the grasp count and the announcements keep their order.
@@ -248,17 +241,17 @@ class SlipInference(Node):
         # neither diagnostics nor metadata ever wait behind it (or it behind them).
         self.create_subscription(AudioFrame, c.AUDIO_TOPIC, self._on_audio, AUDIO_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, c.LATCHED_QOS,
+        self.create_subscription(String, c.METADATA_TOPIC, self._on_metadata, LATCHED_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(self.p["diagnostics_period_s"], self._diagnose,
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(Trigger, "~/recalibrate", self._on_recalibrate,
                             callback_group=MutuallyExclusiveCallbackGroup())
         hop = "streaming" if self.est.streaming else f"hop {self.est.hop_frames} frames"
-        c.ready(self, f"{self.source} model, {pr.n_channels} channels "
-                      f"{pr.channel_names} at {pr.sample_rate:g} Hz, window "
-                      f"{pr.window_s * 1e3:.0f} ms, {hop}, "
-                      f"calibration {pr.calibration.method if pr.calibrated else 'none'}")
+        ready(self, f"{self.source} model, {pr.n_channels} channels "
+                    f"{pr.channel_names} at {pr.sample_rate:g} Hz, window "
+                    f"{pr.window_s * 1e3:.0f} ms, {hop}, "
+                    f"calibration {pr.calibration.method if pr.calibrated else 'none'}")
 
     # -- parameters -------------------------------------------------------------------------
 
@@ -516,7 +509,7 @@ _frozen_node.__name__ = SlipInference.__name__        # run_node names the node 
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``ros2 run aslip_ros slip_inference``."""
-    return c.run_node(_frozen_node, args)
+    return run_node(_frozen_node, args)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ from std_msgs.msg import String
 from aslip_ros import topics
 from aslip_ros.control.slip_stop import SlipStop, SlipStopConfig
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import run_node
+from aslip_ros.runtime.qos import LATCHED_QOS
 from aslip_ros.nodes.controller import ControllerNode
 
 RESULT_TOPIC = topics.SLIP_STOP_RESULT
@@ -49,7 +51,7 @@ class SlipStopNode(ControllerNode):
         self._stopped_at: Optional[float] = None
         self._final_sent = False
         super().__init__("slip_stop", **kwargs)
-        self._result_pub = self.create_publisher(String, RESULT_TOPIC, c.LATCHED_QOS)
+        self._result_pub = self.create_publisher(String, RESULT_TOPIC, LATCHED_QOS)
 
     def task_params(self) -> list:
         """Wall-push parameters (SI, ``link_base``), their defaults the core's
@@ -168,7 +170,7 @@ class SlipStopNode(ControllerNode):
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``ros2 run aslip_ros slip_stop``."""
-    return c.run_node(SlipStopNode, args)
+    return run_node(SlipStopNode, args)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from typing import Optional
 
 from aslip_ros.control.slip_track import SlipTrack, SlipTrackConfig, TrackState
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import run_node
 from aslip_ros.nodes.controller import ControllerNode
 
 
@@ -114,7 +115,7 @@ class SlipTrackNode(ControllerNode):
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``ros2 run aslip_ros slip_track``."""
-    return c.run_node(SlipTrackNode, args)
+    return run_node(SlipTrackNode, args)
 
 
 if __name__ == "__main__":

@@ -23,11 +23,12 @@ from typing import Optional
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from aslip_ros.data.stream_watch import (START_TIMEOUT_RANGE_S, STALL_TIMEOUT_RANGE_S,
                                          StreamWatch, WatchConfig)
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.process import ready, run_node
+from aslip_ros.runtime.qos import WATCH_QOS
 
 #: How often the verdict is taken, and the graph searched for the watched topics [s]: the
 #: verdict comes at most this late after a threshold passed.
@@ -37,10 +38,6 @@ DISCOVERY_PERIOD_S = 0.2
 #: machine): the messages that came meanwhile may still wait in the executor's queue, so
 #: that round gives no verdict (the next one, a period later, does).
 LATE_CHECK_S = 0.25
-#: Arrivals are only counted: a shallow best-effort reader (matches any publisher).
-WATCH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
-                       reliability=ReliabilityPolicy.BEST_EFFORT,
-                       durability=DurabilityPolicy.VOLATILE)
 
 
 def _topic_list(v) -> Optional[str]:
@@ -93,7 +90,7 @@ class StreamWatchNode(Node):
         self.create_timer(DISCOVERY_PERIOD_S, self._discover, clock=steady)
         self.create_timer(1.0, self._diagnose, clock=steady)
         self._discover()
-        c.ready(self, f"watching {', '.join(self.watch.streams)}")
+        ready(self, f"watching {', '.join(self.watch.streams)}")
 
     def _discover(self) -> None:
         wanted = [t for t in self.watch.streams if t not in self._subs and t not in self.refused]
@@ -146,7 +143,7 @@ class StreamWatchNode(Node):
 
 def main(args: Optional[list] = None) -> int:
     """Entry point of ``stream_watch``."""
-    return c.run_node(StreamWatchNode, args)
+    return run_node(StreamWatchNode, args)
 
 
 if __name__ == "__main__":

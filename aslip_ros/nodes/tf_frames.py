@@ -13,35 +13,21 @@ import threading
 from typing import Iterable, Optional
 
 from geometry_msgs.msg import TransformStamped
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 try:
     from tf2_msgs.msg import TFMessage
 except ImportError as exc:   # a stale build; a clear refusal rather than a traceback
-    from aslip_ros.nodes.common import ConfigError
+    from aslip_ros.runtime.process import ConfigError
     raise ConfigError(f"TF needs tf2_msgs (a ROS 2 install provides it; in the venv "
                       f"`make setup` builds compat/tf2_msgs): {exc}") from exc
 
 from aslip_ros import topics
 from aslip_ros.control.frames import as_pose
 from aslip_ros.nodes import convert
+from aslip_ros.runtime.qos import TF_QOS, TF_STATIC_QOS
 
 TF_TOPIC = topics.TF
 TF_STATIC_TOPIC = topics.TF_STATIC
-#: tf2_ros's DynamicBroadcasterQoS / DynamicListenerQoS.
-TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                    reliability=ReliabilityPolicy.RELIABLE,
-                    durability=DurabilityPolicy.VOLATILE)
-#: tf2_ros's StaticBroadcasterQoS: latched, one message per publisher.
-TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                           reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: tf2_ros's StaticListenerQoS: latched, 100 deep. Every static publisher (scene_sim,
-#: mocap_bridge, a driver) latches its own message; a reader one deep keeps only the last
-#: to arrive of those delivered together at the match, and loses the others for good.
-TF_STATIC_LISTENER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                                    reliability=ReliabilityPolicy.RELIABLE,
-                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def transform_msg(parent: str, child: str, pose, stamp_ns: int) -> TransformStamped:

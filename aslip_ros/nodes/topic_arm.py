@@ -16,6 +16,7 @@ from rclpy.duration import Duration
 from aslip_ros import frames
 from aslip_ros.arm import ArmError
 from aslip_ros.nodes import common as c
+from aslip_ros.runtime.qos import RELIABLE_QOS
 from aslip_ros.nodes import convert
 
 
@@ -35,7 +36,7 @@ class TopicArm:
 
     def __init__(self, node, topic: str = c.CMD_VEL_TOPIC, frame_id: str = frames.BASE):
         self._node = node
-        self._pub = node.create_publisher(TwistStamped, topic, c.RELIABLE_QOS)
+        self._pub = node.create_publisher(TwistStamped, topic, RELIABLE_QOS)
         self._frame = frame_id
         self._pose: Optional[np.ndarray] = None
         self._enabled = False

@@ -27,7 +27,6 @@ import threading
 import time
 from typing import Any, Mapping, Optional
 
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from aslip_ros.audio_frame import (AudioFrameError, AudioInfoError, PcmFormat, PcmStream,
                                    audio_info_topic, stamp_to_ns)
@@ -35,11 +34,11 @@ from aslip_ros.hw.audio_block import AudioBlock, SourceStats
 from aslip_ros.hw.audio_block import BlockReader as _BlockReader
 from aslip_ros.hw.audio_source import METADATA_BASE, OpenedSource
 from aslip_ros.msg import AudioFrame
-from aslip_ros.nodes import common as c
+from aslip_ros.runtime.qos import AUDIO_COMMON_QOS, LATCHED_QOS, SENSOR_QOS
 from aslip_ros.nodes import convert
 
 #: Blocks waiting for the capture thread; more are dropped (and counted) rather than kept.
-QUEUE_BLOCKS = 100
+QUEUE_BLOCKS = AUDIO_COMMON_QOS.depth
 
 
 class _QueuedTopic:
@@ -108,7 +107,7 @@ class TopicAudio(_QueuedTopic):
 
     def _subscriptions(self) -> list:
         return [self._node.create_subscription(AudioFrame, self._topic, self._on_frame,
-                                               c.SENSOR_QOS)]
+                                               SENSOR_QOS)]
 
     def _on_frame(self, msg: AudioFrame) -> None:
         self.received += 1
@@ -133,11 +132,6 @@ class TopicAudio(_QueuedTopic):
 
 #: What ``input_type`` selects: the package's AudioFrame, or audio_common's pair.
 INPUT_TYPES = ("aslip", "audio_common")
-#: audio_capture_node publishes ``audio_stamped`` reliable, 10 deep; read reliable (it serves
-#: that) with room for a burst while the capture thread is busy.
-AUDIO_COMMON_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_BLOCKS,
-                              reliability=ReliabilityPolicy.RELIABLE,
-                              durability=DurabilityPolicy.VOLATILE)
 
 
 class AudioCommonTopic(_QueuedTopic):
@@ -165,7 +159,7 @@ class AudioCommonTopic(_QueuedTopic):
         """The AudioInfo (latched) and the audio."""
         from audio_common_msgs.msg import AudioDataStamped, AudioInfo
         return [self._node.create_subscription(AudioInfo, self._info_topic, self._on_info,
-                                               c.LATCHED_QOS),
+                                               LATCHED_QOS),
                 self._node.create_subscription(AudioDataStamped, self._topic,
                                                self._on_audio, AUDIO_COMMON_QOS)]
 

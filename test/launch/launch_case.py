@@ -147,11 +147,12 @@ def closed_loop_topics() -> dict:
 
     from aslip_ros.msg import SlipVector
     from aslip_ros.nodes import common as c
+    from aslip_ros.runtime.qos import LATCHED_QOS, RELIABLE_QOS
     from aslip_ros.nodes.slip_stop import RESULT_TOPIC
-    return {"cmd": (c.CMD_VEL_TOPIC, TwistStamped, c.RELIABLE_QOS),
-            "slip": (c.SLIP_TOPIC, SlipVector, c.RELIABLE_QOS),
-            "diag": (c.DIAG_JSON_TOPIC, String, c.RELIABLE_QOS),
-            "result": (RESULT_TOPIC, String, c.LATCHED_QOS)}
+    return {"cmd": (c.CMD_VEL_TOPIC, TwistStamped, RELIABLE_QOS),
+            "slip": (c.SLIP_TOPIC, SlipVector, RELIABLE_QOS),
+            "diag": (c.DIAG_JSON_TOPIC, String, RELIABLE_QOS),
+            "result": (RESULT_TOPIC, String, LATCHED_QOS)}
 
 
 def speed(twist_msg) -> float:
@@ -229,7 +230,7 @@ def slip_stop_reasons() -> set:
 
 def rviz_missing() -> bool:
     """True where rviz2 is not installed (the launch files then run without it)."""
-    from aslip_ros.nodes.closed_loop_launch import rviz_found
+    from aslip_ros.launch_support.common import rviz_found
     return not rviz_found()
 
 
@@ -300,12 +301,12 @@ def rviz_topics(displays) -> dict:
     from tf2_msgs.msg import TFMessage
     from visualization_msgs.msg import MarkerArray
 
-    from aslip_ros.nodes import common as c
-    from aslip_ros.nodes.tf_frames import TF_QOS, TF_STATIC_LISTENER_QOS
+    from aslip_ros.runtime.qos import MARKER_QOS, SENSOR_QOS
+    from aslip_ros.runtime.qos import TF_QOS, TF_STATIC_LISTENER_QOS
     out = {}
     for topic in displays:
         msg_type = MarkerArray if "marker" in topic else PoseStamped
-        qos = c.MARKER_QOS if msg_type is MarkerArray else c.SENSOR_QOS
+        qos = MARKER_QOS if msg_type is MarkerArray else SENSOR_QOS
         out[topic] = (topic, msg_type, qos)
     out["/tf"] = ("/tf", TFMessage, TF_QOS)
     out["/tf_static"] = ("/tf_static", TFMessage, TF_STATIC_LISTENER_QOS)

@@ -1,11 +1,10 @@
-"""The closed-loop graph shared by ``slip_stop.launch.py`` and ``slip_track.launch.py``.
+"""What every launch file of the package shares.
 
-Imported only by launch files (it needs ``launch`` and ``launch_ros``, which a full ROS 2
-install provides): the scene or the audio interface, slip_inference, mocap_bridge, the
-task's controller and, optionally, rviz. Also the pieces every launch file of the package
-shares: :func:`share_dir`, :func:`rviz_actions`, and the lab's cell file (``cell:=``,
-:mod:`aslip_ros.cell`) with the hardware launch arguments that override it
-(:func:`cell_arguments`, :func:`capture_params`, :func:`mocap_topics`,
+Imported only by launch files and :mod:`aslip_ros.launch_support.closed_loop` (it needs
+``launch`` and ``launch_ros``, which a full ROS 2 install provides): :func:`share_dir`,
+:func:`rviz_actions`, ending a launch with exit code 1 (:func:`fail`, :func:`required`), and
+the lab's cell file (``cell:=``, :mod:`aslip_ros.cell`) with the hardware launch arguments
+that override it (:func:`cell_arguments`, :func:`capture_params`, :func:`mocap_topics`,
 :func:`rigid_bodies_source`, :func:`arm_params`).
 Precedence, for every node parameter: the node's config/*.yaml, then the cell file, then a
 launch argument that is given (an empty argument leaves the value to the cell).
@@ -17,35 +16,22 @@ import shutil
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 from ament_index_python.packages import get_package_share_directory
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction, Shutdown
-from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration as LC
 from launch_ros.actions import Node
 
 import yaml
 
 from aslip_ros import topics
-from aslip_ros.cell import NODE_SECTIONS, Cell, CellError, load_cell
+from aslip_ros import node_table
+from aslip_ros.cell import Cell, CellError, load_cell
 from aslip_ros.nodes import common as c
 from aslip_ros.nodes.introspect import declared_by_name
-
-#: The checkpoint each closed-loop launch uses when none is given (shipped in
-#: share/aslip_ros/models), the one that did the task best in ``make demo`` (docs/demo.md):
-#: slip-stop the streaming estimator (``aslip``: 50/50, slip onset to stop 37 ms median
-#: against the window CNN's 49/50 and 47 ms), slip-track the 200 ms window CNN
-#: (``aslip_window``: 7.3 mm pose RMSE against the streaming model's 15.8 mm).
-DEFAULT_MODELS = {"slip_stop": "aslip_stream.pt", "slip_track": "aslip_cnn.pt"}
 
 
 def share_dir() -> str:
     """The installed ``share/aslip_ros`` (config, launch files, models)."""
     return get_package_share_directory("aslip_ros")
-
-
-def default_checkpoint(controller: str) -> str:
-    """Path of the controller's shipped demo checkpoint in the install's share directory."""
-    return os.path.join(share_dir(), "models", DEFAULT_MODELS[controller])
 
 
 def rviz_found() -> bool:
@@ -61,7 +47,7 @@ def rviz_actions(condition=None) -> list:
     """rviz with the package's view of this graph, or a log line when rviz2 is missing.
 
     The view is config/aslip.rviz with the graph's pose topics (the cell's, a launch
-    argument's), written by :func:`aslip_ros.nodes.rviz_view.write_view` (also without
+    argument's), written by :func:`aslip_ros.launch_support.rviz_view.write_view` (also without
     rviz2, for an rviz started elsewhere). A missing rviz2 must not take down a graph that
     is already commanding an arm: launch_ros would fail the whole launch on an unknown
     package, so rviz is only added when found. rviz exiting (its window closed) leaves the
@@ -71,7 +57,7 @@ def rviz_actions(condition=None) -> list:
 
 
 def _rviz(context) -> list:
-    from aslip_ros.nodes.rviz_view import write_view
+    from aslip_ros.launch_support.rviz_view import write_view
     try:
         cell = load_checked_cell(arg(context, "cell"))
     except (CellError, ValueError) as exc:
@@ -127,7 +113,7 @@ def load_checked_cell(path: str) -> Cell:
     cell = load_cell(path)
     problems, sections = [], {}
     for name, body in cell.sections.items():
-        if name not in NODE_SECTIONS:
+        if name not in node_table.cell_sections():
             sections[name] = body
             continue
         declared, checked = declared_by_name(name), {}
@@ -136,7 +122,7 @@ def load_checked_cell(path: str) -> Cell:
             if spec is None:
                 problems.append(f"{name}: {key!r} is not a parameter of {name}")
                 continue
-            value = _as_type(spec.default, value)
+            value = as_type(spec.default, value)
             err = c.check_value(spec, value)
             if err:
                 problems.append(f"{name}: {key}: {err}")
@@ -144,7 +130,7 @@ def load_checked_cell(path: str) -> Cell:
         sections[name] = checked
     for key, value in cell.section("arm").items():
         spec = declared_by_name("slip_stop")[key]
-        value = _as_type(spec.default, value)
+        value = as_type(spec.default, value)
         err = c.check_value(spec, value)
         if err:
             problems.append(f"arm: {key}: {err}")
@@ -154,7 +140,7 @@ def load_checked_cell(path: str) -> Cell:
     return Cell(cell.path, sections)
 
 
-def _as_type(default, value):
+def as_type(default, value):
     if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     if isinstance(default, str) and isinstance(value, int) and not isinstance(value, bool):
@@ -305,116 +291,3 @@ def recording_metadata(context, cell: Cell, **extra) -> dict:
     if source is not None:          # which bodies of the RigidBodies are the finger, object
         meta["bodies"] = source["bodies"]
     return meta
-
-
-def closed_loop_description(controller: str, scenario: str, task_arg: str,
-                            task_help: str, scenarios: tuple[str, ...] = ()
-                            ) -> LaunchDescription:
-    """Launch ``controller`` (slip_stop or slip_track) in its closed loop.
-
-    ``scenario`` is the scene's task when ``sim:=true`` (with ``scenarios``, the default of a
-    ``scenario`` launch argument that may name any of them); ``task_arg`` is the one
-    controller parameter exposed as a launch argument (empty: the cell's, else the node's).
-    """
-    choice = [DeclareLaunchArgument(
-        "scenario", default_value=scenario, choices=[scenario, *scenarios],
-        description="sim: the scene's task")] if scenarios else []
-    args = choice + [
-        DeclareLaunchArgument("sim", default_value="true", description="simulated scene"),
-        DeclareLaunchArgument("checkpoint", default_value="",
-                              description="model checkpoint (streaming, window CNN or "
-                                          "SVM); sim: default the "
-                                          "shipped demo model, trained on the scene; "
-                                          "hardware: required, a model trained on your "
-                                          "cell's recordings"),
-        DeclareLaunchArgument("object", default_value="chips_can"),
-        DeclareLaunchArgument("seed", default_value="0"),
-        DeclareLaunchArgument("rviz", default_value="false",
-                              description="start rviz (skipped with a log line when missing)"),
-        DeclareLaunchArgument("autostart", default_value="true",
-                              description="configure and activate the controller at start "
-                                          "(false: it waits for `ros2 lifecycle set`)"),
-        DeclareLaunchArgument(task_arg, default_value="", description=task_help),
-        DeclareLaunchArgument(
-            "input_timeout_s", default_value="",
-            description="stale-input watchdog of the controller: stop the arm when the newest "
-                        "slip estimate or TCP pose is older than this [s] (default: the "
-                        "cell's slip_timeout_s, else the node's; raise it on a machine too "
-                        "busy to deliver estimates every 10 ms)"),
-    ] + cell_arguments()
-    graph = OpaqueFunction(function=_closed_loop, kwargs=dict(
-        controller=controller, scenario=scenario, task_arg=task_arg))
-    return LaunchDescription(args + [graph] + rviz_actions(IfCondition(LC("rviz"))))
-
-
-def _closed_loop(context, controller, scenario, task_arg):
-    try:
-        return _closed_loop_nodes(context, controller, scenario, task_arg)
-    except (CellError, ValueError) as exc:
-        return fail(str(exc))
-
-
-def _given(context, name: str, default):
-    """Launch argument ``name`` parsed as YAML to the type of ``default``, or None."""
-    text = arg(context, name)
-    if not text:
-        return None
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError:
-        value = text
-    value = _as_type(default, value)
-    if type(value) is not type(default):
-        raise ValueError(f"{name}:={text} is not a {type(default).__name__}")
-    return value
-
-
-def _closed_loop_nodes(context, controller, scenario, task_arg):
-    cfg = os.path.join(share_dir(), "config")
-    sim = flag(context, "sim")
-    declared = declared_by_name(controller)
-    cell = load_checked_cell(arg(context, "cell"))
-    checkpoint = arg(context, "checkpoint")
-    if not checkpoint:
-        if not sim:
-            raise CellError(
-                "sim:=false needs checkpoint:=YOUR_MODEL.pt: the shipped models are "
-                "trained on the simulated scene's microphones and refuse a real stream; "
-                "train one on your cell's recordings (docs/hardware-quickstart.md)")
-        checkpoint = default_checkpoint(controller)
-    capture = None if sim else capture_params(context, cell, {})
-    ctrl = arm_params(context, cell, controller, sim)
-    ctrl["autostart"] = _given(context, "autostart", True)
-    timeout = _given(context, "input_timeout_s", 1.0)
-    if timeout is not None:
-        ctrl["slip_timeout_s"] = ctrl["pose_timeout_s"] = timeout
-    value = _given(context, task_arg, declared[task_arg].default)
-    if value is not None:
-        ctrl[task_arg] = value
-    inference = cell.params("slip_inference")
-    inference["checkpoint"] = checkpoint
-    nodes = [
-        Node(package="aslip_ros", executable="slip_inference", name="slip_inference",
-             output="screen", on_exit=required,
-             parameters=[os.path.join(cfg, "slip_inference.yaml"), inference]),
-        Node(package="aslip_ros", executable="mocap_bridge", name="mocap_bridge",
-             output="screen", on_exit=required,
-             parameters=[os.path.join(cfg, "mocap_bridge.yaml"),
-                         bridge_params(context, cell, sim)]),
-        Node(package="aslip_ros", executable=controller, name=controller, output="screen",
-             on_exit=required,
-             parameters=[os.path.join(cfg, f"{controller}.yaml"), ctrl]),
-    ]
-    if sim:
-        nodes.insert(0, Node(package="aslip_ros", executable="scene_sim", name="scene_sim",
-                             output="screen", on_exit=required,
-                             parameters=[os.path.join(cfg, "scene_sim.yaml"),
-                                         {"scenario": context.launch_configurations.get(
-                                             "scenario", scenario),
-                                          "object": arg(context, "object"),
-                                          "seed": _given(context, "seed", 0)}]))
-    else:
-        nodes.insert(0, Node(package="aslip_ros", executable="audio_capture",
-                             name="audio_capture", output="screen", on_exit=required,
-                             parameters=[os.path.join(cfg, "audio_capture.yaml"), capture]))
-    return nodes

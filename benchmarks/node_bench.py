@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from aslip_ros import topics
-from aslip_ros.nodes.process import NodeProcess
+from aslip_ros.runtime.child import NodeProcess
 
 _CLK_TCK = os.sysconf("SC_CLK_TCK")
 

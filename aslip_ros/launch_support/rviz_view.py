@@ -10,7 +10,7 @@ cell's ``base_in_world``: mocap_bridge's ``publish_base_tf``) and the finger and
 pose displays where the graph has no PoseStamped for them (mocap4r2's RigidBodies: the TF
 display shows both bodies), saying so, instead of a display rviz can only mark as broken.
 
-ROS-free: the launch files call it (aslip_ros/nodes/closed_loop_launch.py).
+ROS-free: the launch files call it (aslip_ros/launch_support/common.py).
 """
 
 from __future__ import annotations
