@@ -80,15 +80,16 @@ def closed_loop_description(controller: str, scenario: str, task_arg: str,
 
 def node_action(name: str, **kwargs) -> Node:
     """A launch_ros ``Node`` for node ``name`` of the node table: its installed executable,
-    or, for a registered node (not installed), ``python -m aslip_ros.runtime.launcher
+    or, for a registered node (not installed), ``python -P -m aslip_ros.runtime.launcher
     <module>`` on the launch's own interpreter (which imports the package, so finds the
-    module on the same path)."""
+    module on the same path; ``-P``: not a checkout in the working directory instead of the
+    installed package)."""
     row = node_table.spec(name)
     if row.installed:
         return Node(package="aslip_ros", executable=name, name=name, output="screen",
                     **kwargs)
     return Node(executable=sys.executable, name=name, output="screen",
-                arguments=["-m", "aslip_ros.runtime.launcher", row.module], **kwargs)
+                arguments=["-P", "-m", "aslip_ros.runtime.launcher", row.module], **kwargs)
 
 
 def _closed_loop(context, controller, scenario, task_arg):
