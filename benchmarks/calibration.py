@@ -161,7 +161,7 @@ def fit_slipnet(x: np.ndarray, v: np.ndarray, slip: np.ndarray, epochs: int = 25
     the architecture on equal terms with the plain CNN, not the documented two-stage recipe."""
     import torch
     from aslip_ros.learn.features import normalization_stats
-    from aslip_ros.learn.training.losses import slip_loss
+    from aslip_ros.learn.models.aslip_cnn_loss import slip_loss
     from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
 
     torch.manual_seed(seed)

@@ -198,7 +198,8 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     """
     from aslip_ros.learn.checkpoint import load_checkpoint
     from aslip_ros.learn.data_io import open_dataset
-    from aslip_ros.learn.training.train import train_cnn, train_svm
+    from aslip_ros.learn.models.aslip_cnn_fit import train_cnn
+    from aslip_ros.learn.training.train import train_svm
 
     ckpt = Path(ckpt)
     kw: dict[str, Any] = {}

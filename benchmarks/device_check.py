@@ -31,12 +31,12 @@ def train_once(ds_path: Path, device: str, seed: int, epochs: int, threads: int
                ) -> dict[str, Any]:
     from aslip_ros.learn.data_io import open_dataset
     from aslip_ros.learn.training.config import TrainConfig
-    from aslip_ros.learn.training.train import CnnJob
+    from aslip_ros.learn.models.aslip_cnn_fit import scratch
     ds = open_dataset(ds_path)
     cfg = TrainConfig(stage="scratch", epochs=epochs, patience=epochs, seed=seed,
                       threads=threads, progress=False, device=device,
                       calibration="background", time_budget_s=1e9)
-    job = CnnJob(ds, cfg, log=lambda m: None)
+    job = scratch(ds, cfg, log=lambda m: None)
     t0 = time.perf_counter()
     job.advance(1e9)
     if device == "cuda":

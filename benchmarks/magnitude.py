@@ -1,14 +1,14 @@
 """Why the package CNN's magnitude and detection trail a plain CNN: one candidate at a time.
 
-Each *variant* trains the package CNN (``learn.training.train.train_cnn``, stage ``scratch``, no
-per-grasp calibration, the same seed and split) with exactly one candidate cause changed
-from the package recipe (``recipe``): the no-slip reweighting, the augmentation, the Huber
-scale, the loss weights, early stopping. The plain CNN and the plain SVM of
-``learn.baselines`` are trained on the same training windows. Every model is then scored on
-a *held-out scene*: all trials of another exported dataset that no model saw (a user's
-recording; at least 20 trials), with 95 % trial-bootstrap intervals, and each variant's
-difference from ``recipe`` with a paired trial bootstrap (same resamples for both; an
-interval that excludes 0 is a measured effect).
+Each *variant* trains the package CNN (``learn.models.aslip_cnn_fit.train_cnn``, stage
+``scratch``, no per-grasp calibration, the same seed and split) with exactly one candidate
+cause changed from the package recipe (``recipe``): the no-slip reweighting, the
+augmentation, the Huber scale, the loss weights, early stopping. The plain CNN and the
+plain SVM of ``learn.baselines`` are trained on the same training windows. Every model is
+then scored on a *held-out scene*: all trials of another exported dataset that no model saw
+(a user's recording; at least 20 trials), with 95 % trial-bootstrap intervals, and each
+variant's difference from ``recipe`` with a paired trial bootstrap (same resamples for
+both; an interval that excludes 0 is a measured effect).
 
 A *cell* ``TRAIN:TEST`` names two datasets under ``--data`` (default: where ``make transfer``
 exports the scenes of the current scene version): ``default:mocap`` trains on the
@@ -122,7 +122,7 @@ def _neg_per_pos(ds) -> float:
 
 
 def _weights(variant: str):
-    from aslip_ros.learn.training.losses import LossWeights
+    from aslip_ros.learn.models.aslip_cnn_loss import LossWeights
     return LossWeights(**{**REFERENCE_WEIGHTS, **VARIANTS[variant][2]})
 
 
@@ -149,7 +149,7 @@ def predict_variant(cfg: MagnitudeConfig, variant: str, seed: int, train_ds: Pat
     from aslip_ros.learn.checkpoint import load_checkpoint
     from aslip_ros.learn.data_io import open_dataset
     from aslip_ros.learn.evaluate import predict_split
-    from aslip_ros.learn.training.train import train_cnn
+    from aslip_ros.learn.models.aslip_cnn_fit import train_cnn
     cache = cfg.cache / train_ds.name / f"seed{seed}"
     ckpt = cache / f"{variant}.pt"
     ds = open_dataset(train_ds)

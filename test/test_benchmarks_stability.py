@@ -13,7 +13,7 @@ from benchmarks import stability
 from benchmarks.common import DataPlan, Recipe
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.training.config import TrainConfig
-from aslip_ros.learn.training.train import train_cnn
+from aslip_ros.learn.models.aslip_cnn_fit import train_cnn
 
 
 def test_breakdown_on_hand_made_curves():

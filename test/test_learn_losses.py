@@ -4,7 +4,7 @@ import math
 
 import torch
 
-from aslip_ros.learn.training.losses import LossWeights, slip_loss
+from aslip_ros.learn.models.aslip_cnn_loss import LossWeights, slip_loss
 from aslip_ros.learn.models.aslip_cnn import SlipOutput
 
 

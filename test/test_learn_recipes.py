@@ -10,7 +10,7 @@ import torch
 
 from aslip_ros.learn.training import allocation, recipes, selection
 
-from aslip_ros.learn.training import train
+from aslip_ros.learn.models import aslip_cnn_fit
 
 from aslip_ros.learn.training import config as train_config
 
@@ -18,7 +18,7 @@ from aslip_ros.learn.training import cli as train_cli
 from aslip_ros.learn.checkpoint import load_checkpoint
 from aslip_ros.learn.data_io import open_dataset, trial_splits
 from aslip_ros.learn.synthetic import make_synthetic_dataset
-from aslip_ros.learn.training.loop import resolve_device
+from aslip_ros.learn.training.config import resolve_device
 
 from fake_clock import FakeClock
 
@@ -218,11 +218,11 @@ def test_selection_on_data_picks_the_trained_candidate(data):
     fcfg = FeatureConfig(n_mels=32)
 
     def trained(c):
-        return train.train_cnn(ds, c, feature_config=fcfg, **kw)
+        return aslip_cnn_fit.train_cnn(ds, c, feature_config=fcfg, **kw)
 
     def untrained(c):
-        return train.train_cnn(ds, dataclasses.replace(c, lr=0.0, epochs=1), feature_config=fcfg,
-                               **kw)
+        return aslip_cnn_fit.train_cnn(ds, dataclasses.replace(c, lr=0.0, epochs=1),
+                                       feature_config=fcfg, **kw)
 
     for order in ((("dead", untrained), ("live", trained)),
                   (("live", trained), ("dead", untrained))):
@@ -425,7 +425,7 @@ def test_device_auto_trains_on_cpu_here(data, tmp_path, monkeypatch):
 
 def test_encoder_learning_rate_groups():
     from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet
-    from aslip_ros.learn.training.loop import param_groups
+    from aslip_ros.learn.models.aslip_cnn_fit import param_groups
     net = SlipNet(ModelConfig(n_channels=2, n_mels=16, width=4, depth=1, temporal_channels=8,
                               head_hidden=8))
     net.freeze_encoder(("conv1d", "pool"))
@@ -451,7 +451,7 @@ def test_partial_finetune_moves_only_the_temporal_layers(data, tmp_path):
     ds = open_dataset(ext)
     cfg = _cfg(stage="finetune", epochs=2, finetune_trainable=("conv1d", "pool"),
                encoder_lr_scale=0.1, calibration="background")
-    res = train.train_cnn(ds, cfg, init=load_checkpoint(pre), log=lambda m: None)
+    res = aslip_cnn_fit.train_cnn(ds, cfg, init=load_checkpoint(pre), log=lambda m: None)
     before = load_checkpoint(pre).tensors
     moved = {k for k in res.tensors if not torch.equal(before[k], res.tensors[k])}
     assert any(k.startswith("encoder.conv1d.") and k.endswith("weight") for k in moved)

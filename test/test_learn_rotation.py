@@ -29,9 +29,10 @@ from aslip_ros.learn.models.svm import SvmConfig, fit_svm
 from aslip_ros.learn.stats import bootstrap_metrics
 from aslip_ros.learn.synthetic import make_synthetic_dataset, synthetic_trial
 from aslip_ros.learn.training.config import TrainConfig
-from aslip_ros.learn.training.losses import rotation_loss, slip_loss
+from aslip_ros.learn.models.aslip_cnn_loss import rotation_loss, slip_loss
 from aslip_ros.learn.training.stream import (Sequences, StreamTrainConfig, _loss, fit_stream)
-from aslip_ros.learn.training.train import train_cnn, train_svm
+from aslip_ros.learn.models.aslip_cnn_fit import train_cnn
+from aslip_ros.learn.training.train import train_svm
 from aslip_ros.slip import ROTATION_EPSILON_RAD_S, ROTATION_RADIUS_M
 from helpers.before_rotation import file_before
 

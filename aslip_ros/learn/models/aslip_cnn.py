@@ -302,6 +302,10 @@ class CnnBackend:
     model_type: ClassVar[str] = "aslip_cnn"
     config: ClassVar[type] = ModelConfig
     streaming: ClassVar[bool] = False
+    #: Its training, apart from inference: ``aslip train --stage pretrain|finetune|scratch``
+    #: (learn/models/aslip_cnn_fit.py, imported when a stage runs).
+    fit: ClassVar[str] = "aslip_ros.learn.models.aslip_cnn_fit:fit"
+    stages: ClassVar[tuple[str, ...]] = ("pretrain", "finetune", "scratch")
 
     def __init__(self, cfg: ModelConfig, model: SlipNet, logmel: LogMel) -> None:
         self.cfg = cfg

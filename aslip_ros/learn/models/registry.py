@@ -22,16 +22,20 @@ A new model is one module that defines a config dataclass, a network and a backe
 registered by ``register_model`` or, for programs that do not import it (``aslip train``,
 ``aslip evaluate``, ``slip_inference``), declared by its distribution as an entry point
 ``<model_type> = module:Class`` in the ``aslip_ros.models`` group (docs/design.md,
-"Extending"). A backend may also define ``fit`` (``learn.training.stages``): ``aslip train
---stage <model_type>`` then trains it. A checkpoint never names code to import: only a
-registered class, a built-in, or one an installed distribution declares for its type.
+"Extending"). A backend may also define ``fit``: ``aslip train --stage <model_type>`` then
+trains it (:func:`aslip_ros.learn.training.train.train_backend`, through ``model_fit``).
+``fit`` may be a ``module:function`` string instead of a classmethod, for a model that keeps
+its training apart from its inference (the CNN: learn/models/aslip_cnn_fit.py), and
+``stages`` may name the stages it trains in place of its type's name (the CNN's pretrain,
+finetune, scratch; the fit reads ``config.stage``). A checkpoint never names code to import:
+only a registered class, a built-in, or one an installed distribution declares for its type.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from importlib.metadata import entry_points
-from typing import Any, ClassVar, Protocol
+from typing import Any, Callable, ClassVar, Protocol
 
 import numpy as np
 
@@ -68,6 +72,21 @@ class ModelBackend(Protocol):
     def predict(self, windows: np.ndarray,
                 offsets: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """p(slip) ``(B,)`` and the ungated velocity ``(B, 2)`` for ``(B, N, C)`` windows."""
+
+
+def has_fit(backend: type) -> bool:
+    """Whether the model type trains itself (a ``fit``), without importing that fit."""
+    fit = getattr(backend, "fit", None)
+    return callable(fit) or (isinstance(fit, str) and plugin.is_reference(fit))
+
+
+def model_fit(backend: type) -> Callable[..., Any] | None:
+    """The model type's training stage: its ``fit`` classmethod, or the function its ``fit``
+    names as ``module:function`` (imported now); None without one."""
+    fit = getattr(backend, "fit", None)
+    if isinstance(fit, str):
+        return plugin.load(fit, f"model {backend.model_type!r}'s fit")
+    return fit if callable(fit) else None
 
 
 def load_weights(net: Any, tensors: dict) -> Any:

@@ -1,7 +1,7 @@
 """The time budget of ``aslip train --stage auto``, spent by successive halving.
 
-Every CNN candidate is a ``Job`` that trains in slices (``train.CnnJob``: the optimiser,
-the random stream and the best epoch carry over between slices). ``successive_halving``
+Every CNN candidate is a ``Job`` that trains in slices (``models.aslip_cnn_fit.CnnJob``: the
+optimiser, the random stream and the best epoch carry over between slices). ``successive_halving``
 gives the surviving jobs equal slices round after round, ranks them with the selection
 criterion on the validation trials and keeps the better half; the last survivor trains on
 with the rest of the budget.
@@ -31,7 +31,7 @@ Trainer = Callable[[TrainConfig], TrainResult]
 
 
 class Job(Protocol):
-    """A training run the allocator can pause and resume (``train.CnnJob``)."""
+    """A training run the allocator can pause and resume (``models.aslip_cnn_fit.CnnJob``)."""
 
     @property
     def done(self) -> bool: ...            # no epoch left (early stopping, max epochs)

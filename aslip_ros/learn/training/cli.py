@@ -1,5 +1,6 @@
-"""``aslip train``: the command line over the stages (learn/training/train.py), the recipe
-chosen on the user's data (recipes.py) and the streaming estimator (stream.py).
+"""``aslip train``: the command line over the stages (learn/training/train.py: a model's
+own fit, the CNN's included, and the SVM), the recipe chosen on the user's data
+(recipes.py) and the streaming estimator (stream.py).
 
 Stages:
   auto      (default) train the candidate recipes within a time budget and keep the one
@@ -20,12 +21,13 @@ import sys
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ModelConfig
+from aslip_ros.learn.models.registry import CNN
 from aslip_ros.learn.models.svm import SvmConfig
 from aslip_ros.learn.training.config import CALIBRATIONS, DEVICES, STAGES, TrainConfig, fit_stage
 from aslip_ros.learn.training.recipes import (DEFAULT_BUDGET_S, DEFAULT_RECIPES, RECIPES,
                                               run_selected)
 from aslip_ros.learn.training.stream import run_from_args
-from aslip_ros.learn.training.train import train_backend, train_cnn, train_svm
+from aslip_ros.learn.training.train import train_backend, train_svm
 
 
 def _csv(s: str | None) -> list[str] | None:
@@ -48,7 +50,7 @@ def _add_auto_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _add_augmentation_arguments(p: argparse.ArgumentParser, d: TrainConfig) -> None:
-    """Random gain and SpecAugment (learn/training/loop.py, ``augment``)."""
+    """Random gain and SpecAugment (learn/models/aslip_cnn_fit.py, ``augment``)."""
     p.add_argument("--gain-db", type=float, default=d.gain_db,
                    help="random whole-window gain augmentation, +/- dB")
     p.add_argument("--channel-gain-db", type=float, default=d.channel_gain_db,
@@ -161,16 +163,14 @@ def run(args: argparse.Namespace) -> int:
                              head_hidden=args.head_hidden, dropout=args.dropout, gate=args.gate)
         if args.stage == "auto":
             return run_selected(args, ds, cfg, fcfg, model_options, svm_config)
-        if backend is not None:
+        if backend is not None:        # the CNN's stages and a plug-in's, through its fit
+            options = dict(model_options=model_options, init=args.init,
+                           cache_dir=args.cache_dir) if backend.model_type == CNN else {}
             res = train_backend(backend, ds, cfg, feature_config=fcfg,
-                                channels=_csv(args.channels))
-        elif args.stage == "svm":
+                                channels=_csv(args.channels), **options)
+        else:
             res = train_svm(ds, cfg, feature_config=fcfg, channels=_csv(args.channels),
                             svm_config=svm_config)
-        else:
-            res = train_cnn(ds, cfg, feature_config=fcfg, model_options=model_options,
-                            channels=_csv(args.channels), init=args.init,
-                            cache_dir=args.cache_dir)
     except (ValueError, FileNotFoundError) as exc:
         print(f"aslip train: error: {exc}", file=sys.stderr)
         return 1

@@ -1,37 +1,50 @@
-"""What a training run is asked to do (``TrainConfig``) and what it gives (``TrainResult``).
+"""What a training run is asked to do (``TrainConfig``) and what it gives (``TrainResult``),
+where it runs (``resolve_device``) and what its checkpoint says of it (``provenance``).
 
-The bottom of ``learn.training``: the stages, the batching, the epoch loop, the recipes and
-the command line all import these and nothing here imports them.
+The bottom of ``learn.training``: the batching, every model's fit (the CNN's:
+learn/models/aslip_cnn_fit.py), the pipeline, the recipes and the command line all import
+these and nothing here imports them.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import datetime as _dt
 import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from aslip_ros.learn.calibration.grasp import METHODS
-from aslip_ros.learn.checkpoint import Checkpoint, save_checkpoint
-from aslip_ros.learn.models.registry import model_backend
+from aslip_ros.learn.checkpoint import Checkpoint, git_revision, save_checkpoint
+from aslip_ros.learn.data_io import WindowSet
+from aslip_ros.learn.models.registry import has_fit, model_backend, model_types
 
 
 def fit_stage(stage: str) -> type | None:
-    """The backend whose ``fit`` trains model type ``stage`` (None: not such a stage)."""
-    if stage in STAGES:
-        return None
+    """The backend whose ``fit`` trains stage ``stage`` (None: no model's stage): the
+    built-in or registered one that names it among its ``stages`` (the CNN's pretrain,
+    finetune and scratch; by default a model type's one stage is its own name), else an
+    installed distribution's model type ``stage``."""
+    for model_type in model_types():
+        backend = model_backend(model_type)
+        if stage in getattr(backend, "stages", (model_type,)):
+            return backend if has_fit(backend) else None
     try:
         backend = model_backend(stage)
     except ValueError:
         return None
-    return backend if callable(getattr(backend, "fit", None)) else None
+    return backend if stage in getattr(backend, "stages", (stage,)) and has_fit(backend) \
+        else None
 
 
-#: The built-in stages of ``aslip train``; a model type whose backend defines ``fit`` is a
-#: stage too (``learn.training.train.train_backend``, docs/design.md "Extending").
+#: The built-in stages of ``aslip train``: auto, svm and stream run in learn/training/,
+#: pretrain, finetune and scratch are the CNN's (its backend's ``stages``); a model type
+#: whose backend defines ``fit`` is a stage too (``learn.training.train.train_backend``,
+#: docs/design.md "Extending").
 STAGES = ("auto", "pretrain", "finetune", "scratch", "svm", "stream")
 DEVICES = ("auto", "cpu", "cuda")
 CALIBRATIONS = ("off",) + METHODS
@@ -65,7 +78,7 @@ class TrainConfig:
     induced: str | None = None
     objects: tuple[str, ...] | None = None
     conditions: tuple[str, ...] | None = None
-    device: str = "cpu"            # auto | cpu | cuda (training.loop.resolve_device)
+    device: str = "cpu"            # auto | cpu | cuda (resolve_device)
     encoder_lr_scale: float = 1.0  # learning rate of trainable encoder weights, times lr
     # Encoder parts a finetune trains (network.ENCODER_PARTS); () is the paper's frozen one.
     finetune_trainable: tuple[str, ...] = ()
@@ -115,3 +128,32 @@ class TrainResult:
 
     def checkpoint(self) -> Checkpoint:
         return Checkpoint(meta=self.meta, tensors=self.tensors)
+
+
+def resolve_device(name: str) -> torch.device:
+    """The torch device for ``--device``; ValueError for ``cuda`` without a usable GPU."""
+    if name not in DEVICES:
+        raise ValueError(f"device must be one of {DEVICES}, got {name!r}")
+    has_cuda = torch.cuda.is_available()
+    if name == "cuda" and not has_cuda:
+        raise ValueError("--device cuda but torch sees no CUDA GPU (torch "
+                         f"{torch.__version__}, torch.cuda.is_available() is False); use "
+                         "--device cpu, or auto to take a GPU only where there is one")
+    return torch.device("cuda" if name == "cuda" or (name == "auto" and has_cuda) else "cpu")
+
+
+def seed_everything(seed: int) -> None:
+    """Seed torch's and numpy's global random streams."""
+    torch.manual_seed(seed)
+    np.random.seed(seed % (2 ** 32))
+
+
+def provenance(ds: WindowSet, cfg: TrainConfig, init: str | None) -> dict[str, Any]:
+    """The checkpoint's ``provenance`` of a run of ``cfg`` on ``ds`` (``init``: what it
+    started from, None: a random start); the trainer adds its metrics and timings."""
+    return {"dataset": str(Path(ds.root).resolve()), "dataset_fingerprint": ds.fingerprint(),
+            "git_revision": git_revision(), "seed": cfg.seed, "split_seed": cfg.split_seed,
+            "stage": cfg.stage, "init": init, "torch_version": torch.__version__,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "filters": {"induced": cfg.induced, "objects": cfg.to_dict()["objects"],
+                        "conditions": cfg.to_dict()["conditions"]}}

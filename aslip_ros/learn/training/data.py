@@ -11,7 +11,7 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -82,6 +82,16 @@ def split_windows(ds: WindowSet, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarr
             "not trained on: record and export more trials (of one object and condition, 3 "
             "give a validation trial, 5 a test trial too) or loosen the filters")
     return tr, va
+
+
+def rotation_args(ds: WindowSet, idx: np.ndarray, w_pred: np.ndarray | None
+                  ) -> dict[str, Any]:
+    """``compute_metrics``' rotational arguments for windows ``idx`` (none when they have no
+    angular label): the labels and the model's raw rates (None: no rotational output)."""
+    w_true = ds.angular(idx)
+    if not np.isfinite(w_true).any():
+        return {}
+    return {"angular": w_pred, "true_angular": w_true}
 
 
 class Batches:

@@ -26,8 +26,8 @@ of ``ceil(log2 n)`` rounds every surviving candidate trains for an equal slice, 
 scored on the validation trials with the criterion below (the SVMs' scores among them), and
 the better half goes on; those rounds spend ``EARLY_FRACTION`` of the CNN time, and the last
 survivor trains on with whatever is left. A stopped candidate keeps its best epoch and still
-stands in the final choice. Training resumes where it paused (``train.CnnJob``), so the
-winner's run is one run, not a restart.
+stands in the final choice. Training resumes where it paused (the CNN's job,
+learn/models/aslip_cnn_fit.py), so the winner's run is one run, not a restart.
 
 Selection is on the validation trials (``data.dataset.split_trials`` by trial, never a
 training trial; test trials are neither trained on nor looked at), by the criterion of
@@ -55,13 +55,14 @@ from aslip_ros.util import write_json, write_text
 from aslip_ros.learn.data_io import WindowSet, open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ENCODER_PARTS
+from aslip_ros.learn.models.aslip_cnn_fit import finetune, scratch, train_cnn
 from aslip_ros.learn.models.svm import SvmConfig
 from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, successive_halving)
 from aslip_ros.learn.training.config import TrainConfig, TrainResult
 from aslip_ros.learn.training.data import split_windows
 from aslip_ros.learn.training.selection import (CRITERION, METRICS, score_difference, select,
                                                 worth, worth_line)
-from aslip_ros.learn.training.train import CnnJob, train_cnn, train_svm
+from aslip_ros.learn.training.train import train_svm
 
 RECIPES = ("frozen", "partial", "unfrozen", "scratch", "svm", "scratch_uncalibrated",
            "svm_uncalibrated")
@@ -298,9 +299,9 @@ class _Jobs:
         if cand.start is not None:
             return cand.start(c)
         if cand.needs_pretrain:
-            return CnnJob(self.ds, c, init=self.pretrained, cache_dir=kw["cache_dir"],
-                          log=self.log)
-        return CnnJob(self.ds, c, **kw)
+            return finetune(self.ds, c, init=self.pretrained, cache_dir=kw["cache_dir"],
+                            log=self.log)
+        return scratch(self.ds, c, **kw)
 
     def svm(self, cand: Candidate) -> None:
         t = time.perf_counter()

@@ -43,7 +43,7 @@ from aslip_ros.learn.calibration.output import sequence_fields
 from aslip_ros.learn.incremental_features import StreamingLogMel, stream_logmel
 from aslip_ros.data.stream_labels import DEFAULT_SMOOTHER, Smoother, frame_labels, load_track
 from aslip_ros.learn.models.aslip_stream import StreamConfig, StreamNet, offline_outputs
-from aslip_ros.learn.training.loop import resolve_device
+from aslip_ros.learn.training.config import resolve_device
 
 MODEL_TYPE = StreamBackend.model_type
 _DB = math.log(10.0) / 10.0      # +1 dB of power in natural-log mel units
@@ -69,7 +69,7 @@ class StreamTrainConfig:
     fa_per_min: float = 2.0        # validation false alarms per minute the threshold allows
     threads: int = 1
     progress: bool = True
-    device: str = "cpu"            # auto | cpu | cuda (train_loop.resolve_device)
+    device: str = "cpu"            # auto | cpu | cuda (training.config.resolve_device)
     # Per-grasp calibration (as the window models'): off, or a method of calibration.grasp.
     # ``aslip train`` defaults to background.
     calibration: str = "off"

@@ -1,4 +1,4 @@
-"""The A-SLIP multi-objective loss.
+"""The A-SLIP multi-objective loss: the CNN's (aslip_cnn.py), trained by aslip_cnn_fit.py.
 
 L = w_slip * BCE(p, 1[|v*| > eps]) + w_mag * Huber(|v_hat|, |v*|) [slip windows]
   + w_dir * (1 - d_hat . d* + w_aux * ||v_dir - d*||^2) [slip windows]
