@@ -114,15 +114,18 @@ for pkg in ${ASLIP_DRIVER_MSGS:-}; do
   ln -sfn "$dir" ".colcon/src/$name"
   extra_keys+="$name $(cat "$dir"/package.xml "$dir"/CMakeLists.txt "$dir"/msg/*.msg | sha256sum)"
 done
+# The node table's contents too: CMake reads the installed executables from it.
 build_key="$( (cat package.xml CMakeLists.txt msg/*.msg compat/tf2_msgs/msg/*.msg \
-  compat/tf2_msgs/package.xml compat/tf2_msgs/CMakeLists.txt; \
+  compat/tf2_msgs/package.xml compat/tf2_msgs/CMakeLists.txt aslip_ros/node_table.py; \
   { readlink .colcon/src/tf2_msgs || true; }; echo "$extra_keys"; find aslip_ros launch config -type f \
   -not -name '*.pyc' | LC_ALL=C sort) | sha256sum | cut -d' ' -f1)"
 # A stale install keeps a matching build key: after .colcon/ was removed its symlinks dangle,
 # after the checkout moved they (and CMake's cache) name the old place. Then rebuild it.
 stale=""
 if [ -f install/setup.bash ]; then
-  init="$(ls install/lib/python3*/site-packages/aslip_ros/__init__.py 2>/dev/null | head -n 1)"
+  # An interrupted build can leave setup.bash without the package: no match is no init.
+  init="$(ls install/lib/python3*/site-packages/aslip_ros/__init__.py 2>/dev/null \
+    | head -n 1 || true)"
   if [ -n "$(find install -xtype l -print -quit 2>/dev/null)" ]; then
     stale="it holds dangling symlinks"
   elif [ -z "$init" ] || [ "$(realpath "$init")" != "$(realpath "$ROOT")/aslip_ros/__init__.py" ]; then

@@ -63,15 +63,23 @@ def test_setup_rebuilds_a_stale_install(tmp_path):
     _copy_checkout(first)
     assert "building" in _setup(first)
     ok = _installed_package(first)
-    assert ok.returncode == 0 and ok.stdout.strip() == \
-        str((first / "aslip_ros" / "__init__.py").resolve()), ok.stdout + ok.stderr
+    own = str((first / "aslip_ros" / "__init__.py").resolve())
+    assert ok.returncode == 0 and ok.stdout.strip() == own, ok.stdout + ok.stderr
 
-    # .colcon/ cleaned: the install's links dangle and the package no longer imports.
+    # .colcon/ cleaned and the build interrupted: the install's links dangle, its package
+    # is gone (setup.bash left), and the checkout's package is no longer what imports.
+    # (Without the package, setup used to exit 1 without a word, at its check of the
+    # install.)
     shutil.rmtree(first / ".colcon")
-    assert _installed_package(first).returncode != 0
+    for package in (first / "install" / "lib").glob("python3*/site-packages/aslip_ros"):
+        shutil.rmtree(package)
+    assert (first / "install" / "setup.bash").is_file()
+    gone = _installed_package(first)
+    assert gone.returncode != 0 or gone.stdout.strip() != own, gone.stdout
     out = _setup(first)
     assert "stale" in out and "building" in out, out
-    assert _installed_package(first).returncode == 0
+    ok = _installed_package(first)
+    assert ok.returncode == 0 and ok.stdout.strip() == own, ok.stdout + ok.stderr
 
     # The checkout moved: the links name the old place.
     moved = tmp_path / "moved"
@@ -84,3 +92,8 @@ def test_setup_rebuilds_a_stale_install(tmp_path):
 
     # Nothing stale: setup does not rebuild.
     assert "building" not in _setup(moved)
+
+    # The node table changed (CMake installs its executables from it): setup rebuilds.
+    table = moved / "aslip_ros" / "node_table.py"
+    table.write_text(table.read_text() + "\n# a row changed\n")
+    assert "building" in _setup(moved)
