@@ -629,3 +629,51 @@ def test_the_code_reference_check_joins_a_broken_role():
     assert (1, "aslip_ros.hw.audio.WavReplay") in refs and (2, "aslip_ros.topics.AUDIO") in refs
     assert "has no `WavReplay`" in _dotted_problem("aslip_ros.hw.audio.WavReplay")
     assert _dotted_problem("aslip_ros.msg.AudioFrame") is None
+
+
+# ----------------------------------------------------------------- the node table (#35 item 1)
+
+def _node_names() -> set:
+    """The package's node executables, read from aslip_ros/node_table.py's source."""
+    tree = ast.parse((PKG / "node_table.py").read_text())
+    return {n.args[0].value for n in ast.walk(tree)
+            if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "_builtin"}
+
+
+def _node_lists(source: str, names: set) -> list:
+    """Line numbers of every literal collection (tuple, list, set, dict keys) in ``source``
+    that holds two or more node names: a node list written out again."""
+    found = []
+    for n in ast.walk(ast.parse(source)):
+        items = n.keys if isinstance(n, ast.Dict) else getattr(n, "elts", None) \
+            if isinstance(n, (ast.Tuple, ast.List, ast.Set)) else None
+        if items is None:
+            continue
+        hits = {i.value for i in items if isinstance(i, ast.Constant) and i.value in names}
+        if len(hits) >= 2:
+            found.append(n.lineno)
+    return found
+
+
+def test_every_node_list_is_the_node_tables():
+    """CMake's executables, introspect's, the cell's arm nodes and the launch files' models
+    come from aslip_ros/node_table.py: no module or launch file writes a list of nodes, and
+    CMakeLists.txt names no node."""
+    names = _node_names()
+    assert {"slip_stop", "slip_track", "robot_sweeps"} <= names, names
+    sources = [p for p, _ in _modules() if p.name != "node_table.py"] + \
+        sorted((ROOT / "launch").glob("*.py"))
+    written = [f"{p.relative_to(ROOT)}:{line}" for p in sources
+               for line in _node_lists(p.read_text(), names)]
+    assert not written, f"node lists written again (derive them from node_table): {written}"
+    cmake = [line for line in (ROOT / "CMakeLists.txt").read_text().splitlines()
+             if not line.lstrip().startswith("#") and
+             len(names & set(re.findall(r"\w+", line))) >= 2]
+    assert not cmake, f"CMakeLists.txt lists nodes (read node_table.py instead): {cmake}"
+
+
+def test_the_node_list_check_sees_a_list_and_a_models_dict():
+    names = {"slip_stop", "slip_track", "robot_sweeps"}
+    assert _node_lists('ARM = ("slip_stop", "slip_track", "robot_sweeps")\n', names) == [1]
+    assert _node_lists('M = {"slip_stop": "a.pt", "slip_track": "b.pt"}\n', names) == [1]
+    assert _node_lists('x = ("slip_stop", "other")\ny = f("slip_track")\n', names) == []
