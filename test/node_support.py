@@ -127,22 +127,42 @@ class Bus:
             return False
         return found[-1] if self.wait(ok, timeout) else None
 
+    #: How long :meth:`call` waits for one answer before it sends the request again [s].
+    RESEND_S = 2.0
+
+    def call(self, srv_type, name: str, request, timeout: float = 10.0):
+        """The response of service ``name`` to an idempotent ``request``.
+
+        wait_for_service only says that the server sees the client's requests; until the
+        client's response reader is discovered too, the server's answer is lost (seen: a
+        node's describe_parameters never answering in a CI run). So the request goes out
+        again every ``RESEND_S`` until an answer comes or ``timeout`` has passed."""
+        cli = self.node.create_client(srv_type, name)
+        try:
+            assert cli.wait_for_service(timeout_sec=timeout), f"{name}: no such service"
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                fut = cli.call_async(request)
+                resend = min(deadline, time.monotonic() + self.RESEND_S)
+                while not fut.done() and time.monotonic() < resend:
+                    time.sleep(0.02)
+                if fut.done():
+                    return fut.result()
+                cli.remove_pending_request(fut)
+            raise AssertionError(f"{name} did not answer within {timeout:g} s")
+        finally:
+            self.node.destroy_client(cli)
+
     def set_params(self, node_name: str, values: dict, timeout: float = 10.0) -> list:
         """Set parameters on a remote node; returns the SetParametersResult list."""
         from rcl_interfaces.msg import Parameter
         from rcl_interfaces.srv import SetParameters
         from rclpy.parameter import Parameter as P
-        cli = self.node.create_client(SetParameters, f"/{node_name}/set_parameters")
-        assert cli.wait_for_service(timeout_sec=timeout), "set_parameters service missing"
         req = SetParameters.Request()
         req.parameters = [P(k, value=v).to_parameter_msg() for k, v in values.items()]
         assert all(isinstance(p, Parameter) for p in req.parameters)
-        fut = cli.call_async(req)
-        deadline = time.monotonic() + timeout
-        while not fut.done() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert fut.done(), "set_parameters did not answer"
-        return list(fut.result().results)
+        return list(self.call(SetParameters, f"/{node_name}/set_parameters", req,
+                              timeout).results)
 
     def close(self) -> None:
         """Stop spinning and destroy the node."""

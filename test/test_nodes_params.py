@@ -7,7 +7,6 @@ them, so what is shown is what is enforced.
 
 from __future__ import annotations
 
-import time
 
 import pytest
 
@@ -69,15 +68,9 @@ def test_validator_messages_are_unchanged():
 
 def _describe(bus, node: str, names: list, timeout: float = 20.0) -> dict:
     from rcl_interfaces.srv import DescribeParameters
-    cli = bus.node.create_client(DescribeParameters, f"/{node}/describe_parameters")
-    assert cli.wait_for_service(timeout_sec=timeout), f"{node}: no describe_parameters"
-    fut = cli.call_async(DescribeParameters.Request(names=names))
-    deadline = time.monotonic() + timeout
-    while not fut.done() and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert fut.done(), f"{node}: describe_parameters did not answer"
-    bus.node.destroy_client(cli)
-    return {d.name: d for d in fut.result().descriptors}
+    res = bus.call(DescribeParameters, f"/{node}/describe_parameters",
+                   DescribeParameters.Request(names=names), timeout)
+    return {d.name: d for d in res.descriptors}
 
 
 def _float_range(d) -> tuple:
