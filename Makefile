@@ -17,12 +17,13 @@ PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/p
 # checkout's. ARGS adds options: make demo ARGS="--trials 2 --tasks slip_stop".
 BENCHMARK := $(ROS) PYTHONPATH="$$PYTHONPATH:$(CURDIR)" $(VENV)/bin/python -P -m
 
-.PHONY: help setup build test test-fast demo datasets ablation bench stability transfer lint clean
+.PHONY: help setup build test test-install test-fast demo datasets ablation bench stability transfer lint clean
 .PHONY: ablation-baselines magnitude flake-hunt soak-recording latency recipe-budget rotation
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
-	@echo "make test       the whole test suite"
+	@echo "make test       the test suite (all but the install tier)"
+	@echo "make test-install  make setup's own test and the hardware rehearsal (CI: own step)"
 	@echo "make flake-hunt the tests that start processes, RUNS times beside HOGS CPU hogs"
 	@echo "make soak-recording  data-collection recordings, nodes started in random order"
 	@echo "make setup      venv (.venv), core install (aslip) and colcon build (install/)"
@@ -45,8 +46,19 @@ build: setup
 
 # CI passes TEST_ARGS="-ra -v" so its log names every test file and test with its outcome.
 TEST_ARGS ?= -q -ra
+# The suite in two runs. The in-process tests that neither use DDS nor start processes run on
+# TEST_WORKERS pytest-xdist workers, a file to a worker; then the `ros` and `processes` tiers
+# run one test at a time, so that a node's deadlines meet only the load the test makes. The
+# `install` tier (make setup's own test, the hardware rehearsal) is `make test-install`, a
+# CI step of its own.
+TEST_WORKERS ?= 2
 test: setup
-	$(PYTEST) test $(TEST_ARGS)
+	$(PYTEST) test -m "not install and not ros and not processes" -n $(TEST_WORKERS) \
+	  --dist loadfile $(TEST_ARGS)
+	$(PYTEST) test -m "not install and (ros or processes)" $(TEST_ARGS)
+
+test-install: setup
+	$(PYTEST) test -m install $(TEST_ARGS)
 
 test-fast: setup
 	$(PYTEST) test -q -ra -m "not slow"

@@ -35,7 +35,7 @@ import pytest
 
 from conftest import HELPERS, ROOT
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.install]
 
 QUICKSTART = ROOT / "docs" / "hardware-quickstart.md"
 FINGER, OBJECT = "/natnet/aslip_finger/pose", "/natnet/aslip_object/pose"
@@ -43,7 +43,7 @@ FINGER, OBJECT = "/natnet/aslip_finger/pose", "/natnet/aslip_object/pose"
 #: the lab gives its channels (not the scene's).
 SETUPS = {"2mic": ("2mic_corners", ["pad_left", "pad_right"]),
           "4mic": ("4mic", ["lf", "lr", "rf", "rr"])}
-#: The cells `make test` rehearses (CI's workspace job rehearses 2mic).
+#: The cells `make test-install` rehearses (CI's workspace job rehearses 2mic).
 DEFAULT_CELLS = "4mic"
 #: The cell's limits, the same the rig checks every command against.
 WORKSPACE = ([0.15, -0.45, 0.02], [0.70, 0.45, 0.60])

@@ -18,7 +18,7 @@ import pytest
 
 from conftest import ROOT
 
-pytestmark = [pytest.mark.slow, pytest.mark.ros]
+pytestmark = [pytest.mark.slow, pytest.mark.ros, pytest.mark.install]
 
 
 def _copy_checkout(dst: Path) -> None:

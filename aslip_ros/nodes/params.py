@@ -22,7 +22,6 @@ from typing import Any, Callable, Optional
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from aslip_ros import poses
 
 Validator = Callable[[Any], Optional[str]]
 
@@ -153,6 +152,9 @@ def _pose7(v) -> Optional[str]:
         return f"must be 7 numbers, got {v!r}"
     if len(vals) != 7 or not all(math.isfinite(x) for x in vals):
         return f"must be 7 finite numbers (x y z qx qy qz qw), got {vals}"
+    # Here, not at the top: poses brings scipy.spatial (half a second of every node's start),
+    # which the nodes that read no pose never need.
+    from aslip_ros import poses
     if not poses.quat_ok(vals):
         return "has a zero quaternion"
     return None

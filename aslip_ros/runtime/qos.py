@@ -73,17 +73,11 @@ def reader_qos(latched: bool, reliable: bool, depth: int = READER_DEPTH) -> QoSP
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
-#: tf2_ros's DynamicBroadcasterQoS / DynamicListenerQoS.
-TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                    reliability=ReliabilityPolicy.RELIABLE,
-                    durability=DurabilityPolicy.VOLATILE)
-#: tf2_ros's StaticBroadcasterQoS: latched, one message per publisher.
-TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                           reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: tf2_ros's DynamicBroadcasterQoS / DynamicListenerQoS: reliable, volatile, 100 deep.
+TF_QOS = deeper(RELIABLE_QOS, 100)
+#: tf2_ros's StaticBroadcasterQoS: latched, one message per publisher (the latched profile).
+TF_STATIC_QOS = LATCHED_QOS
 #: tf2_ros's StaticListenerQoS: latched, 100 deep. Every static publisher (scene_sim,
 #: mocap_bridge, a driver) latches its own message; a reader one deep keeps only the last
 #: to arrive of those delivered together at the match, and loses the others for good.
-TF_STATIC_LISTENER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                                    reliability=ReliabilityPolicy.RELIABLE,
-                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TF_STATIC_LISTENER_QOS = deeper(LATCHED_QOS, 100)

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import signal
 
 from .layouts import Layout, ObjectSpec, PadSpec
 
@@ -125,6 +124,9 @@ UNCOUPLED = Acoustics(gain_mismatch_db=0.0, handling_path_db=0.0)
 @lru_cache(maxsize=16)
 def _filters(fs: float) -> dict:
     """Filters used by the synthesizer, with the RMS gain each has for unit white noise."""
+    # scipy.signal (about a second to import) is imported where the scene renders, not with
+    # the package: a node that only names the layouts (audio_capture) never needs it.
+    from scipy import signal
     nyq = 0.5 * fs
 
     def band(lo: float, hi: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -260,6 +262,7 @@ class Synth:
 
     def _lowpass(self, x: np.ndarray, a: float, state: np.ndarray | float):
         """Unit-variance one-pole low-pass (AR(1)) with carried state."""
+        from scipy import signal
         b = np.sqrt(1.0 - a * a)
         zi = np.atleast_1d(np.asarray(state, dtype=float) * a)
         if x.ndim == 2:
@@ -268,6 +271,7 @@ class Synth:
         return y
 
     def _filt(self, name: str, x: np.ndarray) -> np.ndarray:
+        from scipy import signal
         b, a = self._f[name][0], self._f[name][1]
         y, self._zi[name] = signal.lfilter(b, a, x, axis=0, zi=self._zi[name])
         return y.astype(np.float32)
