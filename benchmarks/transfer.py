@@ -49,6 +49,10 @@ METHODS = ("aslip", "aslip_uncalibrated", "aslip_scratch", "paper_svm",
 #: The methods of ``make transfer``: the package's default, its scratch recipe alone, the
 #: paper's SVM, the plain ones.
 DEFAULT_METHODS = ("aslip", "aslip_scratch", "paper_svm", "plain_cnn", "plain_svm")
+#: A method's revision, in the names of its cached model and predictions: a method whose
+#: estimator changed is trained and predicted again, never read from the old cache.
+#: 2: the SVMs regress the speed and the direction's cosine and sine, not vx and vz.
+REVISION = {"plain_svm": 2, "paper_svm": 2, "paper_svm_uncalibrated": 2}
 OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pla_rod")
 CONDITIONS = ("robot_stationary", "robot_moving", "robot_off")
 #: Seed offset per scene, so no held-out scene replays the training scene's motions.
@@ -173,6 +177,12 @@ def aslip_recipe() -> str:
             f"{d.calibration}, --seeds {d.seeds}, no --pretrain-dataset)")
 
 
+def cached_name(method: str) -> str:
+    """``method``'s name in the cache: with its revision (``REVISION``) where it has one."""
+    rev = REVISION.get(method)
+    return method if rev is None else f"{method}-r{rev}"
+
+
 def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
                  log: Callable[[str], None]):
     """A trained model of ``method`` on ``train_ds``'s training split (cached on disk)."""
@@ -182,7 +192,7 @@ def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
         from aslip_ros.learn import baselines
         from aslip_ros.learn.data_io import open_dataset, select_windows
         from aslip_ros.learn.training.data import feature_cache
-        saved = cache / f"{method}-{cfg.epochs}ep.pkl"
+        saved = cache / f"{cached_name(method)}-{cfg.epochs}ep.pkl"
         if saved.is_file():
             # Written by this protocol only, beside the checkpoints it trains.
             return pickle.loads(saved.read_bytes())
@@ -198,7 +208,7 @@ def train_method(cfg: TransferConfig, method: str, train_ds: Path, cache: Path,
         with atomic_path(saved) as tmp:
             tmp.write_bytes(pickle.dumps(model))
         return model
-    ckpt = cache / f"{method}.pt"
+    ckpt = cache / f"{cached_name(method)}.pt"
     if not ckpt.is_file():
         from aslip_ros.learn.training import cli as train_cli
         cache.mkdir(parents=True, exist_ok=True)
@@ -247,7 +257,7 @@ def score(cfg: TransferConfig, p: dict[str, np.ndarray]) -> dict[str, Any]:
 # --- the protocol -------------------------------------------------------------------------
 
 def _predictions_path(cfg: TransferConfig, train: str, test: str, method: str) -> Path:
-    return scene_root(cfg) / "predictions" / f"{train}--{test}" / f"{method}.npz"
+    return scene_root(cfg) / "predictions" / f"{train}--{test}" / f"{cached_name(method)}.npz"
 
 
 def _save_predictions(path: Path, p: dict[str, np.ndarray]) -> None:

@@ -65,8 +65,10 @@ def test_protocol_on_synthetic_scenes(tmp_path, monkeypatch):
     # Calibrated and uncalibrated checkpoints differ only in that.
     from aslip_ros.learn.checkpoint import load_checkpoint
     models = transfer.scene_root(cfg) / "models" / "default"
-    assert "calibration" in load_checkpoint(models / "paper_svm.pt").meta
-    assert load_checkpoint(models / "paper_svm_uncalibrated.pt").meta.get("calibration") is None
+    name = transfer.cached_name
+    assert "calibration" in load_checkpoint(models / f"{name('paper_svm')}.pt").meta
+    assert load_checkpoint(models / f"{name('paper_svm_uncalibrated')}.pt").meta.get(
+        "calibration") is None
 
 
 def test_the_default_protocol_tests_at_least_20_trials_per_scene():
@@ -221,3 +223,14 @@ def test_the_aslip_method_is_what_aslip_train_does_by_default(tmp_path, monkeypa
     assert svm.stage == "svm" and svm.calibration == "background"
     assert raw.stage == "auto" and raw.calibration == "off"
     assert "--stage auto" in transfer.aslip_recipe()
+
+
+def test_a_revised_method_is_never_read_from_the_old_cache():
+    """The SVMs' estimator changed (revision 2: speed and direction regressed, not vx and
+    vz): their cached models and predictions of before must not come back."""
+    assert transfer.cached_name("plain_svm") != "plain_svm"
+    assert transfer.cached_name("paper_svm") != "paper_svm"
+    assert transfer.cached_name("plain_cnn") == "plain_cnn"
+    cfg = transfer.TransferConfig(out=None)
+    assert transfer._predictions_path(cfg, "default", "coupling", "plain_svm").name == \
+        f"{transfer.cached_name('plain_svm')}.npz"

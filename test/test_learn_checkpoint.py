@@ -87,7 +87,9 @@ def test_svm_arrays_match_sklearn_and_survive_checkpoint(tmp_path):
     arrays, est = fit_svm(x, slip, v, SvmConfig())
     z = (x - arrays.mean) / arrays.std
     np.testing.assert_allclose(arrays.slip(z), est["svc"].decision_function(z), atol=1e-6)
-    np.testing.assert_allclose(arrays.velocity["vx"](z), est["svr_vx"].predict(z), atol=1e-6)
+    for name in ("speed", "dir_vx", "dir_vz"):
+        np.testing.assert_allclose(arrays.velocity[name](z), est[f"svr_{name}"].predict(z),
+                                   atol=1e-6)
     prob, vel, rate = arrays.predict(x)
     assert rate is None                       # no angular labels: no rate regressor
     np.testing.assert_array_equal(prob >= 0.5, est["svc"].predict(z) == 1)

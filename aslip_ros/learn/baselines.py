@@ -13,8 +13,13 @@ them arrays (for example features with a per-grasp calibration removed).
   slip speed) and a 2-D direction. Adam 1e-3, 25 epochs, batch 64, loss
   BCE + 2 x (1 - cosine) + 0.5 x Huber(magnitude) + 0.2 x MSE(direction, unit truth), the
   last three over slip windows only.
-- Plain SVM: the time-averaged log-mel of each channel, standardised; RBF ``SVC`` for slip
-  and RBF ``SVR`` for vx and vz (slip windows), scikit-learn defaults.
+- Plain SVM: the time-averaged log-mel of each channel, standardised; RBF ``SVC`` for slip,
+  an RBF ``SVR`` for the speed |v| over its median on the training slip windows, and two
+  RBF ``SVR``s for the direction's cosine and sine (vx/|v|, vz/|v|, slip windows that
+  move), scikit-learn defaults. The velocity is the speed (clamped at 0) times the unit
+  vector of (cosine, sine), zero where both are 0: the speed is regressed itself, not read
+  as the norm of two component estimates, which shrink towards 0 wherever the direction is
+  uncertain.
 
 Rotational slip: given angular labels ``w`` (``(n,)`` rad/s, NaN: none; training windows
 with at least one label), the plain CNN gets a fifth output, the rim speed
@@ -36,6 +41,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from aslip_ros.learn.features import FeatureConfig
+from aslip_ros.learn.models.svm import speed_times_direction
 from aslip_ros.slip import ROTATION_RADIUS_M
 
 
@@ -183,16 +189,18 @@ def fit_plain_cnn(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, epochs: int
 class PlainSvmModel:
     scaler: object
     svc: object
-    svr_x: object
-    svr_z: object
+    svr_speed: object           # |v| / speed_scale
+    svr_cos: object             # vx / |v|
+    svr_sin: object             # vz / |v|
     speed_scale: float
     svr_w: object = None        # the rim speed / speed_scale; None: no angular labels
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         f = self.scaler.transform(svm_features(x))
         p = 1.0 / (1.0 + np.exp(-self.svc.decision_function(f)))
-        vel = np.stack([self.svr_x.predict(f), self.svr_z.predict(f)], axis=1)
-        return p.astype(np.float64), vel * self.speed_scale
+        direction = np.stack([self.svr_cos.predict(f), self.svr_sin.predict(f)], axis=1)
+        vel = speed_times_direction(self.svr_speed.predict(f) * self.speed_scale, direction)
+        return p.astype(np.float64), vel
 
     def predict_rotation(self, x: np.ndarray) -> np.ndarray | None:
         """The rate wy [rad/s] per window, None for a model trained without angular labels."""
@@ -210,8 +218,9 @@ def svm_features(x: np.ndarray) -> np.ndarray:
 
 def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: int = 4000,
                   seed: int = 0, w: np.ndarray | None = None) -> PlainSvmModel:
-    """RBF SVC (slip) and SVRs (vx, vz on slip windows; wy on windows with an angular label
-    ``w``, when given) on time-averaged log-mel.
+    """RBF SVC (slip) and SVRs (the speed over its median on slip windows; the direction's
+    cosine and sine on slip windows that move; wy on windows with an angular label ``w``,
+    when given) on time-averaged log-mel.
 
     At most ``max_train`` windows (a random subset) keep the kernel fits to minutes.
     """
@@ -230,15 +239,21 @@ def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: 
     s = slip[idx]
     svc = SVC(kernel="rbf").fit(f, s)
     speed = np.linalg.norm(v[idx], axis=1)
-    scale = float(np.median(speed[s])) if np.any(speed[s] > 0) else 1.0
-    tv = v[idx][s] / scale
-    svr_x = SVR(kernel="rbf").fit(f[s], tv[:, 0])
-    svr_z = SVR(kernel="rbf").fit(f[s], tv[:, 1])
+    moves = s & (speed > 0)
+    if moves.sum() < 2:
+        raise ValueError("the plain SVM needs at least two slip windows that move "
+                         "(|v| > 0) to learn a direction")
+    scale = float(np.median(speed[s])) if np.median(speed[s]) > 0 else \
+        float(np.median(speed[moves]))
+    svr_speed = SVR(kernel="rbf").fit(f[s], speed[s] / scale)
+    unit = v[idx][moves] / speed[moves, None]
+    svr_cos = SVR(kernel="rbf").fit(f[moves], unit[:, 0])
+    svr_sin = SVR(kernel="rbf").fit(f[moves], unit[:, 1])
     svr_w = None
     if w is not None and np.isfinite(w[idx]).sum() >= 2:
         lab = np.isfinite(w[idx])
         svr_w = SVR(kernel="rbf").fit(f[lab], w[idx][lab] * ROTATION_RADIUS_M / scale)
-    return PlainSvmModel(scaler, svc, svr_x, svr_z, scale, svr_w)
+    return PlainSvmModel(scaler, svc, svr_speed, svr_cos, svr_sin, scale, svr_w)
 
 
 def run_on_dataset(ds, kinds=("cnn", "svm"), *, split_seed: int = 0, test_split: str = "test",

@@ -1,5 +1,10 @@
-"""The paper's SVM baseline: RBF SVC for slip, RBF SVRs for (vx, vz) and, trained on windows
-with an angular label, for the rotational rate ``wy``, on handcrafted features.
+"""The paper's SVM baseline: RBF SVC for slip, an RBF SVR for the slip speed |v| and two for
+its direction's unit components (vx/|v|, vz/|v|), and, trained on windows with an angular
+label, one for the rotational rate ``wy``, on handcrafted features. The velocity is the
+regressed speed (clamped at 0) times the unit vector of the regressed direction: the speed
+is estimated itself, not as the norm of two component estimates, which shrink towards 0
+wherever the direction is uncertain. Checkpoints written before that change (one regressor
+per velocity component) load and predict as they did.
 
 Features are computed per channel from the same resampled power spectrogram as the CNN's
 (``features.LogMel.power_spectrogram``), then concatenated and standardised:
@@ -32,7 +37,8 @@ _FLOOR = 1e-12
 
 @dataclass(frozen=True)
 class SvmConfig:
-    """SVM hyper-parameters. ``svr_epsilon`` is in units of ``target_scale`` (m/s)."""
+    """SVM hyper-parameters. ``svr_epsilon`` is in the regressors' units: ``target_scale``
+    (m/s) for the speed and the rate, 1 for the direction's unit components."""
 
     n_bands: int = 8
     C: float = 10.0
@@ -132,12 +138,33 @@ class KernelMachine:
             raise ValueError(f"SVM checkpoint lacks {exc}") from exc
 
 
+#: Tensor prefixes of the velocity regressors: the speed ``|v| / target_scale`` and the
+#: direction's unit component along each of ``VELOCITY_COMPONENTS`` (``dir_vx``, ``dir_vz``).
+SPEED_REGRESSOR = "speed"
+DIRECTION_REGRESSORS = tuple(f"dir_{c}" for c in VELOCITY_COMPONENTS)
+SPEED_DIRECTION = (SPEED_REGRESSOR, *DIRECTION_REGRESSORS)
+
+
+def speed_times_direction(speed: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Velocity ``(B, N_VELOCITY)`` from a speed ``(B,)`` (clamped at 0) and an unnormalised
+    direction ``(B, N_VELOCITY)``; a zero direction gives zero velocity, never NaN."""
+    speed = np.maximum(np.asarray(speed, dtype=np.float64), 0.0)
+    d = np.asarray(direction, dtype=np.float64)
+    norm = np.linalg.norm(d, axis=1, keepdims=True)
+    return np.divide(d, norm, out=np.zeros_like(d), where=norm > 0) * speed[:, None]
+
+
 @dataclass
 class SvmArrays:
-    """The fitted baseline as arrays: standardisation, slip classifier, one regressor per
-    slip velocity component (``aslip_ros.slip.VELOCITY_COMPONENTS``, in order) and,
-    optionally, one for the rotational rate (``angular``: it predicts the rim speed
-    ``wy * ROTATION_RADIUS_M / target_scale``, the velocity regressors' scale).
+    """The fitted baseline as arrays: standardisation, slip classifier, the velocity
+    regressors and, optionally, one for the rotational rate (``angular``: it predicts the
+    rim speed ``wy * ROTATION_RADIUS_M / target_scale``, the speed's scale).
+
+    ``velocity`` holds either a speed and a direction regressor (keys ``SPEED_DIRECTION``:
+    the speed over ``target_scale`` and the direction's unit components; velocity =
+    clamped speed x unit direction) or, in checkpoints from before that, one regressor per
+    slip velocity component (keys ``aslip_ros.slip.VELOCITY_COMPONENTS``, in units of
+    ``target_scale``).
 
     ``probability`` is sigmoid(decision value): not Platt-calibrated, but p >= 0.5 exactly
     where the SVC predicts slip, which is all the threshold needs.
@@ -146,8 +173,8 @@ class SvmArrays:
     mean: np.ndarray
     std: np.ndarray
     slip: KernelMachine
-    velocity: dict[str, KernelMachine]     # component name -> regressor
-    target_scale: float   # m/s; regressors predict velocity / target_scale
+    velocity: dict[str, KernelMachine]     # SPEED_DIRECTION or VELOCITY_COMPONENTS -> regressor
+    target_scale: float   # m/s; the speed (or component) regressors predict it / target_scale
     angular: KernelMachine | None = None   # None: no rotational output
 
     def predict(self, feats: np.ndarray
@@ -156,19 +183,29 @@ class SvmArrays:
         from handcrafted features."""
         z = (np.asarray(feats, dtype=np.float64) - self.mean) / self.std
         prob = 1.0 / (1.0 + np.exp(-np.clip(self.slip(z), -50, 50)))
-        v = np.stack([self.velocity[c](z) for c in VELOCITY_COMPONENTS],
-                     axis=1) * self.target_scale
+        if self.per_component:
+            v = np.stack([self.velocity[c](z) for c in VELOCITY_COMPONENTS],
+                         axis=1) * self.target_scale
+        else:
+            v = speed_times_direction(
+                self.velocity[SPEED_REGRESSOR](z) * self.target_scale,
+                np.stack([self.velocity[d](z) for d in DIRECTION_REGRESSORS], axis=1))
         w = None if self.angular is None else (
             self.angular(z) * (self.target_scale / ROTATION_RADIUS_M)).astype(np.float32)
         return prob.astype(np.float32), v.astype(np.float32), w
+
+    @property
+    def per_component(self) -> bool:
+        """True for the regressors of checkpoints from before the speed was regressed."""
+        return tuple(self.velocity) == VELOCITY_COMPONENTS
 
     def to_tensors(self) -> dict[str, torch.Tensor]:
         out = {"scaler.mean": torch.from_numpy(np.asarray(self.mean, dtype=np.float64)),
                "scaler.std": torch.from_numpy(np.asarray(self.std, dtype=np.float64)),
                "target_scale": torch.tensor([self.target_scale], dtype=torch.float64)}
         out.update(self.slip.to_tensors("slip"))
-        for name in VELOCITY_COMPONENTS:
-            out.update(self.velocity[name].to_tensors(name))
+        for name, regressor in self.velocity.items():
+            out.update(regressor.to_tensors(name))
         if self.angular is not None:
             out.update(self.angular.to_tensors(ANGULAR_COMPONENT))
         return out
@@ -183,8 +220,29 @@ class SvmArrays:
         angular = KernelMachine.from_tensors(t, ANGULAR_COMPONENT) \
             if f"{ANGULAR_COMPONENT}.support" in t else None
         return cls(mean=mean, std=std, slip=KernelMachine.from_tensors(t, "slip"),
-                   velocity={c: KernelMachine.from_tensors(t, c) for c in VELOCITY_COMPONENTS},
+                   velocity={c: KernelMachine.from_tensors(t, c)
+                             for c in _velocity_regressors(t)},
                    target_scale=scale, angular=angular)
+
+    def __post_init__(self) -> None:
+        if tuple(self.velocity) not in (SPEED_DIRECTION, VELOCITY_COMPONENTS):
+            raise ValueError(f"SVM velocity regressors must be {SPEED_DIRECTION} or "
+                             f"{VELOCITY_COMPONENTS}, got {tuple(self.velocity)}")
+
+
+def _velocity_regressors(t: dict[str, torch.Tensor]) -> tuple[str, ...]:
+    """The velocity regressors a tensor set holds: speed and direction (``SPEED_DIRECTION``)
+    or, written before those, one per component (``VELOCITY_COMPONENTS``)."""
+    def has(names):
+        return any(f"{n}.support" in t for n in names)
+    new, old = has(SPEED_DIRECTION), has(VELOCITY_COMPONENTS)
+    if new and old:
+        raise ValueError(f"SVM checkpoint holds both speed/direction regressors "
+                         f"{SPEED_DIRECTION} and per-component ones {VELOCITY_COMPONENTS}")
+    if not (new or old):
+        raise ValueError(f"SVM checkpoint holds no velocity regressors: neither speed and "
+                         f"direction {SPEED_DIRECTION} nor per-component {VELOCITY_COMPONENTS}")
+    return SPEED_DIRECTION if new else VELOCITY_COMPONENTS
 
 
 def moving(slip: np.ndarray, angular: np.ndarray | None) -> np.ndarray:
@@ -203,9 +261,12 @@ def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
     """Fit on handcrafted features; returns the array model and the sklearn estimators.
 
     The velocity regressors see slip windows only: they estimate the velocity given slip,
-    and the classifier decides whether it is reported. With ``angular`` (n,) [rad/s, NaN:
-    no label] and at least two labelled windows, an SVR on the rate sees every labelled
-    window, rotating or not (a pure rotation is planar no-slip; a translation teaches 0).
+    and the classifier decides whether it is reported. One regresses the speed over its
+    median (``target_scale``), two the direction's unit components on the slip windows that
+    move; the velocity is their product (``SvmArrays.predict``). With ``angular`` (n,)
+    [rad/s, NaN: no label] and at least two labelled windows, an SVR on the rate sees every
+    labelled window, rotating or not (a pure rotation is planar no-slip; a translation
+    teaches 0).
     """
     from sklearn.svm import SVC, SVR
 
@@ -221,22 +282,32 @@ def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
     z = (feats - mean) / std
     svc = SVC(kernel="rbf", C=cfg.C, gamma=cfg.gamma).fit(z, slip.astype(int))
     v = np.asarray(velocity, dtype=np.float64)[slip]
-    scale = float(max(np.median(np.linalg.norm(v, axis=1)), 1e-4))
-    svr = {}
-    for j, name in enumerate(VELOCITY_COMPONENTS):
-        svr[name] = SVR(kernel="rbf", C=cfg.svr_C, gamma=cfg.gamma,
-                        epsilon=cfg.svr_epsilon).fit(z[slip], v[:, j] / scale)
+    speed = np.linalg.norm(v, axis=1)
+    moves = speed > 0
+    if moves.sum() < 2:
+        raise ValueError("the SVM needs at least two slip windows that move (|v| > 0) to "
+                         "learn a direction")
+    scale = float(max(np.median(speed), 1e-4))
+
+    def fit(rows: np.ndarray, target: np.ndarray):
+        return SVR(kernel="rbf", C=cfg.svr_C, gamma=cfg.gamma,
+                   epsilon=cfg.svr_epsilon).fit(rows, target)
+
+    zs = z[slip]
+    svr = {SPEED_REGRESSOR: fit(zs, speed / scale)}
+    unit = v[moves] / speed[moves, None]
+    for j, name in enumerate(DIRECTION_REGRESSORS):
+        svr[name] = fit(zs[moves], unit[:, j])
     rate = None
     labelled = np.zeros(len(slip), bool) if angular is None else \
         np.isfinite(np.asarray(angular, np.float64).reshape(-1))
     if labelled.sum() >= 2:
         target = np.asarray(angular, np.float64)[labelled] * (ROTATION_RADIUS_M / scale)
-        svr[ANGULAR_COMPONENT] = SVR(kernel="rbf", C=cfg.svr_C, gamma=cfg.gamma,
-                                     epsilon=cfg.svr_epsilon).fit(z[labelled], target)
+        svr[ANGULAR_COMPONENT] = fit(z[labelled], target)
         rate = KernelMachine.from_sklearn(svr[ANGULAR_COMPONENT])
     arrays = SvmArrays(mean=mean, std=std, slip=KernelMachine.from_sklearn(svc),
                        velocity={c: KernelMachine.from_sklearn(svr[c])
-                                 for c in VELOCITY_COMPONENTS},
+                                 for c in SPEED_DIRECTION},
                        target_scale=scale, angular=rate)
     if list(svc.classes_) != [0, 1]:
         raise ValueError(f"unexpected SVC classes {svc.classes_}")
