@@ -212,7 +212,7 @@ def test_the_aslip_method_is_what_aslip_train_does_by_default(tmp_path, monkeypa
     cfg = transfer.TransferConfig(out=tmp_path, data=tmp_path, progress=False)
     for method in ("aslip", "paper_svm", "aslip_uncalibrated"):
         transfer.train_method(cfg, method, tmp_path / "ds", tmp_path / "m", log=lambda s: None)
-    aslip, svm, raw = (seen[str(tmp_path / "m" / f"{m}.pt")]
+    aslip, svm, raw = (seen[str(tmp_path / "m" / f"{transfer.cached_name(m)}.pt")]
                        for m in ("aslip", "paper_svm", "aslip_uncalibrated"))
     p = transfer.argparse.ArgumentParser()
     train_cli.add_arguments(p)
