@@ -41,7 +41,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from aslip_ros.learn.features import FeatureConfig
-from aslip_ros.learn.models.svm import speed_times_direction
+from aslip_ros.learn.models.svm import speed_and_direction, speed_times_direction
 from aslip_ros.slip import ROTATION_RADIUS_M
 
 
@@ -238,17 +238,12 @@ def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: 
     f = scaler.transform(f)
     s = slip[idx]
     svc = SVC(kernel="rbf").fit(f, s)
-    speed = np.linalg.norm(v[idx], axis=1)
-    moves = s & (speed > 0)
-    if moves.sum() < 2:
-        raise ValueError("the plain SVM needs at least two slip windows that move "
-                         "(|v| > 0) to learn a direction")
-    scale = float(np.median(speed[s])) if np.median(speed[s]) > 0 else \
-        float(np.median(speed[moves]))
-    svr_speed = SVR(kernel="rbf").fit(f[s], speed[s] / scale)
-    unit = v[idx][moves] / speed[moves, None]
-    svr_cos = SVR(kernel="rbf").fit(f[moves], unit[:, 0])
-    svr_sin = SVR(kernel="rbf").fit(f[moves], unit[:, 1])
+    speed, moves, unit = speed_and_direction(v[idx][s], "the plain SVM")
+    median = float(np.median(speed))
+    scale = median if median > 0 else float(np.median(speed[moves]))
+    svr_speed = SVR(kernel="rbf").fit(f[s], speed / scale)
+    svr_cos = SVR(kernel="rbf").fit(f[s][moves], unit[:, 0])
+    svr_sin = SVR(kernel="rbf").fit(f[s][moves], unit[:, 1])
     svr_w = None
     if w is not None and np.isfinite(w[idx]).sum() >= 2:
         lab = np.isfinite(w[idx])

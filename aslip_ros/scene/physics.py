@@ -245,6 +245,9 @@ class Synth:
         self._harm_z = _ridge_harmonics(acoustics.ridge_duty_z, acoustics.n_harmonics)
         f = _filters(self.fs)
         self._f = f
+        # Bound once here, where the scene starts rendering (see _filters), not per block.
+        from scipy.signal import lfilter
+        self._lfilter = lfilter
         self._zi = {name: np.zeros((max(len(f[name][1]), len(f[name][0])) - 1, cols))
                     for name, cols in (("low", 2), ("high", 2), ("handling", 1),
                                        ("robot", 1), ("click", 3))}
@@ -262,18 +265,16 @@ class Synth:
 
     def _lowpass(self, x: np.ndarray, a: float, state: np.ndarray | float):
         """Unit-variance one-pole low-pass (AR(1)) with carried state."""
-        from scipy import signal
         b = np.sqrt(1.0 - a * a)
         zi = np.atleast_1d(np.asarray(state, dtype=float) * a)
         if x.ndim == 2:
             zi = zi[None, :]
-        y, _ = signal.lfilter([b], [1.0, -a], x, axis=0, zi=zi)
+        y, _ = self._lfilter([b], [1.0, -a], x, axis=0, zi=zi)
         return y
 
     def _filt(self, name: str, x: np.ndarray) -> np.ndarray:
-        from scipy import signal
         b, a = self._f[name][0], self._f[name][1]
-        y, self._zi[name] = signal.lfilter(b, a, x, axis=0, zi=self._zi[name])
+        y, self._zi[name] = self._lfilter(b, a, x, axis=0, zi=self._zi[name])
         return y.astype(np.float32)
 
     def local_velocities(self, v_rel: np.ndarray, w_rel: np.ndarray) -> np.ndarray:

@@ -145,6 +145,22 @@ DIRECTION_REGRESSORS = tuple(f"dir_{c}" for c in VELOCITY_COMPONENTS)
 SPEED_DIRECTION = (SPEED_REGRESSOR, *DIRECTION_REGRESSORS)
 
 
+def speed_and_direction(v: np.ndarray, who: str
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The regressors' targets from slip velocities ``(n, N_VELOCITY)``: the speed ``(n,)``,
+    the rows that move (``|v| > 0``) and their unit directions ``(moving, N_VELOCITY)``.
+
+    :raises ValueError: fewer than two rows move (``who`` names the model).
+    """
+    v = np.asarray(v, dtype=np.float64)
+    speed = np.linalg.norm(v, axis=1)
+    moves = speed > 0
+    if moves.sum() < 2:
+        raise ValueError(f"{who} needs at least two slip windows that move (|v| > 0) to "
+                         "learn a direction")
+    return speed, moves, v[moves] / speed[moves, None]
+
+
 def speed_times_direction(speed: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """Velocity ``(B, N_VELOCITY)`` from a speed ``(B,)`` (clamped at 0) and an unnormalised
     direction ``(B, N_VELOCITY)``; a zero direction gives zero velocity, never NaN."""
@@ -281,12 +297,7 @@ def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
     std = np.maximum(feats.std(axis=0), 1e-6)
     z = (feats - mean) / std
     svc = SVC(kernel="rbf", C=cfg.C, gamma=cfg.gamma).fit(z, slip.astype(int))
-    v = np.asarray(velocity, dtype=np.float64)[slip]
-    speed = np.linalg.norm(v, axis=1)
-    moves = speed > 0
-    if moves.sum() < 2:
-        raise ValueError("the SVM needs at least two slip windows that move (|v| > 0) to "
-                         "learn a direction")
+    speed, moves, unit = speed_and_direction(np.asarray(velocity)[slip], "the SVM")
     scale = float(max(np.median(speed), 1e-4))
 
     def fit(rows: np.ndarray, target: np.ndarray):
@@ -295,7 +306,6 @@ def fit_svm(feats: np.ndarray, slip: np.ndarray, velocity: np.ndarray,
 
     zs = z[slip]
     svr = {SPEED_REGRESSOR: fit(zs, speed / scale)}
-    unit = v[moves] / speed[moves, None]
     for j, name in enumerate(DIRECTION_REGRESSORS):
         svr[name] = fit(zs[moves], unit[:, j])
     rate = None
