@@ -80,7 +80,9 @@ def test_a_reader_has_the_stop_when_close_returns(rclpy_context):
     deadline = time.monotonic() + 30.0     # discovery: generous for a loaded host
     while arm._pub.get_subscription_count() < 1 and time.monotonic() < deadline:
         ex.spin_once(timeout_sec=0.05)
-    assert arm._pub.get_subscription_count() == 1, "the reader was not discovered"
+    # At least: the domain may still know a reader of an earlier test's process whose
+    # liveliness lease has not yet run out (2 seen once in CI); the verdict is what arrives.
+    assert arm._pub.get_subscription_count() >= 1, "the reader was not discovered"
     arm.enable_velocity_mode()
     arm.send_velocity([0.02, 0.0, 0.0], 0.1)
     arm.close()
