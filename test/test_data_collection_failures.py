@@ -228,15 +228,17 @@ def test_a_pose_stream_that_stops_mid_trial_fails_the_trial(trial, tmp_path):
 
 def test_audio_that_stops_mid_trial_fails_the_trial(trial, tmp_path):
     """The audio interface stalls (aslip recorder): the stand-in's audio stream, bridged by
-    ``audio_capture source:=topic``, stops 1 s after the recorder and the watch both read
-    /aslip/audio. Found beside two CPU hogs: a WAV replay of fixed length could end before
-    the watch had subscribed, and the verdict was then, rightly, "never arrived"; the stop
-    now waits on the graph, not on a length."""
+    ``audio_capture source:=topic``, stops 1 s after the recorder and the watch have both
+    counted /aslip/audio messages in their diagnostics. Found beside two CPU hogs: a WAV
+    replay of fixed length could end before the watch had subscribed, and the verdict was
+    then, rightly, "never arrived". Found in CI: the two readers in the graph were not yet
+    both matched, and the bag held no audio; the stop now waits on what each has received."""
     cell = _cell(tmp_path, {"source": "topic", "input_topic": STANDIN_AUDIO,
                             "sample_rate": 16000.0, "channel_names": list(STANDIN_CHANNELS),
                             "layout": "''"}, watch=SLOW_START)
     t = trial("aslip", cell, [FINGER, OBJECT, "--audio", STANDIN_AUDIO, "--stop",
-                              STANDIN_AUDIO, "--readers-of", AUDIO, "--subscribers", "2"],
+                              STANDIN_AUDIO, "--readers-of", AUDIO, "--subscribers", "2",
+                              "--heard-by", "2"],
               f"duration_s:={FAILED_TRIAL_S}")
     _failed(t)
     (_, line), = t.lines("stream_watch", "the trial failed")

@@ -1,7 +1,7 @@
 """Child process: the drivers a hardware trial records, one stream of which may stop.
 
     python driver_standin.py TOPIC [TOPIC ...] [--audio TOPIC]
-        [--stop TOPIC --stop-after-s S --subscribers N [--readers-of TOPIC]]
+        [--stop TOPIC --stop-after-s S --subscribers N [--readers-of TOPIC] [--heard-by N]]
 
 Publishes ``geometry_msgs/PoseStamped`` (sensor-data QoS, frame ``mocap``, a still pose)
 on every TOPIC at 120 Hz, like a motion-capture driver whose rigid bodies are tracked, and
@@ -9,7 +9,10 @@ with ``--audio`` an audio interface's ``aslip_ros/AudioFrame`` stream on that to
 4 channels of quiet noise, 10 ms blocks in real time; ``audio_capture source:=topic``
 bridges it). ``--stop TOPIC`` stops that one stream ``--stop-after-s`` after
 ``--readers-of`` (default: the stopped topic itself) has ``--subscribers`` matched readers,
-the recording graph being up and reading it, printing ``stopped TOPIC at <time.time()>``;
+the recording graph being up and reading it (and, with ``--heard-by N``, once N nodes'
+diagnostics on /aslip/diagnostics count messages received on it: a reader in the graph is
+not yet a reader matched to the writer, and a busy machine can match it seconds later),
+printing ``stopped TOPIC at <time.time()>``;
 the process stays up, like a driver that lost a rigid body or an interface that stalled.
 Exits on SIGINT/SIGTERM and when its parent goes.
 """
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import json
 import signal
 import time
 
@@ -25,7 +29,9 @@ import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import qos_profile_sensor_data
+from std_msgs.msg import String
 
+from aslip_ros import topics
 from aslip_ros.msg import AudioFrame
 from aslip_ros.nodes.convert import audio_to_msg
 
@@ -53,6 +59,7 @@ def main() -> int:
     p.add_argument("--stop-after-s", type=float, default=1.0)
     p.add_argument("--subscribers", type=int, default=1)
     p.add_argument("--readers-of", default="")
+    p.add_argument("--heard-by", type=int, default=0)
     a = p.parse_args()
     ctypes.CDLL(None).prctl(1, signal.SIGTERM)      # PR_SET_PDEATHSIG: die with the test
     rclpy.init()
@@ -62,6 +69,14 @@ def main() -> int:
     if a.audio:
         pubs[a.audio] = node.create_publisher(AudioFrame, a.audio, qos_profile_sensor_data)
     readers_of = a.readers_of or a.stop
+    heard: set = set()      # the nodes whose diagnostics count messages on readers_of
+
+    def on_diagnostics(msg: String) -> None:
+        doc = json.loads(msg.data)
+        if int(doc.get("values", {}).get(f"messages {readers_of}", 0)) > 0:
+            heard.add(doc["name"])
+    if a.heard_by:
+        node.create_subscription(String, topics.DIAGNOSTICS_JSON, on_diagnostics, 50)
     rng = np.random.default_rng(0)
     started, sent = time.monotonic(), 0
     stop_at = None
@@ -69,7 +84,8 @@ def main() -> int:
     try:
         while rclpy.ok():
             now = time.time()
-            if a.stop in pubs and stop_at is None and \
+            rclpy.spin_once(node, timeout_sec=0.0)
+            if a.stop in pubs and stop_at is None and len(heard) >= a.heard_by and \
                     node.count_subscribers(readers_of) >= a.subscribers:
                 stop_at = time.monotonic() + a.stop_after_s
             if stop_at is not None and time.monotonic() >= stop_at and a.stop in pubs:
