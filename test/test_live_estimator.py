@@ -49,6 +49,20 @@ def window_ckpt(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def per_output_ckpt(tmp_path_factory, window_ckpt):
+    """p(slip) and direction from a CNN whose answer is fixed, speed and rotation from the
+    untrained angular one (learn/models/per_output.py)."""
+    from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
+    from aslip_ros.learn.models.per_output import assemble
+    where = tmp_path_factory.mktemp("live")
+    fixed = make_checkpoint(where / "fixed.pt", slip_logit=2.0, velocity=(0.0, 0.02), seed=5)
+    ck = assemble({"fixed": load_checkpoint(fixed), "cnn": load_checkpoint(window_ckpt)},
+                  {"detection": "fixed", "speed": "cnn", "direction": "fixed",
+                   "rotation": "cnn"})
+    return save_checkpoint(where / "per_output.pt", ck.meta, ck.tensors)
+
+
+@pytest.fixture(scope="module")
 def stream_ckpt(tmp_path_factory):
     from test_learn_streaming_model import make_checkpoint as make_stream
     return make_stream(tmp_path_factory.mktemp("live") / "stream.pt", threshold=0.5)
@@ -199,15 +213,16 @@ def test_a_calibrated_stream_says_when_it_converged_and_restarts_at_a_gap(stream
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize("kind", ["window", "stream", "stream_calibrated"])
-def test_the_node_publishes_exactly_what_the_core_estimates(kind, window_ckpt, stream_ckpt,
-                                                            stream_cal_ckpt, rclpy_context):
+@pytest.mark.parametrize("kind", ["window", "per_output", "stream", "stream_calibrated"])
+def test_the_node_publishes_exactly_what_the_core_estimates(kind, window_ckpt, per_output_ckpt,
+                                                            stream_ckpt, stream_cal_ckpt,
+                                                            rclpy_context):
     import torch
     torch.set_num_threads(1)                     # the node's torch_threads
-    ckpt = {"window": window_ckpt, "stream": stream_ckpt,
+    ckpt = {"window": window_ckpt, "per_output": per_output_ckpt, "stream": stream_ckpt,
             "stream_calibrated": stream_cal_ckpt}[kind]
-    blocks = recorded_stream(SCENE_NAMES if kind == "window" else STREAM_NAMES, seconds=0.4,
-                             gap_at=18)
+    blocks = recorded_stream(STREAM_NAMES if kind.startswith("stream") else SCENE_NAMES,
+                             seconds=0.4, gap_at=18)
     _, per_block = _core(ckpt, blocks)
     core = [e for b in per_block for e in b]
     assert len(core) > 10
@@ -232,3 +247,6 @@ def test_the_node_publishes_exactly_what_the_core_estimates(kind, window_ckpt, s
         assert set(rates) == {0.0} and {m.angular_velocity_sigma for m in got} == {-1.0}
     else:
         assert any(abs(w) > 1e-4 for w in rates)
+    if kind == "per_output":          # p(slip) and direction (+z) from the fixed part
+        assert {round(m.probability, 5) for m in got} == {round(1 / (1 + math.exp(-2.0)), 5)}
+        assert all(abs(m.velocity.x) < 1e-6 < m.velocity.z for m in got)

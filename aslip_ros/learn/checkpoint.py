@@ -7,17 +7,16 @@ On disk a checkpoint is one ``torch.save`` file holding a dict of plain types on
      "tensors": {name: torch.Tensor}}      # state dict (CNN) or SVM arrays
 
 The JSON document (``meta``, built by ``checkpoint_meta``) holds ``model_type`` (a key of
-``learn.models.registry``: "aslip_cnn", "svm", "aslip_stream" or a registered one),
-``model_config``,
-``feature_config``, ``normalization`` (per-mel-bin mean/std, also inside the CNN's state
-dict as buffers), ``channel_names``, ``layout``, ``sample_rate`` (Hz, the stream's rate),
-``window_s``, ``window_samples``, ``epsilon_m_s``, ``threshold``, ``outputs`` (what the model
-estimates: ``"slip"``, the velocity components and ``"wy"`` for a model with a rotational
-output; a checkpoint without the key is planar), optionally
+``learn.models.registry``: "aslip_cnn", "svm", "aslip_stream", "per_output" or a registered
+one), ``model_config``, ``feature_config``, ``normalization`` (per-mel-bin mean/std, also
+inside the CNN's state dict as buffers), ``channel_names``, ``layout``, ``sample_rate`` (Hz,
+the stream's rate), ``window_s``, ``window_samples``, ``epsilon_m_s``, ``threshold``,
+``outputs`` (what the model estimates: ``"slip"``, the velocity components and ``"wy"`` for
+a model with a rotational output; a checkpoint without the key is planar), optionally
 ``output_calibration`` (the threshold's fit and the direction-sigma model, from the
 validation windows: learn/calibration/output.py; older checkpoints have none and report no
-sigma) and ``provenance``
-(dataset path, git revision, seed, stage, init checkpoint, metrics, versions). Keeping the
+sigma) and ``provenance`` (dataset path, git revision, seed, stage, init checkpoint,
+metrics, versions). Keeping the
 metadata a JSON string means nothing in the file needs an unpickler beyond tensors.
 """
 

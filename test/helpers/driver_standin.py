@@ -3,18 +3,18 @@
     python driver_standin.py TOPIC [TOPIC ...] [--audio TOPIC]
         [--stop TOPIC --stop-after-s S --subscribers N [--readers-of TOPIC] [--heard-by N]]
 
-Publishes ``geometry_msgs/PoseStamped`` (sensor-data QoS, frame ``mocap``, a still pose)
-on every TOPIC at 120 Hz, like a motion-capture driver whose rigid bodies are tracked, and
-with ``--audio`` an audio interface's ``aslip_ros/AudioFrame`` stream on that topic (16 kHz,
-4 channels of quiet noise, 10 ms blocks in real time; ``audio_capture source:=topic``
-bridges it). ``--stop TOPIC`` stops that one stream ``--stop-after-s`` after
-``--readers-of`` (default: the stopped topic itself) has ``--subscribers`` matched readers,
-the recording graph being up and reading it (and, with ``--heard-by N``, once N nodes'
-diagnostics on /aslip/diagnostics count messages received on it: a reader in the graph is
-not yet a reader matched to the writer, and a busy machine can match it seconds later),
-printing ``stopped TOPIC at <time.time()>``;
-the process stays up, like a driver that lost a rigid body or an interface that stalled.
-Exits on SIGINT/SIGTERM and when its parent goes.
+Publishes ``geometry_msgs/PoseStamped`` (sensor-data QoS, frame ``mocap``, a still pose) on
+every TOPIC at 120 Hz (on average, however late the loop wakes), like a motion-capture
+driver whose rigid bodies are tracked, and with ``--audio`` an audio interface's
+``aslip_ros/AudioFrame`` stream on that topic (16 kHz, 4 channels of quiet noise, 10 ms
+blocks in real time; ``audio_capture source:=topic`` bridges it). ``--stop TOPIC`` stops
+that one stream ``--stop-after-s`` after ``--readers-of`` (default: the stopped topic
+itself) has ``--subscribers`` matched readers, the recording graph being up and reading it
+(and, with ``--heard-by N``, once N nodes' diagnostics on /aslip/diagnostics count messages
+received on it: a reader in the graph is not yet a reader matched to the writer, and a busy
+machine can match it seconds later), printing ``stopped TOPIC at <time.time()>``; the
+process stays up, like a driver that lost a rigid body or an interface that stalled. Exits
+on SIGINT/SIGTERM and when its parent goes.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def main() -> int:
     if a.heard_by:
         node.create_subscription(String, topics.DIAGNOSTICS_JSON, on_diagnostics, 50)
     rng = np.random.default_rng(0)
-    started, sent = time.monotonic(), 0
+    started, sent, posed = time.monotonic(), 0, 0
     stop_at = None
     print("standin ready", flush=True)
     try:
@@ -91,9 +91,13 @@ def main() -> int:
             if stop_at is not None and time.monotonic() >= stop_at and a.stop in pubs:
                 node.destroy_publisher(pubs.pop(a.stop))
                 print(f"stopped {a.stop} at {now:.3f}", flush=True)
-            for topic, pub in pubs.items():
-                if topic != a.audio:
-                    pub.publish(_pose(topic, a.topics[0], now))
+            # Paced by the clock, not by the loop: a loaded machine wakes the loop late,
+            # and the driver catches up so that every second holds RATE_HZ poses.
+            while posed < int((time.monotonic() - started) * RATE_HZ) + 1:
+                for topic, pub in pubs.items():
+                    if topic != a.audio:
+                        pub.publish(_pose(topic, a.topics[0], now))
+                posed += 1
             due = int((time.monotonic() - started) * AUDIO_RATE_HZ) // AUDIO_BLOCK
             while a.audio in pubs and sent < due:
                 block = 0.01 * rng.standard_normal((AUDIO_BLOCK, len(AUDIO_CHANNELS)))

@@ -46,8 +46,9 @@ BUILTIN: dict[str, str] = {
     "aslip_cnn": "aslip_ros.learn.models.aslip_cnn:CnnBackend",
     "svm": "aslip_ros.learn.models.svm:SvmBackend",
     "aslip_stream": "aslip_ros.learn.models.aslip_stream:StreamBackend",
+    "per_output": "aslip_ros.learn.models.per_output:PerOutputBackend",
 }
-CNN, SVM, STREAM = BUILTIN
+CNN, SVM, STREAM, PER_OUTPUT = BUILTIN
 ENTRY_POINT_GROUP = "aslip_ros.models"
 
 MODELS: dict[str, type] = {}

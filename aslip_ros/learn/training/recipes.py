@@ -60,8 +60,9 @@ from aslip_ros.learn.models.svm import SvmConfig
 from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, successive_halving)
 from aslip_ros.learn.training.config import TrainConfig, TrainResult
 from aslip_ros.learn.training.data import split_windows
-from aslip_ros.learn.training.selection import (CRITERION, METRICS, score_difference, select,
-                                                worth, worth_line)
+from aslip_ros.learn.models.per_output import PerOutputBackend
+from aslip_ros.learn.training.selection import (CRITERION, METRICS, choose_outputs, compose,
+                                                score_difference, select, worth, worth_line)
 from aslip_ros.learn.training.train import train_svm
 
 RECIPES = ("frozen", "partial", "unfrozen", "scratch", "svm", "scratch_uncalibrated",
@@ -362,7 +363,14 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
         "train_trials": _trial_names(ds, tr), "val_trials": _trial_names(ds, va),
         "test_trials_untouched": _trial_names(
             ds, ds.dataset.select("test", seed=cfg.split_seed))}
-    best = run.results[winner]
+    outputs = choose_outputs(ds, va, run.results, winner)
+    selection["outputs"] = outputs
+    best = compose(ds, va, run.results, winner, outputs) or run.results[winner]
+    if best.meta["model_type"] == PerOutputBackend.model_type:
+        roles = best.meta["model_config"]
+        selection["latency_ms"] = best.meta["provenance"]["per_output"]["latency_ms"]
+        log("choice: each output from its best candidate: " + ", ".join(
+            f"{r} {n}" for r, n in roles.items() if n is not None))
     best.meta["provenance"].update(selection=selection, recipe=winner)
     best.candidates = dict(run.results)
     return best
@@ -372,6 +380,13 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
 
 def _fmt(v: Any, scale: float = 1.0, nd: int = 1) -> str:
     return "-" if v is None else f"{v * scale:.{nd}f}"
+
+
+def _latency_text(ms: dict[str, float]) -> str:
+    if not ms:
+        return ""
+    return (" One window's estimate, median on this machine: " + ", ".join(
+        f"{name} {v:.2f} ms" for name, v in ms.items()) + ".")
 
 
 def comparison_markdown(sel: dict[str, Any]) -> str:
@@ -401,8 +416,13 @@ def comparison_markdown(sel: dict[str, Any]) -> str:
         for r in (sel.get("allocation") or {}).get("rest") or []:
             lines.append(f"- then {r['name']} trained on for {r['seconds']:.0f} s")
     worth_text = worth_line(sel.get("worth") or {})
+    outputs = sel.get("outputs") or {}
+    per_output = "" if all(row["from"] == sel["winner"] for row in outputs.values()) else (
+        "Each output from the candidate that gives it best: " + "; ".join(
+            f"{role} from **{row['from']}** ({row['why']})" for role, row in outputs.items())
+        + "." + _latency_text(sel.get("latency_ms") or {}))
     return ("\n".join(lines) + f"\n\nChosen: **{sel['winner']}**. {sel['reason']}.\n\n"
-            + (worth_text + "\n\n" if worth_text else "") +
+            + "".join(t + "\n\n" for t in (worth_text, per_output) if t) +
             f"Validation trials ({len(sel['val_trials'])}): {', '.join(sel['val_trials'])}; "
             f"training trials: {len(sel['train_trials'])}; test trials, not looked at: "
             f"{len(sel['test_trials_untouched'])}. Whole call: {sel['wall_s']:.0f} s "

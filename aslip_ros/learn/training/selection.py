@@ -13,18 +13,32 @@ What it is worth (``worth``, ``score_difference``): the winner's figures with 95
 intervals from a bootstrap over validation trials (``learn.stats``), and the winner's
 criterion minus the runner-up's on the same resamples; an interval that holds 0 says the
 two cannot be told apart on these trials.
+
+Each output from the candidate that gives it best (``choose_outputs``, ``compose``): for
+detection, speed, direction and, where the validation windows rotate, rotation, the
+candidate best on that output's metric replaces the winner's output where it is better on
+the same trial resamples (the paired interval of the difference excludes 0); an output the
+trials cannot tell apart stays the winner's. Where any output changes hands, the model is
+a ``per_output`` checkpoint (learn/models/per_output.py) of the candidates that give them,
+with its threshold and sigma models fitted again on its own validation predictions.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
 
+from aslip_ros.learn.calibration.output import checkpoint_fields
+from aslip_ros.learn.checkpoint import estimates_rotation
 from aslip_ros.learn.data_io import WindowSet
+from aslip_ros.learn.inference.predictor import Predictor
 from aslip_ros.learn.metrics import compute_metrics
+from aslip_ros.learn.models.per_output import assemble, combine
 from aslip_ros.learn.stats import KEYS, bootstrap_metrics, paired_difference
 from aslip_ros.learn.training.config import TrainResult
+from aslip_ros.learn.training.data import rotation_args
 
 DETECTION_ERROR_FLOOR = 0.01
 N_BOOT = 1000
@@ -160,3 +174,126 @@ def worth_line(w: dict[str, Any]) -> str:
                     "**the two cannot be told apart on these trials**; more validation "
                     "trials would decide."))
     return line
+
+
+# --- each output from the candidate that gives it best -------------------------------------
+
+#: Validation windows timed for the latency a combination costs (``window_latency_ms``).
+LATENCY_WINDOWS = 20
+#: Each output's metric and whether higher is better.
+OUTPUT_METRICS = {"detection": ("detection_accuracy", True),
+                  "speed": ("magnitude_rmse_mm", False),
+                  "direction": ("direction_mae_deg", False),
+                  "rotation": (ROTATION_METRIC, False)}
+
+
+def _candidate_metric(ds: WindowSet, va: np.ndarray, pred: dict[str, Any], key: str):
+    """``metric(idx)``: ``key`` of the candidate's validation predictions over ``idx``."""
+    truth, slip = ds.velocity(va), ds.slip(va)
+
+    def metric(idx: np.ndarray) -> float:
+        rot = rotation_args(ds, va[idx], None if pred.get("w") is None
+                            else np.asarray(pred["w"])[idx])
+        m = compute_metrics(pred["prob"][idx], pred["v"][idx], truth[idx], slip[idx],
+                            ds.window_s, **rot)
+        v = m.get(key)
+        return float("nan") if v is None else float(v)
+    return metric
+
+
+def choose_outputs(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult],
+                   winner: str, n_boot: int = N_BOOT, seed: int = 0) -> dict[str, Any]:
+    """Per output, the candidate that gives it (module docstring), with each choice's worth:
+    ``{role: {"from", "metric", "value", "winner_value", "difference", "ci", "why"}}``.
+    The winner gives every output it is not beaten on; roles the winner lacks are left out
+    (rotation without angular labels or without the winner's rotational output)."""
+    trial = _val_trials(ds, va)
+    preds = {n: r.val_pred for n, r in results.items() if r.val_pred is not None}
+    if winner not in preds:
+        return {}
+    rotates = ds.has_angular(va) and preds[winner].get("w") is not None
+    out: dict[str, Any] = {}
+    everything = np.arange(va.size)
+    for role, (key, higher) in OUTPUT_METRICS.items():
+        if role == "rotation" and not rotates:
+            continue
+        names = [n for n in preds if role != "rotation" or preds[n].get("w") is not None]
+        fns = {n: _candidate_metric(ds, va, preds[n], key) for n in names}
+        vals = {n: fns[n](everything) for n in names}
+        vals = {n: v for n, v in vals.items() if np.isfinite(v)}
+        if winner not in vals:
+            continue
+        sign = -1.0 if higher else 1.0           # lower sign * value is better
+        best = min(vals, key=lambda n: (sign * vals[n], n != winner))
+        row = {"from": winner, "metric": key, "value": vals[winner],
+               "winner_value": vals[winner]}
+        if best == winner or np.unique(trial).size < 2:
+            row["why"] = "the winner's own" if best == winner else \
+                "too few validation trials to tell another candidate's apart"
+        else:
+            d = paired_difference(trial, fns[best], fns[winner], n_boot=n_boot, seed=seed)
+            row.update(difference=d[0], ci=(d[1], d[2]), best=best, best_value=vals[best])
+            better = d[1] > 0.0 if higher else d[2] < 0.0
+            if better:
+                row.update({"from": best, "value": vals[best]})
+                row["why"] = (f"{best} is better than {winner} on the same trial resamples "
+                              f"({key} {d[0]:+.3g} [{d[1]:+.3g}, {d[2]:+.3g}])")
+            else:
+                row["why"] = (f"{best} ({vals[best]:.3g}) cannot be told apart from the "
+                              f"winner {winner} ({vals[winner]:.3g}) on these trials "
+                              f"(difference {d[0]:+.3g} [{d[1]:+.3g}, {d[2]:+.3g}])")
+        out[role] = row
+    return out
+
+
+def compose(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult], winner: str,
+            outputs: dict[str, Any]) -> TrainResult | None:
+    """The ``per_output`` model of ``outputs`` (``choose_outputs``), with its validation
+    metrics and output calibration from the combined validation predictions; None when the
+    winner gives every output."""
+    roles = {role: row["from"] for role, row in outputs.items()}
+    if all(n == winner for n in roles.values()):
+        return None
+    for role in ("detection", "speed", "direction"):
+        roles.setdefault(role, winner)
+    if "rotation" not in roles and estimates_rotation(results[winner].meta):
+        roles["rotation"] = winner        # no rotating validation window to choose on
+    names = sorted(set(roles.values()))
+    ck = assemble({n: results[n].checkpoint() for n in names}, roles)
+    pred = {n: results[n].val_pred for n in names}
+    prob, v, w = combine({role: (pred[n]["prob"], pred[n]["v"], pred[n].get("w"))
+                          for role, n in roles.items()})
+    truth, slip = ds.velocity(va), ds.slip(va)
+    rot = rotation_args(ds, va, w)
+    val = compute_metrics(prob, v, truth, slip, ds.window_s, **rot)
+    base = ck.meta
+    base.update(checkpoint_fields(prob, v, truth, slip, w_pred=w,
+                                  w_true=ds.angular(va) if rot else None))
+    prov = base["provenance"]
+    prov["metrics"] = {"val": val}
+    prov["per_output"] = {"roles": roles, "choice": outputs,
+                          "latency_ms": window_latency_ms(
+                              ds, va, {"per_output": ck, winner: results[winner].checkpoint()})}
+    prov.pop("training", None)
+    return TrainResult(meta=base, tensors=ck.tensors, history=[],
+                       val_pred={"prob": prob, "v": v, "w": w})
+
+
+def window_latency_ms(ds: WindowSet, va: np.ndarray, models: dict[str, Any],
+                      n: int = LATENCY_WINDOWS) -> dict[str, float]:
+    """Median milliseconds of one window's estimate (``Predictor.predict``, whole-window
+    features, this machine) per named checkpoint, on ``n`` validation windows: what a
+    combination costs beside the winner alone (the live node's figure: make latency)."""
+    out = {}
+    for name, ck in models.items():
+        pred = Predictor(ck)
+        idx = va[:max(1, min(n, va.size))]
+        x = ds.window_audio(idx, ds.channel_indices(pred.channel_names))
+        pred.predict(x[0])                               # first call: lazy set-up
+        times = []
+        for w in x:
+            t0 = time.perf_counter()
+            pred.predict(w)
+            times.append(time.perf_counter() - t0)
+        out[name] = round(1e3 * float(np.median(times)), 3)
+    return out
