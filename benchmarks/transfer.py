@@ -51,8 +51,10 @@ METHODS = ("aslip", "aslip_uncalibrated", "aslip_scratch", "paper_svm",
 DEFAULT_METHODS = ("aslip", "aslip_scratch", "paper_svm", "plain_cnn", "plain_svm")
 #: A method's revision, in the names of its cached model and predictions: a method whose
 #: estimator changed is trained and predicted again, never read from the old cache.
-#: 2: the SVMs regress the speed and the direction's cosine and sine, not vx and vz.
-REVISION = {"plain_svm": 2, "paper_svm": 2, "paper_svm_uncalibrated": 2}
+#: 2: the SVMs regress the speed and the direction's cosine and sine, not vx and vz;
+#: ``aslip`` takes each output from the candidate that gives it best (per_output).
+REVISION = {"plain_svm": 2, "paper_svm": 2, "paper_svm_uncalibrated": 2, "aslip": 2,
+            "aslip_uncalibrated": 2}
 OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pla_rod")
 CONDITIONS = ("robot_stationary", "robot_moving", "robot_off")
 #: Seed offset per scene, so no held-out scene replays the training scene's motions.

@@ -227,7 +227,9 @@ def test_the_aslip_method_is_what_aslip_train_does_by_default(tmp_path, monkeypa
 
 def test_a_revised_method_is_never_read_from_the_old_cache():
     """The SVMs' estimator changed (revision 2: speed and direction regressed, not vx and
-    vz): their cached models and predictions of before must not come back."""
+    vz), and so did aslip's (each output from its best candidate): their cached models and
+    predictions of before must not come back."""
+    assert transfer.cached_name("aslip") != "aslip"
     assert transfer.cached_name("plain_svm") != "plain_svm"
     assert transfer.cached_name("paper_svm") != "paper_svm"
     assert transfer.cached_name("plain_cnn") == "plain_cnn"
