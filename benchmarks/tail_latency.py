@@ -1,15 +1,17 @@
 """The tail of the live path: ``make latency`` (``python -m benchmarks.tail_latency``).
 
-For every checkpoint (default: the three shipped ones), ``node_bench.measure_node_latency``
-runs ``audio_capture`` (simulated scene, 4 channels at 48 kHz) and ``slip_inference`` as
-separate processes for ``--duration`` seconds, one checkpoint after the other (never two
-at once), optionally beside ``--hogs`` CPU-busy processes (``yes > /dev/null``, as the
-flake hunt's). Reported per checkpoint: the end-to-end latency measured by a listener
-(AudioFrame arrival -> SlipVector arrival, p50 / p99 / p99.9 / max) and the node's own
-figures per step of the live path from its diagnostics (queue: middleware reception to the
-start of the processing; features: gate, buffers, per-grasp calibration and features;
-forward: the model; publish: SlipVector and marker) and the age of each block when the
-node's callback starts (source, transport and executor delay together).
+For every checkpoint (default: the three shipped ones; with ``--per-output MAIN SPEED`` also
+the ``per_output`` model of MAIN's outputs with SPEED's speed),
+``node_bench.measure_node_latency`` runs ``audio_capture`` (simulated scene, 4 channels at
+48 kHz) and ``slip_inference`` as separate processes for ``--duration`` seconds, one
+checkpoint after the other (never two at once), optionally beside ``--hogs`` CPU-busy
+processes (``yes > /dev/null``, as the flake hunt's). Reported per checkpoint: the end-to-
+end latency measured by a listener (AudioFrame arrival -> SlipVector arrival, p50 / p99 /
+p99.9 / max) and the node's own figures per step of the live path from its diagnostics
+(queue: middleware reception to the start of the processing; features: gate, buffers, per-
+grasp calibration and features; forward: the model; publish: SlipVector and marker) and the
+age of each block when the node's callback starts (source, transport and executor delay
+together).
 
 Writes ``tail.json`` and the chart ``tail.png`` (one panel per checkpoint, p50 / p99 /
 p99.9 / max bars per step and end to end, log y axis) into ``--out``.
@@ -115,6 +117,20 @@ def summary_line(name: str, r: dict) -> str:
     return f"{name}: paired {r.get('paired')} | " + " | ".join(parts) + " (p50/p99/p99.9/max ms)"
 
 
+def per_output_model(main: Path, speed: Path, out: Path) -> Path:
+    """A ``per_output`` checkpoint (learn/models/per_output.py) with p(slip), direction and,
+    where it has one, the rotation of ``main`` and the speed of ``speed``: what ``aslip
+    train``'s per-output choice writes when a speed regressor beats the CNN's speed."""
+    from aslip_ros.learn.checkpoint import estimates_rotation, load_checkpoint, save_checkpoint
+    from aslip_ros.learn.models.per_output import assemble
+    parts = {"main": load_checkpoint(main), "speed": load_checkpoint(speed)}
+    roles = {"detection": "main", "speed": "speed", "direction": "main"}
+    if estimates_rotation(parts["main"].meta):
+        roles["rotation"] = "main"
+    ck = assemble(parts, roles)
+    return save_checkpoint(out, ck.meta, ck.tensors)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="+", default=list(MODELS),
@@ -123,9 +139,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--hogs", type=int, default=0, help="CPU-busy processes beside")
     ap.add_argument("--out", default="results/latency")
     ap.add_argument("--no-plot", action="store_true")
+    ap.add_argument("--per-output", nargs=2, metavar=("MAIN", "SPEED"),
+                    help="also bench a per_output checkpoint of MAIN's detection, direction "
+                         "and rotation with SPEED's speed (written to data/latency/)")
     a = ap.parse_args(argv)
     if a.duration <= 0 or a.hogs < 0:
         ap.error("--duration must be > 0 and --hogs >= 0")
+    if a.per_output:
+        built = per_output_model(*(ROOT / m for m in a.per_output),
+                                 ROOT / "data" / "latency" / "per_output.pt")
+        a.models = list(a.models) + [str(built)]
     results: dict[str, Any] = {}
     for m in a.models:
         path = Path(m) if Path(m).is_absolute() or Path(m).exists() else ROOT / m

@@ -20,12 +20,27 @@ from aslip_ros.learn.inference.live import LiveConfig, LiveEstimator, load_predi
 ROOT = Path(__file__).resolve().parents[1]
 RATE = 48000.0
 BLOCK = 480
-WINDOW_MODELS = ("aslip_cnn", "aslip_cnn_uncalibrated", "svm")
+WINDOW_MODELS = ("aslip_cnn", "aslip_cnn_uncalibrated", "svm", "per_output",
+                 "per_output_mixed")
+#: per_output models of the shipped ones (learn/models/per_output.py): part -> roles.
+PER_OUTPUT = {
+    "per_output": {"aslip_cnn": ("detection", "direction", "rotation"), "svm": ("speed",)},
+    # Two CNN parts read the one sliding log-mel, one with the per-grasp offsets, one not.
+    "per_output_mixed": {"aslip_cnn_uncalibrated": ("detection", "direction"),
+                         "aslip_cnn": ("speed", "rotation")},
+}
 GAP_AT = 60                    # blocks 60 and 61 never arrive: the window restarts
 N_BLOCKS = 110
 
 
-def _model(name: str) -> Path:
+def _model(name: str, where: Path | None = None) -> Path:
+    if name in PER_OUTPUT:
+        from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
+        from aslip_ros.learn.models.per_output import assemble
+        parts = PER_OUTPUT[name]
+        ck = assemble({n: load_checkpoint(_model(n)) for n in parts},
+                      {role: n for n, roles in parts.items() for role in roles})
+        return save_checkpoint(where / f"{name}.pt", ck.meta, ck.tensors)
     path = ROOT / "models" / f"{name}.pt"
     if not path.exists():
         pytest.skip(f"{path} not shipped in this checkout")
@@ -64,10 +79,11 @@ def _grasp_offsets(pr, audio: np.ndarray, start: int, end: int) -> np.ndarray | 
 
 
 @pytest.mark.parametrize("name", WINDOW_MODELS)
-def test_window_models_estimate_live_what_the_training_path_computes(scene, name):
+def test_window_models_estimate_live_what_the_training_path_computes(scene, name, tmp_path):
     audio, blocks = scene
-    est = LiveEstimator.from_checkpoint(_model(name), LiveConfig(hop_s=0.01))
-    ref = load_predictor(_model(name))           # featurises each window whole
+    model = _model(name, tmp_path)
+    est = LiveEstimator.from_checkpoint(model, LiveConfig(hop_s=0.01))
+    ref = load_predictor(model)                  # featurises each window whole
     logmel = LogMel(ref.feature_config, ref.sample_rate)
     grasp_start, n_jobs, epochs = 0, 0, set()
     for a in blocks:
@@ -98,7 +114,7 @@ def test_window_models_estimate_live_what_the_training_path_computes(scene, name
             feats = est._sliding(window, job.start, job.epoch)
             np.testing.assert_allclose(feats, logmel(window), rtol=0, atol=2e-5)
     assert n_jobs > 50 and epochs == {0, 1}
-    if name.startswith("aslip_cnn"):
+    if name.startswith(("aslip_cnn", "per_output")):
         s = est._sliding
         assert s is not None and s.reused > 5 * s.computed     # two frames a hop
 

@@ -60,7 +60,7 @@ from aslip_ros.learn.inference.audio_window import RingBuffer, StreamGate
 from aslip_ros.learn.inference.channel_check import DEAD_MARGIN_DB, dead_channels
 from aslip_ros.learn.inference.predictor import Prediction, Predictor
 from aslip_ros.learn.inference.stream_predictor import DEFAULT_MAX_TIME_JUMP_S, StreamingPredictor
-from aslip_ros.learn.models.registry import CNN, model_backend
+from aslip_ros.learn.models.registry import CNN, PER_OUTPUT, model_backend
 
 #: direction_sigma [rad] while the per-grasp calibration has not converged: uninformative.
 UNCONVERGED_DIRECTION_SIGMA = float(np.pi)
@@ -169,14 +169,18 @@ class _Timed:
 
 
 def _sliding_features(predictor: Any) -> Optional[SlidingLogMel]:
-    """The sliding log-mel of a CNN checkpoint's windows (None for any other model: only
-    the CNN's ``predict`` is its ``infer_features`` of ``LogMel`` less the offsets)."""
+    """The sliding log-mel of the windows of a CNN checkpoint, or of a ``per_output`` one
+    whose parts include a CNN (None for any other model: only the CNN's ``predict`` is its
+    ``infer_features`` of ``LogMel`` less the offsets, and a per_output backend's is its
+    ``predict_with_features`` of the same)."""
     backend = getattr(predictor, "backend", None)
     logmel = getattr(backend, "logmel", None)
-    if predictor.model_type != CNN or not isinstance(logmel, LogMel) \
-            or not hasattr(backend, "infer_features"):
+    if not isinstance(logmel, LogMel):
         return None
-    return SlidingLogMel(logmel, predictor.window_samples)
+    if predictor.model_type == CNN and hasattr(backend, "infer_features") or \
+            predictor.model_type == PER_OUTPUT and hasattr(backend, "predict_with_features"):
+        return SlidingLogMel(logmel, predictor.window_samples)
+    return None
 
 
 def _time_model(predictor: Any, streaming: bool) -> Optional[_Timed]:
@@ -491,6 +495,9 @@ class LiveEstimator:
             feats = self._sliding(job.window, job.start, job.epoch)
         t1 = time.perf_counter()
         offsets = None if job.offsets is None else np.asarray(job.offsets)[None]
+        if self.predictor.model_type == PER_OUTPUT:
+            return self.predictor.predict_window_features(job.window[None], feats[None],
+                                                          offsets)[0], t1 - t0
         return self.predictor.predict_features(feats[None], offsets)[0], t1 - t0
 
     def feed(self, a) -> list[Estimate]:

@@ -314,6 +314,26 @@ class Predictor(PredictorBase):
             feats = feats - offsets[:, :, None, None]
         return self._gate(*self._checked(infer(feats), feats.shape[0]))
 
+    def predict_window_features(self, windows: np.ndarray, feats: np.ndarray,
+                                offsets: np.ndarray | None = None) -> BatchPrediction:
+        """``predict_batch`` of ``windows`` with their log-mel ``feats`` already computed
+        (the live ``SlidingLogMel``), for a backend that reads both
+        (``predict_with_features``: a ``per_output`` model with a CNN part); ``offsets``
+        ``(B, C)`` go to the backend as they are."""
+        both = getattr(self.backend, "predict_with_features", None)
+        if both is None:
+            raise ValueError(f"predict_window_features needs a model that reads windows and "
+                             f"log-mel features; {self.model_type!r} does not")
+        x = self._validate(windows)
+        if offsets is not None:
+            offsets = np.asarray(offsets, dtype=np.float32)
+            if offsets.shape != (x.shape[0], self.n_channels) or \
+                    not np.isfinite(offsets).all():
+                raise ValueError(f"offsets must be finite, shaped ({x.shape[0]}, "
+                                 f"{self.n_channels}), got {offsets.shape}")
+        feats = np.asarray(feats, dtype=np.float32)
+        return self._gate(*self._checked(both(x, feats, offsets), x.shape[0]))
+
     def _gate(self, prob: np.ndarray, raw: np.ndarray,
               w: np.ndarray | None = None) -> BatchPrediction:
         """The planar decision gates the velocity; the rotational rate stays raw."""

@@ -31,7 +31,8 @@ import torch
 
 from aslip_ros.learn.checkpoint import (KNOWN_OUTPUTS, PLANAR_OUTPUTS, Checkpoint,
                                         estimates_rotation, validate_meta)
-from aslip_ros.learn.models.registry import model_backend, register_model
+from aslip_ros.learn.features import LogMel
+from aslip_ros.learn.models.registry import CNN, model_backend, register_model
 
 #: The outputs a part can give, in the order the comparison lists them.
 ROLES = ("detection", "speed", "direction", "rotation")
@@ -120,6 +121,19 @@ class PerOutputBackend:
         self.roles = roles
         self.backends = backends
         self.calibrated = calibrated
+        #: The log-mel the parts that read log-mel share (``predict_with_features``): the
+        #: first such part's; None when no part reads it.
+        self.logmel = None
+        self._reads_features: set[str] = set()
+        for name, b in backends.items():
+            logmel = getattr(b, "logmel", None)
+            if not isinstance(logmel, LogMel) or not hasattr(b, "infer_features") \
+                    or b.model_type != CNN:
+                continue
+            if self.logmel is None:
+                self.logmel = logmel
+            if _same_features(logmel, self.logmel):
+                self._reads_features.add(name)
 
     @classmethod
     def meta_problems(cls, meta, model_config, feature_config) -> list[str]:
@@ -164,6 +178,26 @@ class PerOutputBackend:
         outs = {name: b.predict(windows, offsets if self.calibrated[name] else None)
                 for name, b in self.backends.items()}
         return combine({role: outs[name] for role, name in self.roles.items()})
+
+    def predict_with_features(self, windows: np.ndarray, feats: np.ndarray,
+                              offsets: np.ndarray | None
+                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """``predict`` with ``feats = self.logmel(windows)`` given (the live estimator's
+        sliding log-mel): the parts that read it take it, less the offsets where they were
+        trained with them; the others read the windows."""
+        outs = {}
+        for name, b in self.backends.items():
+            off = offsets if self.calibrated[name] else None
+            if name in self._reads_features:
+                f = feats if off is None else feats - off[:, :, None, None]
+                outs[name] = b.infer_features(f)
+            else:
+                outs[name] = b.predict(windows, off)
+        return combine({role: outs[name] for role, name in self.roles.items()})
+
+
+def _same_features(a: LogMel, b: LogMel) -> bool:
+    return a.cfg.to_dict() == b.cfg.to_dict() and a.input_rate == b.input_rate
 
 
 def combine(outs: dict[str, tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
