@@ -94,23 +94,25 @@ def test_plan_skips_pretrained_recipes_without_a_robot_set():
     msgs = []
     cands, skipped = recipes.plan(recipes.RECIPES, (0, 3), have_pretrain=False,
                                   log=msgs.append)
-    assert [c.name for c in cands] == ["scratch_s0", "scratch_s3", "svm",
+    assert [c.name for c in cands] == ["scratch_s0", "scratch_s3", "svm", "svm_logmel",
                                        "scratch_s0_uncalibrated", "scratch_s3_uncalibrated",
-                                       "svm_uncalibrated"]
+                                       "svm_uncalibrated", "svm_logmel_uncalibrated"]
     assert {s["name"] for s in skipped} == {"frozen", "partial", "unfrozen"}
     assert all("--pretrain-dataset" in m for m in msgs) and len(msgs) == 3
     default, _ = recipes.plan(have_pretrain=True)
     assert [c.name for c in default] == ["unfrozen", "scratch_s0", "scratch_s0_uncalibrated",
-                                         "svm", "svm_uncalibrated"]
-    assert [c.calibrated for c in default] == [True, True, False, True, False]
+                                         "svm", "svm_uncalibrated", "svm_logmel",
+                                         "svm_logmel_uncalibrated"]
+    assert [c.calibrated for c in default] == [True, True, False, True, False, True, False]
+    assert [c.is_svm for c in default] == [False, False, False, True, True, True, True]
     cands, skipped = recipes.plan(recipes.RECIPES[:5], (0,), have_pretrain=True)
     assert [c.name for c in cands] == ["frozen", "partial", "unfrozen", "scratch_s0", "svm"]
     assert not skipped
     # With --calibration off the uncalibrated variants would train the same thing twice.
     cands, skipped = recipes.plan(have_pretrain=False, calibration="off", log=msgs.append)
-    assert [c.name for c in cands] == ["scratch_s0", "svm"]
+    assert [c.name for c in cands] == ["scratch_s0", "svm", "svm_logmel"]
     assert {s["name"] for s in skipped} == {"unfrozen", "scratch_uncalibrated",
-                                            "svm_uncalibrated"}
+                                            "svm_uncalibrated", "svm_logmel_uncalibrated"}
     with pytest.raises(ValueError, match="unknown recipe"):
         recipes.plan(["frozen", "bogus"], (0,), True)
     with pytest.raises(ValueError, match="no recipe left"):

@@ -20,25 +20,61 @@ from aslip_ros.learn.inference.live import LiveConfig, LiveEstimator, load_predi
 ROOT = Path(__file__).resolve().parents[1]
 RATE = 48000.0
 BLOCK = 480
-WINDOW_MODELS = ("aslip_cnn", "aslip_cnn_uncalibrated", "svm", "per_output",
-                 "per_output_mixed")
+WINDOW_MODELS = ("aslip_cnn", "aslip_cnn_uncalibrated", "svm", "svm_logmel", "per_output",
+                 "per_output_mixed", "per_output_logmel")
+GAP_AT = 60                    # blocks 60 and 61 never arrive: the window restarts
+N_BLOCKS = 110
 #: per_output models of the shipped ones (learn/models/per_output.py): part -> roles.
 PER_OUTPUT = {
     "per_output": {"aslip_cnn": ("detection", "direction", "rotation"), "svm": ("speed",)},
     # Two CNN parts read the one sliding log-mel, one with the per-grasp offsets, one not.
     "per_output_mixed": {"aslip_cnn_uncalibrated": ("detection", "direction"),
                          "aslip_cnn": ("speed", "rotation")},
+    # The speed from an SVM on the CNN's log-mel: both parts read the sliding features.
+    "per_output_logmel": {"aslip_cnn": ("detection", "direction", "rotation"),
+                          "svm_logmel": ("speed",)},
 }
-GAP_AT = 60                    # blocks 60 and 61 never arrive: the window restarts
-N_BLOCKS = 110
+
+
+def _svm_logmel(where: Path) -> Path:
+    """An SVM on the shipped CNN's time-averaged log-mel (its features and calibration),
+    fitted on windows of scene audio with labels made from their level: its answers vary
+    with what it hears, which is all the comparison needs."""
+    from aslip_ros.hw.sources import build_world
+    from aslip_ros.learn.checkpoint import PLANAR_OUTPUTS, load_checkpoint, save_checkpoint
+    from aslip_ros.learn.models.svm import LogMelMeans, SvmConfig, fit_svm
+    path = where / "svm_logmel.pt"
+    if path.exists():
+        return path
+    cnn = load_checkpoint(_model("aslip_cnn"))
+    w = build_world(dict(scenario="external_induced", seed=9, object="cracker_box",
+                         layout="4mic", pad="textured", condition="robot_stationary",
+                         sample_rate=RATE, wall_distance_m=0.0, drag_speed_m_s=0.04))
+    audio = np.concatenate([w.step(BLOCK).audio for _ in range(300)]).astype(np.float32)
+    n = cnn.meta["window_samples"]
+    windows = np.stack([audio[s:s + n] for s in range(0, audio.shape[0] - n, 2400)])
+    feats = LogMelMeans(FeatureConfig.from_dict(cnn.meta["feature_config"]), RATE)(windows)
+    level = feats.mean(axis=1)
+    slip = level > np.median(level)
+    ang = np.linspace(-np.pi, np.pi, len(level))
+    v = np.where(slip[:, None], 0.01 + 0.001 * (level - level.min())[:, None], 0.0) * \
+        np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    cfg = SvmConfig(features="logmel")
+    arrays, _ = fit_svm(feats, slip, v, cfg)
+    meta = dict(cnn.meta, model_type="svm", model_config=cfg.to_dict(), normalization=None,
+                outputs=list(PLANAR_OUTPUTS))
+    meta.pop("output_calibration", None)
+    return save_checkpoint(path, meta, arrays.to_tensors())
 
 
 def _model(name: str, where: Path | None = None) -> Path:
+    if name == "svm_logmel":
+        return _svm_logmel(where)
     if name in PER_OUTPUT:
         from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
         from aslip_ros.learn.models.per_output import assemble
         parts = PER_OUTPUT[name]
-        ck = assemble({n: load_checkpoint(_model(n)) for n in parts},
+        ck = assemble({n: load_checkpoint(_model(n, where)) for n in parts},
                       {role: n for n, roles in parts.items() for role in roles})
         return save_checkpoint(where / f"{name}.pt", ck.meta, ck.tensors)
     path = ROOT / "models" / f"{name}.pt"
@@ -114,7 +150,7 @@ def test_window_models_estimate_live_what_the_training_path_computes(scene, name
             feats = est._sliding(window, job.start, job.epoch)
             np.testing.assert_allclose(feats, logmel(window), rtol=0, atol=2e-5)
     assert n_jobs > 50 and epochs == {0, 1}
-    if name.startswith(("aslip_cnn", "per_output")):
+    if name != "svm":                        # each of these reads the sliding log-mel
         s = est._sliding
         assert s is not None and s.reused > 5 * s.computed     # two frames a hop
 

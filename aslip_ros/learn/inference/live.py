@@ -27,12 +27,13 @@ like any non-finite estimate.
 model thread (``run``) and publishes; evaluation and the closed-loop demo call ``feed``,
 which runs the job at once, so what is measured offline is what runs live.
 
-Per hop, a CNN window reuses the log-mel frames it shares with the windows before it
-(``features.SlidingLogMel``: equal to the backend's ``LogMel`` of the whole window, which
-training uses, to float rounding; tested on scene audio): a job carries where its window
-lies in the stream since the window last restarted (``Job.start``, ``Job.epoch``), and
-``run`` computes only the frames no earlier window held, plus the first, which reads the
-zeros before the window. Other window models featurise each window whole.
+Per hop, the window of a model that reads log-mel (the CNN, an SVM on log-mel, a
+``per_output`` model with such a part) reuses the log-mel frames it shares with the windows
+before it (``features.SlidingLogMel``: equal to the backend's ``LogMel`` of the whole
+window, which training uses, to float rounding; tested on scene audio): a job carries where
+its window lies in the stream since the window last restarted (``Job.start``,
+``Job.epoch``), and ``run`` computes only the frames no earlier window held, plus the first,
+which reads the zeros before the window. Other window models featurise each window whole.
 
 Timing (for the callers' tail-latency figures; nothing here changes a result): ``run`` and
 a streaming ``accept`` leave the model's share of their time in ``last_forward_s`` and, for
@@ -60,7 +61,7 @@ from aslip_ros.learn.inference.audio_window import RingBuffer, StreamGate
 from aslip_ros.learn.inference.channel_check import DEAD_MARGIN_DB, dead_channels
 from aslip_ros.learn.inference.predictor import Prediction, Predictor
 from aslip_ros.learn.inference.stream_predictor import DEFAULT_MAX_TIME_JUMP_S, StreamingPredictor
-from aslip_ros.learn.models.registry import CNN, PER_OUTPUT, model_backend
+from aslip_ros.learn.models.registry import PER_OUTPUT, model_backend
 
 #: direction_sigma [rad] while the per-grasp calibration has not converged: uninformative.
 UNCONVERGED_DIRECTION_SIGMA = float(np.pi)
@@ -169,15 +170,15 @@ class _Timed:
 
 
 def _sliding_features(predictor: Any) -> Optional[SlidingLogMel]:
-    """The sliding log-mel of the windows of a CNN checkpoint, or of a ``per_output`` one
-    whose parts include a CNN (None for any other model: only the CNN's ``predict`` is its
-    ``infer_features`` of ``LogMel`` less the offsets, and a per_output backend's is its
-    ``predict_with_features`` of the same)."""
+    """The sliding log-mel of the windows of a model that reads log-mel (a backend whose
+    ``reads_logmel`` says its ``predict`` is its ``infer_features`` of ``logmel`` less the
+    offsets: the CNN, an SVM on log-mel), or of a ``per_output`` one with such a part (its
+    ``predict_with_features``); None for any other model."""
     backend = getattr(predictor, "backend", None)
     logmel = getattr(backend, "logmel", None)
     if not isinstance(logmel, LogMel):
         return None
-    if predictor.model_type == CNN and hasattr(backend, "infer_features") or \
+    if getattr(backend, "reads_logmel", False) and hasattr(backend, "infer_features") or \
             predictor.model_type == PER_OUTPUT and hasattr(backend, "predict_with_features"):
         return SlidingLogMel(logmel, predictor.window_samples)
     return None

@@ -306,6 +306,9 @@ class CnnBackend:
     #: (learn/models/aslip_cnn_fit.py, imported when a stage runs).
     fit: ClassVar[str] = "aslip_ros.learn.models.aslip_cnn_fit:fit"
     stages: ClassVar[tuple[str, ...]] = ("pretrain", "finetune", "scratch")
+    #: ``predict`` is ``infer_features`` of ``logmel`` less the offsets: the live path may
+    #: give it the sliding log-mel instead (learn/inference/live.py).
+    reads_logmel: ClassVar[bool] = True
 
     def __init__(self, cfg: ModelConfig, model: SlipNet, logmel: LogMel) -> None:
         self.cfg = cfg

@@ -32,7 +32,7 @@ import torch
 from aslip_ros.learn.checkpoint import (KNOWN_OUTPUTS, PLANAR_OUTPUTS, Checkpoint,
                                         estimates_rotation, validate_meta)
 from aslip_ros.learn.features import LogMel
-from aslip_ros.learn.models.registry import CNN, model_backend, register_model
+from aslip_ros.learn.models.registry import model_backend, register_model
 
 #: The outputs a part can give, in the order the comparison lists them.
 ROLES = ("detection", "speed", "direction", "rotation")
@@ -121,14 +121,14 @@ class PerOutputBackend:
         self.roles = roles
         self.backends = backends
         self.calibrated = calibrated
-        #: The log-mel the parts that read log-mel share (``predict_with_features``): the
-        #: first such part's; None when no part reads it.
+        #: The log-mel the parts that read log-mel (``reads_logmel``: the CNN, an SVM on
+        #: log-mel) share in ``predict_with_features``: the first such part's; None when
+        #: no part reads it.
         self.logmel = None
         self._reads_features: set[str] = set()
         for name, b in backends.items():
             logmel = getattr(b, "logmel", None)
-            if not isinstance(logmel, LogMel) or not hasattr(b, "infer_features") \
-                    or b.model_type != CNN:
+            if not isinstance(logmel, LogMel) or not getattr(b, "reads_logmel", False):
                 continue
             if self.logmel is None:
                 self.logmel = logmel

@@ -6,10 +6,18 @@ is estimated itself, not as the norm of two component estimates, which shrink to
 wherever the direction is uncertain. Checkpoints written before that change (one regressor
 per velocity component) load and predict as they did.
 
-Features are computed per channel from the same resampled power spectrogram as the CNN's
-(``features.LogMel.power_spectrogram``), then concatenated and standardised:
-log energies in ``n_bands`` log-spaced bands, log RMS, spectral centroid, bandwidth,
-85 % roll-off, flatness, zero-crossing rate and the frame-to-frame spread of log energy.
+Features (``SvmConfig.features``), standardised:
+
+- ``bands`` (the paper's): per channel, from the same resampled power spectrogram as the
+  CNN's (``features.LogMel.power_spectrogram``), log energies in ``n_bands`` log-spaced
+  bands, log RMS, spectral centroid, bandwidth, 85 % roll-off, flatness, zero-crossing rate
+  and the frame-to-frame spread of log energy; the per-grasp offsets are removed from the
+  audio (``calibration.frames.remove_from_audio``);
+- ``logmel``: the time-averaged log-mel of each channel, the CNN's own features less the
+  per-grasp offsets, as the CNN reads them. A regressor of the speed on these is what a
+  careful engineer tries first, and it beat the CNN's speed on a scene nobody here tuned to
+  (issue #36); reading the CNN's features, it shares the live path's sliding log-mel
+  (``reads_logmel``).
 
 scikit-learn fits the estimators; the fitted model is then reduced to arrays (support
 vectors, dual coefficients, intercepts, gamma) and evaluated by ``SvmArrays`` in numpy, so
@@ -46,9 +54,14 @@ class SvmConfig:
     gamma: str | float = "scale"
     svr_epsilon: float = 0.1
     max_train: int = 4000
+    features: str = "bands"          # one of FEATURES
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+#: What the SVM reads (module docstring).
+FEATURES = ("bands", "logmel")
 
 
 class SvmFeaturizer:
@@ -71,10 +84,14 @@ class SvmFeaturizer:
     def n_per_channel(self) -> int:
         return self.n_bands + 7
 
-    def __call__(self, audio: np.ndarray) -> np.ndarray:
+    def __call__(self, audio: np.ndarray, offsets: np.ndarray | None = None) -> np.ndarray:
+        """Features of windows ``(B, N, C)``, the per-grasp ``offsets`` ``(B, C)`` (or None)
+        removed from the audio first."""
         x = np.asarray(audio, dtype=np.float32)
         if x.ndim == 2:
             x = x[None]
+        if offsets is not None:
+            x = remove_from_audio(x, offsets)
         spec = self.logmel.power_spectrogram(x)  # (B, C, T, K)
         p = spec.mean(axis=2)                    # (B, C, K)
         total = p.sum(axis=-1) + _FLOOR
@@ -95,6 +112,34 @@ class SvmFeaturizer:
                             zcr, spread], axis=-1)
         feats = np.concatenate([bands, scalars], axis=-1)  # (B, C, F)
         return feats.reshape(feats.shape[0], -1).astype(np.float32)
+
+
+class LogMelMeans:
+    """Audio windows ``(B, N, C)`` -> the time-averaged log-mel of each channel
+    ``(B, C * n_mels)``, the per-grasp offsets removed from the log-mel as the CNN does."""
+
+    def __init__(self, feature_cfg: FeatureConfig, input_rate: float) -> None:
+        self.logmel = LogMel(feature_cfg, input_rate)
+
+    def __call__(self, audio: np.ndarray, offsets: np.ndarray | None = None) -> np.ndarray:
+        x = np.asarray(audio, dtype=np.float32)
+        feats = self.logmel(x[None] if x.ndim == 2 else x)
+        if offsets is not None:
+            feats = feats - np.asarray(offsets, np.float32)[:, :, None, None]
+        return self.means(feats)
+
+    @staticmethod
+    def means(feats: np.ndarray) -> np.ndarray:
+        """Log-mel ``(B, C, M, T)`` -> ``(B, C * M)``."""
+        f = np.asarray(feats, dtype=np.float32)
+        return f.mean(axis=-1).reshape(f.shape[0], -1)
+
+
+def svm_featurizer(cfg: SvmConfig, feature_cfg: FeatureConfig, input_rate: float):
+    """The featurizer of ``cfg.features``: ``f(audio, offsets=None) -> (B, F)``."""
+    if cfg.features == "logmel":
+        return LogMelMeans(feature_cfg, input_rate)
+    return SvmFeaturizer(feature_cfg, input_rate, cfg.n_bands)
 
 
 @dataclass
@@ -332,28 +377,43 @@ class SvmBackend:
     config: ClassVar[type] = SvmConfig
     streaming: ClassVar[bool] = False
 
-    def __init__(self, arrays: SvmArrays, featurizer: SvmFeaturizer) -> None:
+    def __init__(self, arrays: SvmArrays, featurizer) -> None:
         self.arrays = arrays
         self.featurizer = featurizer
+        #: On log-mel (``features: logmel``) its ``predict`` is ``infer_features`` of
+        #: ``logmel`` less the offsets, as the CNN's: the live path slides those features.
+        self.reads_logmel = isinstance(featurizer, LogMelMeans)
+        if self.reads_logmel:
+            self.logmel = featurizer.logmel
 
     @classmethod
     def meta_problems(cls, meta, model_config, feature_config) -> list[str]:
+        problems = []
         if model_config.n_bands < 1:
-            return [f"model_config.n_bands must be >= 1, got {model_config.n_bands}"]
-        return []
+            problems.append(f"model_config.n_bands must be >= 1, got {model_config.n_bands}")
+        if model_config.features not in FEATURES:
+            problems.append(f"model_config.features must be one of {FEATURES}, got "
+                            f"{model_config.features!r}")
+        return problems
 
     @classmethod
     def from_checkpoint(cls, ckpt: Checkpoint) -> "SvmBackend":
         fcfg = FeatureConfig.from_dict(ckpt.meta["feature_config"])
-        n_bands = int(ckpt.meta["model_config"]["n_bands"])
+        cfg = SvmConfig(**ckpt.meta["model_config"])
         arrays = SvmArrays.from_tensors(ckpt.tensors)
         problems = angular_problems(ckpt.meta, arrays.angular is not None)
         if problems:
             raise ValueError("; ".join(problems))
-        return cls(arrays, SvmFeaturizer(fcfg, ckpt.sample_rate, n_bands))
+        return cls(arrays, svm_featurizer(cfg, fcfg, ckpt.sample_rate))
 
     def predict(self, windows: np.ndarray, offsets: np.ndarray | None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        if offsets is not None:
-            windows = remove_from_audio(windows, offsets)
-        return self.arrays.predict(self.featurizer(windows))
+        return self.arrays.predict(self.featurizer(windows, offsets))
+
+    def infer_features(self, feats: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The model alone on log-mel ``(B, C, M, T)`` (offsets already removed); only an
+        SVM on log-mel reads them."""
+        if not self.reads_logmel:
+            raise ValueError("this SVM reads band features, not log-mel (features: bands)")
+        return self.arrays.predict(LogMelMeans.means(feats))

@@ -22,7 +22,7 @@ from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ModelConfig
 from aslip_ros.learn.models.registry import CNN
-from aslip_ros.learn.models.svm import SvmConfig
+from aslip_ros.learn.models.svm import FEATURES, SvmConfig
 from aslip_ros.learn.training.config import CALIBRATIONS, DEVICES, STAGES, TrainConfig, fit_stage
 from aslip_ros.learn.training.recipes import (DEFAULT_BUDGET_S, DEFAULT_RECIPES, RECIPES,
                                               run_selected)
@@ -127,6 +127,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("svm")
     g.add_argument("--svm-c", type=float, default=SvmConfig.C)
     g.add_argument("--svm-max-train", type=int, default=SvmConfig.max_train)
+    g.add_argument("--svm-features", choices=FEATURES, default=SvmConfig.features,
+                   help="--stage svm: band features (the paper's) or the time-averaged "
+                        "log-mel of each channel (the CNN's features)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -156,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
                           conditions=tuple(_csv(args.conditions) or ()) or None)
         fcfg = FeatureConfig(sample_rate=args.feature_rate, n_fft=args.n_fft, hop=args.hop,
                              n_mels=args.n_mels, fmin=args.fmin, fmax=args.fmax)
-        svm_config = SvmConfig(C=args.svm_c, max_train=args.svm_max_train)
+        svm_config = SvmConfig(C=args.svm_c, max_train=args.svm_max_train,
+                               features=args.svm_features)
         model_options = dict(width=args.width, depth=args.depth,
                              temporal_channels=args.temporal_channels,
                              temporal_layers=args.temporal_layers,

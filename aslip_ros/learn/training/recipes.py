@@ -9,8 +9,11 @@ Candidates (``RECIPES``), each trained on the dataset's training trials:
   unfrozen  the same with every encoder weight trainable at that smaller rate
   scratch   every weight from a random start, once per seed (``--seeds``)
   svm       the handcrafted-feature SVM baseline
+  svm_logmel  the same SVMs on the CNN's time-averaged log-mel (``SvmConfig.features``):
+            the plain regressor of the speed a careful engineer tries first
 
-and ``scratch_uncalibrated`` / ``svm_uncalibrated``, the same without the per-grasp
+and ``scratch_uncalibrated`` / ``svm_uncalibrated`` / ``svm_logmel_uncalibrated``, the
+same without the per-grasp
 calibration: whether the calibration helps on this recording is the data's to say (it cost
 direction on a scene where most slip of a grasp goes one way), with the calibration as the
 default hypothesis: an uncalibrated winner that the validation trials cannot tell from its
@@ -65,11 +68,14 @@ from aslip_ros.learn.training.selection import (CRITERION, METRICS, choose_outpu
                                                 score_difference, select, worth, worth_line)
 from aslip_ros.learn.training.train import train_svm
 
-RECIPES = ("frozen", "partial", "unfrozen", "scratch", "svm", "scratch_uncalibrated",
-           "svm_uncalibrated")
+RECIPES = ("frozen", "partial", "unfrozen", "scratch", "svm", "svm_logmel",
+           "scratch_uncalibrated", "svm_uncalibrated", "svm_logmel_uncalibrated")
 #: ``frozen`` and ``partial`` by name only: measured, their time is better spent on the
 #: others (docs/model.md, "Choosing the recipe").
-DEFAULT_RECIPES = ("unfrozen", "scratch", "scratch_uncalibrated", "svm", "svm_uncalibrated")
+DEFAULT_RECIPES = ("unfrozen", "scratch", "scratch_uncalibrated", "svm", "svm_uncalibrated",
+                   "svm_logmel", "svm_logmel_uncalibrated")
+#: The SVM recipes and the features each reads (``SvmConfig.features``).
+SVM_FEATURES = {"svm": "bands", "svm_logmel": "logmel"}
 NEEDS_PRETRAIN = ("frozen", "partial", "unfrozen")
 UNCALIBRATED = "_uncalibrated"
 ENCODER_LR_SCALE = 0.1
@@ -106,7 +112,7 @@ class Candidate:
 
     @property
     def is_svm(self) -> bool:
-        return self.start is None and self.base == "svm"
+        return self.start is None and self.base in SVM_FEATURES
 
 
 def plan(recipes: Iterable[str | Candidate] = DEFAULT_RECIPES,
@@ -198,7 +204,7 @@ def _job_config(cfg: TrainConfig, cand: Candidate, budget_s: float) -> TrainConf
         kw.update(stage="finetune", finetune_trainable=_TRAINABLE[cand.base],
                   encoder_lr_scale=1.0 if cand.base == "frozen" else ENCODER_LR_SCALE)
     else:
-        kw["stage"] = "svm" if cand.base == "svm" else "scratch"
+        kw["stage"] = "svm" if cand.base in SVM_FEATURES else "scratch"
     return dataclasses.replace(cfg, **kw)
 
 
@@ -311,7 +317,9 @@ class _Jobs:
         self.log(f"recipe {cand.name}: training")
         try:
             res = train_svm(self.ds, c, feature_config=kw["feature_config"],
-                            svm_config=self.svm_config, channels=kw["channels"], log=self.log)
+                            svm_config=dataclasses.replace(
+                                self.svm_config, features=SVM_FEATURES[cand.base]),
+                            channels=kw["channels"], log=self.log)
         except ValueError as exc:
             self.log(f"recipe {cand.name}: failed: {exc}")
             self.rows.append(_row(cand, "failed", error=str(exc)))

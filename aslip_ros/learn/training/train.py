@@ -27,13 +27,13 @@ import numpy as np
 
 from aslip_ros.learn.models.registry import model_fit
 from aslip_ros.learn.models.svm import SvmBackend
-from aslip_ros.learn.calibration.frames import remove_from_audio, training_calibration
+from aslip_ros.learn.calibration.frames import training_calibration
 from aslip_ros.learn.checkpoint import Checkpoint, checkpoint_meta
 from aslip_ros.learn.data_io import WindowSet
 from aslip_ros.learn.metrics import compute_metrics
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.calibration.output import checkpoint_fields
-from aslip_ros.learn.models.svm import SvmConfig, SvmFeaturizer, fit_svm, moving
+from aslip_ros.learn.models.svm import SvmConfig, fit_svm, moving, svm_featurizer
 from aslip_ros.learn.training.data import rotation_args, split_windows
 from aslip_ros.learn.inference.predictor import Predictor
 from aslip_ros.learn.training.config import TrainConfig, TrainResult, provenance
@@ -44,7 +44,8 @@ from aslip_ros.learn.training.config import TrainConfig, TrainResult, provenance
 def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig | None = None,
               svm_config: SvmConfig = SvmConfig(), channels: Sequence[str] | None = None,
               log: Callable[[str], None] = print) -> TrainResult:
-    """Fit the SVM baseline on (at most ``svm_config.max_train``) training windows."""
+    """Fit the SVM baseline on (at most ``svm_config.max_train``) training windows, on the
+    features ``svm_config.features`` names (band features or time-averaged log-mel)."""
     rng = np.random.default_rng(cfg.seed)
     channels = list(channels or ds.channel_names)
     cols = ds.channel_indices(channels)
@@ -61,15 +62,13 @@ def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
         n_neg = min(neg.size, svm_config.max_train - n_pos)
         tr = np.sort(np.concatenate([rng.choice(pos, n_pos, replace=False),
                                      rng.choice(neg, n_neg, replace=False)]))
-    featurizer = SvmFeaturizer(fcfg, ds.sample_rate, svm_config.n_bands)
-
-    def audio(idx: np.ndarray) -> np.ndarray:
-        a = ds.window_audio(idx, cols)
-        return a if offsets is None else remove_from_audio(a, offsets[idx])
+    featurizer = svm_featurizer(svm_config, fcfg, ds.sample_rate)
 
     def feats(idx: np.ndarray) -> np.ndarray:
-        return np.concatenate([featurizer(audio(idx[s:s + 512]))
-                               for s in range(0, idx.size, 512)])
+        chunks = (idx[s:s + 512] for s in range(0, idx.size, 512))
+        return np.concatenate([featurizer(ds.window_audio(c, cols),
+                                          None if offsets is None else offsets[c])
+                               for c in chunks])
 
     t0 = time.perf_counter()
     arrays, _ = fit_svm(feats(tr), ds.slip(tr), ds.velocity(tr), svm_config,
