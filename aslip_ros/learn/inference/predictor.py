@@ -240,6 +240,16 @@ class Predictor(PredictorBase):
             raise ValueError("audio window contains NaN or Inf")
         return x
 
+    def _window_offsets(self, offsets: np.ndarray | None, n: int) -> np.ndarray | None:
+        """``offsets`` as float32 ``(n, C)``, checked finite (None stays None)."""
+        if offsets is None:
+            return None
+        offsets = np.asarray(offsets, dtype=np.float32)
+        if offsets.shape != (n, self.n_channels) or not np.isfinite(offsets).all():
+            raise ValueError(f"offsets must be finite, shaped ({n}, {self.n_channels}), got "
+                             f"{offsets.shape}")
+        return offsets
+
     def predict(self, window: np.ndarray, offsets: np.ndarray | None = None) -> Prediction:
         """One window, shaped (window_samples, n_channels); ``offsets`` ``(C,)`` or None."""
         w = np.asarray(window)
@@ -254,12 +264,7 @@ class Predictor(PredictorBase):
         """Windows shaped (B, window_samples, n_channels). ``offsets`` ``(B, C)``: the
         per-grasp calibration of each window (natural-log power removed per channel)."""
         x = self._validate(windows)
-        if offsets is not None:
-            offsets = np.asarray(offsets, dtype=np.float32)
-            if offsets.shape != (x.shape[0], self.n_channels) or \
-                    not np.isfinite(offsets).all():
-                raise ValueError(f"offsets must be finite, shaped ({x.shape[0]}, "
-                                 f"{self.n_channels}), got {offsets.shape}")
+        offsets = self._window_offsets(offsets, x.shape[0])
         probs, vels, rates = [], [], []
         for s in range(0, max(x.shape[0], 1), batch_size):
             chunk = x[s:s + batch_size]
@@ -325,12 +330,7 @@ class Predictor(PredictorBase):
             raise ValueError(f"predict_window_features needs a model that reads windows and "
                              f"log-mel features; {self.model_type!r} does not")
         x = self._validate(windows)
-        if offsets is not None:
-            offsets = np.asarray(offsets, dtype=np.float32)
-            if offsets.shape != (x.shape[0], self.n_channels) or \
-                    not np.isfinite(offsets).all():
-                raise ValueError(f"offsets must be finite, shaped ({x.shape[0]}, "
-                                 f"{self.n_channels}), got {offsets.shape}")
+        offsets = self._window_offsets(offsets, x.shape[0])
         feats = np.asarray(feats, dtype=np.float32)
         return self._gate(*self._checked(both(x, feats, offsets), x.shape[0]))
 
