@@ -167,7 +167,10 @@ def test_streaming_calibration_in_the_node_equals_offline(live):
         sigmas.add(round(m.direction_sigma, 3))
     assert round(math.pi, 3) in sigmas                  # both before and after convergence
     assert sigmas - {round(math.pi, 3)} and sigmas - {round(math.pi, 3)} <= {0.8, 0.4}
-    assert moved > 1e-4                  # the uncalibrated answer would have differed
+    # The uncalibrated answer would have differed, by far more than the comparison's 1e-6
+    # tolerance (which hops are published depends on the load: the bound is 10x the
+    # tolerance, not a size of the shift; seen at 9.7e-5 m/s on a loaded run).
+    assert moved > 1e-5
     final = CalibrationState(k)
     final.update(frames)
     for name, g in zip(SCENE_NAMES, final.gain_db):

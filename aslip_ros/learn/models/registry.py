@@ -18,6 +18,11 @@ so the checkpoint format can consult the registry without importing any model. A
 module registers its backend with ``@register_model``. A streaming backend
 (``streaming = True``, ``aslip_stream``) runs per audio block, not per window.
 
+A window backend whose ``predict(windows, offsets)`` is exactly ``infer_features(
+logmel(windows) - offsets)`` (its ``logmel`` a ``features.LogMel``) says so with
+``reads_logmel = True`` (the CNN, an SVM on log-mel): the live estimator then hands it the
+log-mel it slides hop by hop instead of the whole window (learn/inference/live.py).
+
 A new model is one module that defines a config dataclass, a network and a backend class,
 registered by ``register_model`` or, for programs that do not import it (``aslip train``,
 ``aslip evaluate``, ``slip_inference``), declared by its distribution as an entry point
