@@ -157,7 +157,12 @@ def _closed_loop_nodes(context, controller, scenario, task_arg):
                                          {"scenario": context.launch_configurations.get(
                                              "scenario", scenario),
                                           "object": arg(context, "object"),
-                                          "seed": _given(context, "seed", 0)}]))
+                                          "seed": _given(context, "seed", 0),
+                                          # The scene starts once slip_inference reads the
+                                          # audio: on a slow machine it came up 4 s after
+                                          # the scene, the drag had begun, and the per-grasp
+                                          # calibration learnt the slip as background.
+                                          "start_with_subscriber": True}]))
     else:
         nodes.insert(0, Node(package="aslip_ros", executable="audio_capture",
                              name="audio_capture", output="screen", on_exit=required,

@@ -144,8 +144,9 @@ class SceneSim(Node):
                     f"graph has handled the last block, publishing {topics.CLOCK} (module "
                     "docstring); false = real time", read_only=True),
             c.Param("start_with_subscriber", False, f"hold the scene's clock at 0 until "
-                    f"{c.AUDIO_TOPIC} has a subscriber (a recorder), so a finite recording "
-                    "loses no scene second to a recorder that starts late", read_only=True),
+                    f"{c.AUDIO_TOPIC} has a subscriber (a recorder, or the closed loop's "
+                    "slip_inference), so no scene second is lost to a reader that starts "
+                    "late", read_only=True),
         ]
         self.p = c.declare_params(self, specs, self._on_change)
         self.world = build_world(self.p)
