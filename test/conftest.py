@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -25,6 +26,17 @@ if str(ROOT) not in sys.path:
     sys.path.append(str(ROOT))
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+# A suite started in the background of a non-interactive shell (`make test &`, nohup, some
+# CI runners) inherits SIGINT and SIGQUIT ignored, and so would every process it starts.
+# `ros2 launch` installs no SIGINT handler of its own (it relies on Python's, which Python
+# does not install over an inherited SIG_IGN): a launch started that way never hears the
+# SIGINT a test sends it and runs until killed. The suite's children start as from a
+# terminal instead (exec resets a handled signal to its default).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+if signal.getsignal(signal.SIGQUIT) is signal.SIG_IGN:
+    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 

@@ -172,6 +172,45 @@ class Bus:
         self.node.destroy_node()
 
 
+def in_process(context, name: str, params: dict | None = None):
+    """Node ``name`` of the node table built in this process on ``context`` with ``params``
+    as its start parameters, the way its executable builds it. Where the process is not the
+    point (a parameter's check, at start or at run time) this saves a node process's start
+    (3-5 s of CPU for slip_inference)."""
+    import importlib
+
+    from rclpy.parameter import Parameter
+
+    from aslip_ros import node_table
+    row = node_table.spec(name)
+    cls = getattr(importlib.import_module(row.module), row.node_class)
+    return cls(context=context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in (params or {}).items()])
+
+
+def refusal(context, name: str, params: dict) -> str:
+    """Why node ``name`` refuses to start with ``params`` (:func:`in_process`): the text its
+    executable prints after "refused to start:" before it exits 2 (runtime/process.py,
+    exercised as a process by one test per node). AssertionError when it starts."""
+    from rclpy.exceptions import ParameterException
+
+    from aslip_ros.runtime.process import ConfigError
+    try:
+        node = in_process(context, name, params)
+    except (ConfigError, ParameterException) as exc:
+        assert str(exc), f"{name} refused {params} without saying why"
+        return str(exc)
+    node.destroy_node()
+    raise AssertionError(f"{name} started with {params}")
+
+
+def set_params(node, values: dict) -> list:
+    """``node.set_parameters`` of ``values``: the SetParametersResult list a remote
+    ``set_parameters`` call would get (the same callbacks decide)."""
+    from rclpy.parameter import Parameter
+    return node.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+
+
 def make_checkpoint(path, channel_names=SCENE_NAMES, sample_rate: float = 48000.0,
                     window_s: float = 0.05, slip_logit: float | None = None,
                     velocity=(0.02, 0.0), seed: int = 0, angular: bool = False) -> Path:

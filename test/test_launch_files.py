@@ -682,6 +682,23 @@ def _wait_text(log: Path, text: str, timeout: float) -> bool:
     return False
 
 
+def test_a_suite_started_in_the_background_starts_interruptible_children():
+    """A suite run as `make test &` inherits SIGINT ignored; ros2 launch, started from it,
+    then ignored the SIGINT of the test above and ran until killed (60 s, every time, in a
+    background run). conftest gives the suite's children a terminal's SIGINT."""
+    child = ("import signal, subprocess, sys\n"
+             f"sys.path.insert(0, {str(ROOT / 'test')!r})\n"
+             "import conftest\n"
+             "print(subprocess.run([sys.executable, '-c', 'import signal; "
+             "print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN)'], "
+             "capture_output=True, text=True).stdout.strip())\n")
+    out = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True,
+                         timeout=120,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "False", out.stdout
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_ros2_launch_leaves_no_node_behind(ros_env, tmp_path, sig):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
-from aslip_ros.learn.features import FeatureConfig, LogMel, normalization_stats
+from aslip_ros.learn.features import (FeatureConfig, LogMel, antialias_taps, normalization_stats,
+                                      periodic_hann)
 
 
 def reference_mel_fb(sr, n_fft, n_mels, fmin, fmax):
@@ -63,6 +64,19 @@ def test_resampler_equals_scipy_polyphase():
         x = rng.standard_normal((n, 2)).astype(np.float32)
         ref = sps.resample_poly(x.astype(np.float64), 1, 3, axis=0)
         np.testing.assert_allclose(lm.resample(x), ref, atol=1e-5)
+
+
+@pytest.mark.parametrize("rate", [2, 3, 4, 6, 441])
+def test_antialias_taps_are_resample_polys_filter(rate):
+    """The filter scipy.signal.resample_poly designs for this ratio (firwin, Kaiser 5.0)."""
+    ref = sps.firwin(20 * rate + 1, 1.0 / rate, window=("kaiser", 5.0))
+    np.testing.assert_allclose(antialias_taps(rate), ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [16, 400, 512, 1024])
+def test_periodic_hann_is_scipys_hann(n):
+    np.testing.assert_allclose(periodic_hann(n), sps.get_window("hann", n, fftbins=True),
+                               rtol=0, atol=1e-12)
 
 
 def test_batch_equals_single_and_shapes():

@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from node_support import Bus, NodeProcess
+from node_support import Bus, NodeProcess, in_process, refusal, set_params
 
 pytestmark = pytest.mark.ros
 
@@ -329,30 +329,29 @@ def test_unreachable_xarm_is_reported_and_the_node_stays_safe(rclpy_context, ros
 
 
 def test_controller_parameters_validated_at_start_and_at_run_time(rclpy_context, ros_env):
+    """The executable's exit 2 on a refusal (one process); the other checks in this
+    process, through the same parameter callbacks a remote set_parameters reaches."""
     proc = NodeProcess("slip_stop", ros_env, {"retract_distance_m": 0.2,
                                               "max_approach_distance_m": 0.15})
     assert proc.proc.wait(30) == 2
     assert "must exceed retract_distance_m" in proc.stop()
-    proc = NodeProcess("slip_track", ros_env, {"slip_timeout_s": 5.0})
-    assert proc.proc.wait(30) == 2
-    assert "slip_timeout_s" in proc.stop()
-    proc = NodeProcess("slip_stop", ros_env, {"rotation_threshold_rad_s": 0.0})
-    assert proc.proc.wait(30) == 2
-    assert "rotation_threshold_rad_s" in proc.stop()
-    bus = Bus(rclpy_context)
-    with NodeProcess("slip_track", ros_env) as ctl:
-        ctl.wait_ready()
+    assert "slip_timeout_s" in refusal(rclpy_context, "slip_track", {"slip_timeout_s": 5.0})
+    assert "rotation_threshold_rad_s" in refusal(rclpy_context, "slip_stop",
+                                                 {"rotation_threshold_rad_s": 0.0})
+    ctl = in_process(rclpy_context, "slip_track")
+    try:
         for bad in ({"gain": -1.0}, {"slip_timeout_s": 5.0}, {"grasp_plane_in_tcp": [0.0] * 7},
                     {"arm": "xarm"}):
-            res = bus.set_params("slip_track", bad)
-            assert not res[0].successful, bad
-        ok = bus.set_params("slip_track", {"gain": 0.5})
-        assert ok[0].successful
-    with NodeProcess("slip_stop", ros_env) as ctl:
-        ctl.wait_ready()
+            assert not set_params(ctl, bad)[0].successful, bad
+        assert set_params(ctl, {"gain": 0.5})[0].successful
+    finally:
+        ctl.destroy_node()
+    ctl = in_process(rclpy_context, "slip_stop")
+    try:
         for bad in ({"rotation_threshold_rad_s": -1.0}, {"rotation_threshold_rad_s": 0.0},
                     {"stop_on_rotation": "yes"}):
-            assert not bus.set_params("slip_stop", bad)[0].successful, bad
+            assert not set_params(ctl, bad)[0].successful, bad
         for good in ({"rotation_threshold_rad_s": 1.5}, {"stop_on_rotation": False}):
-            assert bus.set_params("slip_stop", good)[0].successful, good
-    bus.close()
+            assert set_params(ctl, good)[0].successful, good
+    finally:
+        ctl.destroy_node()

@@ -10,7 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from node_support import SCENE_NAMES, Bus, NodeProcess, make_checkpoint, header_ns
+from node_support import (SCENE_NAMES, Bus, NodeProcess, header_ns, in_process, make_checkpoint,
+                          refusal, set_params)
 
 pytestmark = pytest.mark.ros
 
@@ -388,39 +389,37 @@ def test_threshold_parameter_decides_slipping(rclpy_context, ros_env, tmp_path):
     ({"checkpoint": "CKPT", "hop_s": -0.01, "threshold": 1.5}, "hop_s"),
     ({"checkpoint": "CKPT", "dead_channel_margin_db": 6.0}, "dead_channel_margin_db"),
 ])
-def test_invalid_parameters_refused_at_start(ros_env, known_ckpt, params, needle):
+def test_invalid_parameters_refused_at_start(rclpy_context, known_ckpt, params, needle):
+    """In this process: the executable's exit 2 on a refusal is
+    test_checkpoint_with_bad_metadata_is_refused_at_start's process case."""
     params = {k: (str(known_ckpt) if v == "CKPT" else v) for k, v in params.items()}
-    proc = NodeProcess("slip_inference", ros_env, params)
+    assert needle in refusal(rclpy_context, "slip_inference", params)
+
+
+def test_invalid_parameters_refused_at_run_time(rclpy_context, known_ckpt):
+    node = in_process(rclpy_context, "slip_inference", {"checkpoint": str(known_ckpt)})
     try:
-        code = proc.proc.wait(60)
-    finally:
-        out = proc.stop()
-    assert code == 2, out
-    assert "refused to start" in out and needle in out, out
-
-
-def test_invalid_parameters_refused_at_run_time(rclpy_context, ros_env, known_ckpt):
-    bus = Bus(rclpy_context)
-    with NodeProcess("slip_inference", ros_env, {"checkpoint": str(known_ckpt)}) as inf:
-        inf.wait_ready()
-        bad = bus.set_params("slip_inference", {"hop_s": 0.0})
+        bad = set_params(node, {"hop_s": 0.0})
         assert not bad[0].successful and "hop_s" in bad[0].reason
-        bad = bus.set_params("slip_inference", {"threshold": -0.5})
+        bad = set_params(node, {"threshold": -0.5})
         assert not bad[0].successful
-        bad = bus.set_params("slip_inference", {"dead_channel_margin_db": -40.0})
+        bad = set_params(node, {"dead_channel_margin_db": -40.0})
         assert not bad[0].successful and "dead_channel_margin_db" in bad[0].reason
-        ro = bus.set_params("slip_inference", {"checkpoint": "/other.pt"})
+        ro = set_params(node, {"checkpoint": "/other.pt"})
         assert not ro[0].successful                      # read-only at run time
-        ok = bus.set_params("slip_inference", {"threshold": 0.7, "hop_s": 0.02})
+        ok = set_params(node, {"threshold": 0.7, "hop_s": 0.02})
         assert all(r.successful for r in ok)
-    bus.close()
+    finally:
+        node.destroy_node()
 
 
-@pytest.mark.parametrize("edit", [{"window_samples": -5}, {"model_config": None}])
-def test_checkpoint_with_bad_metadata_is_refused_at_start(ros_env, known_ckpt, tmp_path,
-                                                          edit):
+@pytest.mark.parametrize("edit, process", [({"window_samples": -5}, True),
+                                           ({"model_config": None}, False)])
+def test_checkpoint_with_bad_metadata_is_refused_at_start(ros_env, rclpy_context, known_ckpt,
+                                                          tmp_path, edit, process):
     """A checkpoint whose metadata passes the safe unpickler but not its contract (the node
-    once crashed on window_samples -5 with a traceback) is refused with exit 2, naming it."""
+    once crashed on window_samples -5 with a traceback) is refused, naming it: the
+    executable exits 2 without a traceback (the process case), the node says why."""
     import json
 
     import torch
@@ -431,6 +430,9 @@ def test_checkpoint_with_bad_metadata_is_refused_at_start(ros_env, known_ckpt, t
     payload["meta"] = json.dumps(meta)
     bad = tmp_path / "bad.pt"
     torch.save(payload, bad)
+    if not process:
+        assert str(bad) in refusal(rclpy_context, "slip_inference", {"checkpoint": str(bad)})
+        return
     proc = NodeProcess("slip_inference", ros_env, {"checkpoint": str(bad)})
     try:
         code = proc.proc.wait(60)

@@ -23,9 +23,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal as sps
 
-from aslip_ros.learn.features import FeatureConfig, mel_filterbank, resample_ratio
+from aslip_ros.learn.features import (FeatureConfig, antialias_taps, mel_filterbank,
+                                      periodic_hann, resample_ratio)
 
 
 def decimation_factor(input_rate: float, feature_rate: float) -> int:
@@ -48,8 +48,7 @@ def decimation_filter(factor: int) -> np.ndarray:
     """Anti-alias FIR taps for decimation by ``factor`` (``[1.0]`` when factor is 1)."""
     if factor == 1:
         return np.ones(1, np.float32)
-    half = 10 * factor
-    return sps.firwin(2 * half + 1, 1.0 / factor, window=("kaiser", 5.0)).astype(np.float32)
+    return antialias_taps(factor).astype(np.float32)
 
 
 class StreamingLogMel:
@@ -67,7 +66,7 @@ class StreamingLogMel:
         self.n_channels = int(n_channels)
         self.factor = decimation_factor(self.input_rate, cfg.sample_rate)
         self.fir = decimation_filter(self.factor)
-        self.window = sps.get_window("hann", cfg.n_fft, fftbins=True).astype(np.float32)
+        self.window = periodic_hann(cfg.n_fft).astype(np.float32)
         self.fb_t = np.ascontiguousarray(mel_filterbank(cfg).T)      # (n_bins, n_mels)
         self.reset()
 
