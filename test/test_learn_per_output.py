@@ -181,6 +181,38 @@ def test_the_choice_takes_each_output_from_the_candidate_better_at_it():
     assert {row["from"] for row in alone.values()} == {"cnn"}
 
 
+def test_of_two_parts_the_trials_cannot_tell_apart_the_cheaper_one_gives_the_output():
+    """The live budget in the choice: two speed regressors as good as each other, one whose
+    combination with the winner costs a fifth of the other's (it reads the winner's
+    log-mel), give the speed from the cheaper; one clearly worse does not, however cheap."""
+    ds = _ValSet()
+    va = np.arange(len(ds.windows["trial"]))
+    results = {"cnn": _candidate(ds, va, 1.6, 5.0, 0.97, seed=1),
+               "svm": _candidate(ds, va, 1.0, 60.0, 0.85, seed=2),
+               "svm_logmel": _candidate(ds, va, 1.0, 60.0, 0.85, seed=5)}
+    costs = {"cnn": 2.0, "svm": 9.0, "svm_logmel": 2.4}
+    asked = []
+
+    def cost(role, name):
+        asked.append((role, name))
+        return costs[name]
+    out = selection.choose_outputs(ds, va, results, "cnn", cost=cost)
+    assert out["speed"]["from"] == "svm_logmel", out["speed"]
+    assert "cannot be told apart from svm" in out["speed"]["why"]
+    assert out["speed"]["cost_ms"] == {"svm": 9.0, "svm_logmel": 2.4}
+    assert {r for r, _ in asked} == {"speed"}        # only where an output changes hands
+    # Without a cost, or with one that does not save enough, the best gives it.
+    assert selection.choose_outputs(ds, va, results, "cnn")["speed"]["from"] in (
+        "svm", "svm_logmel")
+    costs["svm_logmel"] = 0.9 * costs["svm"]
+    best = selection.choose_outputs(ds, va, results, "cnn")["speed"]["from"]
+    assert selection.choose_outputs(ds, va, results, "cnn", cost=cost)["speed"]["from"] == best
+    # Cheap but clearly worse than the best (its speed 20 % high): not taken.
+    results["svm_logmel"] = _candidate(ds, va, 1.2, 60.0, 0.85, seed=5)
+    costs["svm_logmel"] = 2.4
+    assert selection.choose_outputs(ds, va, results, "cnn", cost=cost)["speed"]["from"] == "svm"
+
+
 def test_the_composed_model_scores_each_output_as_its_part_did(parts):
     """``compose`` on real checkpoints: the validation metrics of the combination are the
     chosen parts' own, and the checkpoint it writes predicts what the parts predict."""
@@ -212,3 +244,8 @@ def test_the_composed_model_scores_each_output_as_its_part_did(parts):
     assert set(res.meta["provenance"]["per_output"]["latency_ms"]) == {"per_output", "a"}
     # The winner giving every output: no composition.
     assert selection.compose(ds, va, results, "a", {"speed": {"from": "a"}}) is None
+    # What a combination costs, timed on the assembled model (each asked once).
+    cost = selection.combination_cost(ds, va, results, "a")
+    alone, both = cost("speed", "a"), cost("speed", "b")
+    assert 0.0 < alone < np.inf and 0.0 < both < np.inf
+    assert cost("speed", "b") == both

@@ -414,12 +414,15 @@ def test_cuda_without_a_gpu_is_a_clear_error(data, tmp_path, capsys, monkeypatch
     assert not (tmp_path / "c.pt").exists()
 
 
-def test_device_auto_trains_on_cpu_here(data, tmp_path, monkeypatch):
+def test_the_default_device_is_auto_and_the_checkpoint_names_the_one_used(data, tmp_path,
+                                                                          monkeypatch):
+    """No --device: a GPU where torch sees one (#38), here the CPU, which provenance names."""
     _, _, ext = data
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert train_config.TrainConfig().device == "auto"
     out = tmp_path / "a.pt"
-    assert cli(["--dataset", str(ext), "--stage", "scratch", "--device", "auto", "--out",
-                str(out), "--epochs", "1"] + SMALL) == 0
+    assert cli(["--dataset", str(ext), "--stage", "scratch", "--out", str(out),
+                "--epochs", "1"] + SMALL) == 0
     ck = load_checkpoint(out)
     assert ck.meta["provenance"]["device"] == "cpu"
     assert ck.meta["train_config"]["device"] == "auto"

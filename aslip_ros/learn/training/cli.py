@@ -77,8 +77,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", default=None, help="checkpoint to finetune (--stage finetune)")
     _add_auto_arguments(p)
     p.add_argument("--device", choices=DEVICES, default=d.device,
-                   help="where the network trains: cpu (default), cuda, or auto (a CUDA GPU "
-                        "where torch sees one, else the CPU)")
+                   help="where the network trains: auto (default: a CUDA GPU where torch "
+                        "sees one, else the CPU), cuda, or cpu (the CPU's exact numbers)")
     p.add_argument("--out", required=True, help="checkpoint file to write")
     p.add_argument("--seed", type=int, default=d.seed, help="training seed")
     p.add_argument("--split-seed", type=int, default=d.split_seed,

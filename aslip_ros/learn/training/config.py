@@ -78,7 +78,7 @@ class TrainConfig:
     induced: str | None = None
     objects: tuple[str, ...] | None = None
     conditions: tuple[str, ...] | None = None
-    device: str = "cpu"            # auto | cpu | cuda (resolve_device)
+    device: str = "auto"           # auto | cpu | cuda (resolve_device): a GPU where there is one
     encoder_lr_scale: float = 1.0  # learning rate of trainable encoder weights, times lr
     # Encoder parts a finetune trains (network.ENCODER_PARTS); () is the paper's frozen one.
     finetune_trainable: tuple[str, ...] = ()

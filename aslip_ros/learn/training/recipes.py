@@ -61,10 +61,11 @@ from aslip_ros.learn.models.aslip_cnn import ENCODER_PARTS
 from aslip_ros.learn.models.aslip_cnn_fit import finetune, scratch, train_cnn
 from aslip_ros.learn.models.svm import SvmConfig
 from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, successive_halving)
-from aslip_ros.learn.training.config import TrainConfig, TrainResult
+from aslip_ros.learn.training.config import TrainConfig, TrainResult, resolve_device
 from aslip_ros.learn.training.data import split_windows
 from aslip_ros.learn.models.per_output import PerOutputBackend
-from aslip_ros.learn.training.selection import (CRITERION, METRICS, choose_outputs, compose,
+from aslip_ros.learn.training.selection import (CRITERION, METRICS, choose_outputs,
+                                                combination_cost, compose,
                                                 score_difference, select, worth, worth_line)
 from aslip_ros.learn.training.train import train_svm
 
@@ -367,11 +368,12 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
                        "pretrain_fraction": PRETRAIN_FRACTION, "rounds": run.rounds,
                        "rest": run.rest},
         "wall_s": round(time.perf_counter() - run.t0, 1), "dataset": str(ds.root),
-        "split_seed": cfg.split_seed, "device": cfg.device,
+        "split_seed": cfg.split_seed, "device": str(resolve_device(cfg.device)),
         "train_trials": _trial_names(ds, tr), "val_trials": _trial_names(ds, va),
         "test_trials_untouched": _trial_names(
             ds, ds.dataset.select("test", seed=cfg.split_seed))}
-    outputs = choose_outputs(ds, va, run.results, winner)
+    outputs = choose_outputs(ds, va, run.results, winner,
+                             cost=combination_cost(ds, va, run.results, winner))
     selection["outputs"] = outputs
     best = compose(ds, va, run.results, winner, outputs) or run.results[winner]
     if best.meta["model_type"] == PerOutputBackend.model_type:

@@ -21,12 +21,16 @@ the same trial resamples (the paired interval of the difference excludes 0); an 
 trials cannot tell apart stays the winner's. Where any output changes hands, the model is
 a ``per_output`` checkpoint (learn/models/per_output.py) of the candidates that give them,
 with its threshold and sigma models fitted again on its own validation predictions.
+Among the candidates better than the winner at an output, one that the trials cannot tell
+apart from the best of them but that costs the combination clearly less time per window
+(``combination_cost``: typically a part that reads the winner's log-mel rather than
+features of its own) gives it instead: the live budget is part of the choice.
 """
 
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -201,12 +205,20 @@ def _candidate_metric(ds: WindowSet, va: np.ndarray, pred: dict[str, Any], key: 
     return metric
 
 
+#: A part that the trials cannot tell from the best one replaces it where the combination
+#: with it costs at most this fraction of the time per window (``choose_outputs``).
+CHEAPER = 0.8
+
+
 def choose_outputs(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult],
-                   winner: str, n_boot: int = N_BOOT, seed: int = 0) -> dict[str, Any]:
+                   winner: str, n_boot: int = N_BOOT, seed: int = 0,
+                   cost: Callable[[str, str], float] | None = None) -> dict[str, Any]:
     """Per output, the candidate that gives it (module docstring), with each choice's worth:
     ``{role: {"from", "metric", "value", "winner_value", "difference", "ci", "why"}}``.
     The winner gives every output it is not beaten on; roles the winner lacks are left out
-    (rotation without angular labels or without the winner's rotational output)."""
+    (rotation without angular labels or without the winner's rotational output).
+    ``cost(role, name)``: milliseconds per window of the model with ``name`` giving
+    ``role`` (``combination_cost``); None: the best candidate gives it whatever it costs."""
     trial = _val_trials(ds, va)
     preds = {n: r.val_pred for n, r in results.items() if r.val_pred is not None}
     if winner not in preds:
@@ -238,12 +250,80 @@ def choose_outputs(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult
                 row.update({"from": best, "value": vals[best]})
                 row["why"] = (f"{best} is better than {winner} on the same trial resamples "
                               f"({key} {d[0]:+.3g} [{d[1]:+.3g}, {d[2]:+.3g}])")
+                if cost is not None:
+                    _cheaper_part(row, role, trial, fns, vals, winner, higher, cost,
+                                  n_boot, seed)
             else:
                 row["why"] = (f"{best} ({vals[best]:.3g}) cannot be told apart from the "
                               f"winner {winner} ({vals[winner]:.3g}) on these trials "
                               f"(difference {d[0]:+.3g} [{d[1]:+.3g}, {d[2]:+.3g}])")
         out[role] = row
     return out
+
+
+def _cheaper_part(row: dict[str, Any], role: str, trial: np.ndarray, fns: dict, vals: dict,
+                  winner: str, higher: bool, cost: Callable[[str, str], float], n_boot: int,
+                  seed: int) -> None:
+    """``row`` (best chosen, better than the winner) given instead by the cheapest candidate
+    that is also better than the winner and cannot be told apart from the best, where its
+    combination costs at most ``CHEAPER`` of the best's."""
+    best = row["from"]
+    costs = {best: cost(role, best)}
+    row["cost_ms"] = {best: costs[best]}
+    for n in sorted(vals, key=lambda n: -vals[n] if higher else vals[n]):
+        if n in (best, winner):
+            continue
+        costs[n] = cost(role, n)
+        row["cost_ms"][n] = costs[n]
+        if costs[n] > CHEAPER * costs[best]:
+            continue
+        vs_winner = paired_difference(trial, fns[n], fns[winner], n_boot=n_boot, seed=seed)
+        vs_best = paired_difference(trial, fns[n], fns[best], n_boot=n_boot, seed=seed)
+        if not (vs_winner[1] > 0.0 if higher else vs_winner[2] < 0.0) or \
+                not vs_best[1] <= 0.0 <= vs_best[2]:
+            continue
+        row.update({"from": n, "value": vals[n]})
+        row["why"] = (f"{n} cannot be told apart from {best} ({row['metric']} "
+                      f"{vs_best[0]:+.3g} [{vs_best[1]:+.3g}, {vs_best[2]:+.3g}]), is better "
+                      f"than {winner} ({vs_winner[0]:+.3g} [{vs_winner[1]:+.3g}, "
+                      f"{vs_winner[2]:+.3g}]) and costs the model {costs[n]:.2f} ms per "
+                      f"window against {costs[best]:.2f} ms with {best}")
+        return
+
+
+def _roles(results: dict[str, TrainResult], winner: str,
+           chosen: dict[str, str]) -> dict[str, str]:
+    """Every role of a per-output model: ``chosen``'s, the winner's for the rest (rotation
+    too where the winner estimates it, though no validation window rotates to choose on)."""
+    roles = dict(chosen)
+    for role in ("detection", "speed", "direction"):
+        roles.setdefault(role, winner)
+    if "rotation" not in roles and estimates_rotation(results[winner].meta):
+        roles["rotation"] = winner
+    return roles
+
+
+def combination_cost(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult],
+                     winner: str) -> Callable[[str, str], float]:
+    """``cost(role, name)``: the median milliseconds per window (``window_latency_ms``) of
+    the model that takes ``role`` from ``name`` and every other output from the winner."""
+    cache: dict[tuple[str, str], float] = {}
+    parts = {winner: results[winner].checkpoint()}
+
+    def cost(role: str, name: str) -> float:
+        if (role, name) not in cache:
+            if name not in parts:
+                parts[name] = results[name].checkpoint()
+            roles = _roles(results, winner, {role: name})
+            try:
+                ck = (parts[winner] if name == winner else
+                      assemble({n: parts[n] for n in set(roles.values())}, roles))
+            except ValueError:                 # parts that cannot run together
+                cache[role, name] = float("inf")
+            else:
+                cache[role, name] = window_latency_ms(ds, va, {"m": ck})["m"]
+        return cache[role, name]
+    return cost
 
 
 def compose(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult], winner: str,
@@ -254,10 +334,7 @@ def compose(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult], winn
     roles = {role: row["from"] for role, row in outputs.items()}
     if all(n == winner for n in roles.values()):
         return None
-    for role in ("detection", "speed", "direction"):
-        roles.setdefault(role, winner)
-    if "rotation" not in roles and estimates_rotation(results[winner].meta):
-        roles["rotation"] = winner        # no rotating validation window to choose on
+    roles = _roles(results, winner, roles)
     names = sorted(set(roles.values()))
     ck = assemble({n: results[n].checkpoint() for n in names}, roles)
     pred = {n: results[n].val_pred for n in names}

@@ -69,7 +69,7 @@ class StreamTrainConfig:
     fa_per_min: float = 2.0        # validation false alarms per minute the threshold allows
     threads: int = 1
     progress: bool = True
-    device: str = "cpu"            # auto | cpu | cuda (training.config.resolve_device)
+    device: str = "auto"           # auto | cpu | cuda (training.config.resolve_device)
     # Per-grasp calibration (as the window models'): off, or a method of calibration.grasp.
     # ``aslip train`` defaults to background.
     calibration: str = "off"
