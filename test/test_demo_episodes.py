@@ -58,7 +58,8 @@ def test_slip_stop_episode_through_node_processes(rclpy_context, ros_env, tmp_pa
     _check_slip_stop(result, traj)
 
 
-def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_log=None):
+def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_log=None,
+                       **extra):
     from std_msgs.msg import String
 
     from benchmarks.demo_episode import StopSettings
@@ -84,7 +85,7 @@ def _slip_stop_episode(rclpy_context, ros_env, tmp_path, checkpoint=None, slip_l
                   + s.overshoot_limit_m, "debounce_count": s.debounce_count,
                   "settle_result_s": s.settle_result_s,
                   "slip_timeout_s": EPISODE_INPUT_TIMEOUT_S,
-                  "pose_timeout_s": EPISODE_INPUT_TIMEOUT_S}
+                  "pose_timeout_s": EPISODE_INPUT_TIMEOUT_S, **extra}
 
     def final():
         return [json.loads(m.data) for m in bus.messages(RESULT_TOPIC)
@@ -128,10 +129,14 @@ def _check_slip_stop(result, traj):
 
 def test_slip_stop_episode_with_the_streaming_model(rclpy_context, ros_env, tmp_path):
     """The streaming checkpoint in slip_inference closes the slip-stop loop: the controller
-    acts on its per-hop estimates and stops the arm on slip, within the CNN's bound."""
+    acts on its per-hop estimates and stops the arm on slip, within the CNN's bound. Its
+    rotation estimate is left out of the stop (stop_on_rotation false; rotation stops:
+    test_nodes_control): beside two busy loops it once reached the rotation threshold
+    first on this planar push, and which of the two fires first is not what this tests."""
     assert STREAM.is_file(), STREAM
     slips: list = []
-    result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path, str(STREAM), slips)
+    result, traj = _slip_stop_episode(rclpy_context, ros_env, tmp_path, str(STREAM), slips,
+                                      stop_on_rotation=False)
     assert result["reason"] == "slip", result
     assert len(slips) > 50 and {m.source for m in slips} == {"aslip_stream"}
     assert all(abs(m.window_length - 0.032) < 1e-6 for m in slips)     # float32 field

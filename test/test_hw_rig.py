@@ -226,8 +226,11 @@ def test_fifo_paced_alsa_capture_delivers_the_rigs_samples_in_real_time(
     lag = np.array(out["host_time"]) - true
     print(f"\n{layout}: {rate:.2f} blocks/s; host_time - true: median "
           f"{1e3 * np.median(lag):.2f} ms, p95 {1e3 * np.percentile(lag, 95):.2f} ms")
-    # The rig writes a block when its first frame is due; the capture stamps its arrival.
-    assert -0.002 < float(np.median(lag)) < 0.006
+    # The rig writes a block when its first frame is due; the capture stamps its arrival:
+    # within a block of it, not a block late (a stamp of the block's end, or of the next
+    # block's start, would be 10 ms late). Beside busy loops the arrival itself is late by a
+    # few ms of scheduling (seen: median 6.7 ms with -n 2 and two hogs).
+    assert -0.002 < float(np.median(lag)) < 0.75 * BLOCK / FS
 
 
 # -- the fake xArm: the real adapter over the fake SDK ------------------------------------------

@@ -80,6 +80,12 @@ def _v(m):
     return np.array([m.twist.linear.x, m.twist.linear.y, m.twist.linear.z])
 
 
+def _speed(m) -> float:
+    """A TwistStamped command's linear speed [m/s]."""
+    v = m.twist.linear
+    return float(np.linalg.norm([v.x, v.y, v.z]))
+
+
 def _stamp(m):
     return m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
 
@@ -252,14 +258,18 @@ def _wall_push_result(rclpy_context, ros_env, extra: dict) -> dict:
             assert ctl.wait_for("retracting", 20), ctl.output
             src.angular = -1.0              # rotation only: planar slip 0, not slipping
             assert bus.wait(lambda: bool(final()), 10), ctl.output
-            n_cmds = len(bus.messages(CMD))
-            # Latched: more rotation and now planar slip too, and no command follows the
-            # stop over 0.3 s of the scene's own time.
+            # Latched: more rotation and now planar slip too, and no moving command follows
+            # the stop over 0.3 s of the scene's own time. By stamps, not by counts: commands
+            # published before the result can reach this reader after it (two topics, and
+            # a loaded reader; seen: 17 of them beside two busy loops).
             src.velocity = (-0.02, 0.0)
             assert bus.wait(lambda: len(bus.messages(TCP)) > 0, 20), "no TCP pose"
             m0 = bus.messages(TCP)[-1]
             assert bus.wait(lambda: _stamp(bus.messages(TCP)[-1]) - _stamp(m0) > 0.3, 30)
-            assert len(bus.messages(CMD)) == n_cmds
+            cmds = bus.messages(CMD)
+            last = max(cmds, key=_stamp)
+            assert _speed(last) == 0.0, last
+            assert all(_stamp(m) < _stamp(last) for m in cmds if _speed(m) > 0.0)
             return final()[-1]
     finally:
         src.close()

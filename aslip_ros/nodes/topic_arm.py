@@ -20,8 +20,10 @@ from aslip_ros.runtime.qos import RELIABLE_QOS
 from aslip_ros.nodes import convert
 
 
-#: How long :meth:`TopicArm.close` waits for the readers to acknowledge the final stop [s].
-ACK_TIMEOUT_S = 1.0
+#: How long :meth:`TopicArm.close` waits for the readers to acknowledge the final stop [s]:
+#: 1 s was too short beside two busy loops (the warning below, 1 launch in 2); the wait
+#: stays well inside the process's forced-exit grace (runtime/process.py EXIT_GRACE_S).
+ACK_TIMEOUT_S = 2.0
 
 
 class TopicArm:
