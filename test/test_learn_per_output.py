@@ -210,7 +210,9 @@ def test_of_two_parts_the_trials_cannot_tell_apart_the_cheaper_one_gives_the_out
     # Cheap but clearly worse than the best (its speed 20 % high): not taken.
     results["svm_logmel"] = _candidate(ds, va, 1.2, 60.0, 0.85, seed=5)
     costs["svm_logmel"] = 2.4
+    asked.clear()
     assert selection.choose_outputs(ds, va, results, "cnn", cost=cost)["speed"]["from"] == "svm"
+    assert asked == [("speed", "svm")]          # a part not good enough is never timed
 
 
 def test_the_composed_model_scores_each_output_as_its_part_did(parts):

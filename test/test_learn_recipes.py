@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from aslip_ros.learn.training import allocation, recipes, selection
+from aslip_ros.learn.training import allocation, folds, recipes, selection
+from aslip_ros.learn.training.data import split_windows
 
 from aslip_ros.learn.models import aslip_cnn_fit
 
@@ -308,6 +309,10 @@ def test_worth_says_when_the_two_cannot_be_told_apart():
 
 
 def test_validation_never_shares_a_trial_with_training(data, tmp_path):
+    """With fewer than K_FOLD_BELOW validation trials (2 of this dataset's 14) the choice is
+    made on folds by trial: each fold's models validate on trials they never trained on,
+    the folds pool every training and validation trial of the split and no test trial, the
+    candidates are scored on those pooled windows and the final model trains on them all."""
     root, robot, ext = data
     out = tmp_path / "auto.pt"
     assert cli(["--dataset", str(ext), "--pretrain-dataset", str(robot), "--out", str(out),
@@ -317,26 +322,56 @@ def test_validation_never_shares_a_trial_with_training(data, tmp_path):
     assert kept == ["frozen.pt", "scratch_s0.pt", "svm.pt"]
     sel = json.loads((tmp_path / "auto.pt.selection.json").read_text())
     assert (tmp_path / "auto.pt.selection.md").read_text().count("| ") > 3
-    train_t, val_t = set(sel["train_trials"]), set(sel["val_trials"])
-    test_t = set(sel["test_trials_untouched"])
-    assert train_t and val_t and test_t
-    assert not train_t & val_t and not (train_t | val_t) & test_t
     ds = open_dataset(ext)
     splits = dict(zip((t["id"] for t in ds.trials), trial_splits(ds)))
-    assert {splits[t] for t in val_t} == {"val"} and {splits[t] for t in train_t} == {"train"}
+    assert list(splits.values()).count("val") < folds.K_FOLD_BELOW
+    fold_trials = [set(f) for f in sel["folds"]["trials"]]
+    assert len(fold_trials) == min(folds.N_FOLDS, len(splits) // 2)
+    assert all(a.isdisjoint(b) for i, a in enumerate(fold_trials) for b in fold_trials[i + 1:])
+    dev = {t for t, s in splits.items() if s in ("train", "val")}
+    assert set().union(*fold_trials) == dev == set(sel["val_trials"]) == set(sel["train_trials"])
+    assert not dev & set(sel["test_trials_untouched"])
+    cfg = _cfg()
+    ids = [t["id"] for t in ds.trials]
+    for f in fold_trials:                 # each fold model: its validation trials unseen
+        tr, va = split_windows(ds, dataclasses.replace(
+            cfg, val_trials=tuple(ids.index(t) for t in f)))
+        tr_t = {ids[k] for k in np.unique(np.asarray(ds.windows["trial"])[tr])}
+        va_t = {ids[k] for k in np.unique(np.asarray(ds.windows["trial"])[va])}
+        assert va_t == f and tr_t == dev - f
     assert [r["name"] for r in sel["candidates"]] == ["svm", "frozen", "scratch_s0"]
     assert all(r["status"] == "ok" for r in sel["candidates"])
     ck = load_checkpoint(out)
     prov = ck.meta["provenance"]
     assert prov["selection"]["winner"] == prov["recipe"] == sel["winner"]
     trial_of = np.asarray(ds.windows["trial"])
+    n_pooled = int(np.isin(trial_of, [k for k, x in enumerate(ds.trials)
+                                      if x["id"] in dev]).sum())
     for name in ("frozen", "scratch_s0", "svm"):     # what each candidate was scored on
         t = load_checkpoint(tmp_path / "auto.pt.candidates" / f"{name}.pt").meta["provenance"]
-        n_val = int(np.isin(trial_of, [k for k, x in enumerate(ds.trials)
-                                       if x["id"] in val_t]).sum())
-        assert t["metrics"]["val"]["n_windows"] == t["training"]["n_val_windows"] == n_val
+        assert t["metrics"]["val"]["n_windows"] == n_pooled
+        # The fold models validated on every pooled window; a final model on none.
+        refitted = t["training"].get("refit", False)
+        assert t["training"]["n_val_windows"] == (0 if refitted else n_pooled)
+        assert refitted == (name == sel["winner"])
+        assert [set(f) for f in t["folds"]["trials"]] == fold_trials
+    # The chosen model itself: trained on every pooled trial, without a validation split.
+    assert prov["training"]["refit"] is True and prov["folds"]["trials"]
+    assert ck.meta["train_config"]["val_trials"] == []
     assert sel["winner"] in sel["reason"] and sel["criterion"] == selection.CRITERION
     assert all(t.device.type == "cpu" for t in ck.tensors.values())
+
+
+def test_enough_validation_trials_keep_the_one_split(data, monkeypatch):
+    """At K_FOLD_BELOW validation trials or more the split's own validation trials choose."""
+    _, _, ext = data
+    ds = open_dataset(ext)
+    n_val = trial_splits(ds).count("val")
+    assert folds.trial_folds(ds, _cfg()) is not None
+    monkeypatch.setattr(folds, "K_FOLD_BELOW", n_val)
+    assert folds.trial_folds(ds, _cfg()) is None
+    tr, va, none = recipes.validation_split(ds, _cfg())
+    assert none is None and np.array_equal(va, split_windows(ds, _cfg())[1])
 
 
 def test_selection_never_reads_a_test_trial(data, tmp_path):
@@ -373,7 +408,7 @@ def test_selection_never_reads_a_test_trial(data, tmp_path):
 
 
 def test_too_few_trials_gives_the_clear_message(tmp_path, capsys):
-    small = make_synthetic_dataset(tmp_path / "few", n_trials=4, induced="external", seed=3)
+    small = make_synthetic_dataset(tmp_path / "few", n_trials=3, induced="external", seed=3)
     ds = open_dataset(small)
     assert trial_splits(ds).count("val") < recipes.MIN_VAL_TRIALS
     with pytest.raises(ValueError, match="at least 2 validation trials"):

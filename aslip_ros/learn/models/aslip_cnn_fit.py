@@ -207,12 +207,17 @@ class EpochRun:
         order = epoch_indices(self.tr, self.data.moving, self.cfg.noslip_ratio, self.rng)
         train_loss = _train_epoch(self.model, self.data, order, self.opt, self.feat_mean,
                                   self.rng, self.cfg, self.weights, f"epoch {epoch}")
-        val_loss, _ = evaluate_loss(self.model, self.data, self.va, self.weights)
+        val_loss = (evaluate_loss(self.model, self.data, self.va, self.weights)[0]
+                    if self.va.size else math.nan)
         self.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss,
                              "time_s": self.train_time_s})
         if self.cfg.progress:
             self.log(f"epoch {epoch:3d}  train {train_loss:.4f}  val {val_loss:.4f}")
-        if val_loss < self.best[0]:
+        if not self.va.size:
+            # No validation (the final model of a cross-validated choice): ``cfg.epochs``,
+            # chosen on the folds, sets the stop, and the last epoch is the model.
+            self.best = (math.nan, epoch, self.model.state_dict())
+        elif val_loss < self.best[0]:
             self.best = (val_loss, epoch, copy.deepcopy(self.model.state_dict()))
         elif epoch - self.best[1] >= self.cfg.patience:
             self.stop_reason = "early_stopping"
@@ -373,12 +378,22 @@ class CnnJob:
         _, pred = evaluate_loss(self.model, self.data, self.va, self.weights)
         return pred
 
-    def val_metrics(self) -> dict[str, Any]:
-        """The best epoch's validation metrics; training resumes from the current weights."""
+    def val_predictions(self) -> dict[str, Any]:
+        """The best epoch's predictions on the validation windows (``va``, in order);
+        training resumes from the current weights."""
         current = copy.deepcopy(self.model.state_dict())
         self.model.load_state_dict(self.run.best_state())
         pred = self._predict_val()
         self.model.load_state_dict(current)
+        return pred
+
+    @property
+    def best_epoch(self) -> int:
+        return self.run.best[1]
+
+    def val_metrics(self) -> dict[str, Any]:
+        """The best epoch's validation metrics; training resumes from the current weights."""
+        pred = self.val_predictions()
         return compute_metrics(pred["prob"], pred["v"], self.data.v[self.va],
                                self.data.slip[self.va], self.ds.window_s,
                                **rotation_args(self.ds, self.va, pred["w"]))
@@ -387,10 +402,11 @@ class CnnJob:
         """End the run: the best epoch's weights, its metrics and the checkpoint document."""
         fit = self.run.finish(stop_reason)
         ds, cfg, data, va = self.ds, self.cfg, self.data, self.va
-        pred = self._predict_val()
+        pred = self._predict_val() if va.size else None
         model = self.model.to("cpu")
-        val_metrics = compute_metrics(pred["prob"], pred["v"], data.v[va], data.slip[va],
-                                      ds.window_s, **rotation_args(ds, va, pred["w"]))
+        val_metrics = {} if pred is None else compute_metrics(
+            pred["prob"], pred["v"], data.v[va], data.slip[va], ds.window_s,
+            **rotation_args(ds, va, pred["w"]))
         prov = provenance(ds, cfg, _init_name(self.init))
         prov["device"] = str(self.device)
         if self.init_ckpt is not None:
@@ -405,8 +421,10 @@ class CnnJob:
                               "n_val_windows": int(va.size)})
         meta = _cnn_meta(ds, cfg, model, self.fcfg, self.channels, self.weights, self.cal,
                          prov)
-        meta.update(checkpoint_fields(pred["prob"], pred["v"], data.v[va], data.slip[va],
-                                      w_pred=pred["w"], w_true=data.w[va]))
+        if pred is not None:     # without validation the caller fits them (folds.refit)
+            meta.update(checkpoint_fields(pred["prob"], pred["v"], data.v[va],
+                                          data.slip[va], w_pred=pred["w"],
+                                          w_true=data.w[va]))
         model.eval()
         tensors = {k: v.detach().clone() for k, v in model.state_dict().items()}
         return TrainResult(meta=meta, tensors=tensors, history=fit.history, model=model,

@@ -43,6 +43,8 @@ class Job(Protocol):
 
     def val_metrics(self) -> dict[str, Any]: ...
 
+    def val_predictions(self) -> dict[str, Any]: ...   # prob, v, w on the validation windows
+
     def result(self, stop_reason: str = "time_budget") -> TrainResult: ...
 
 
@@ -67,6 +69,12 @@ class OneShot:
 
     def val_metrics(self) -> dict[str, Any]:
         return self.result().meta["provenance"]["metrics"]["val"]
+
+    def val_predictions(self) -> dict[str, Any]:
+        pred = self.result().val_pred
+        if pred is None:
+            raise ValueError("the trainer gave no validation predictions")
+        return pred
 
     def result(self, stop_reason: str = "time_budget") -> TrainResult:
         if self._res is None:

@@ -82,6 +82,11 @@ class TrainConfig:
     encoder_lr_scale: float = 1.0  # learning rate of trainable encoder weights, times lr
     # Encoder parts a finetune trains (network.ENCODER_PARTS); () is the paper's frozen one.
     finetune_trainable: tuple[str, ...] = ()
+    # Trial indices (positions in the dataset's trial list) to validate on instead of the
+    # split's validation trials; training then takes the split's other training and
+    # validation trials. () trains on all of them and validates on none: the final model
+    # of a cross-validated choice (learn/training/folds.py). None: the split's.
+    val_trials: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.stage not in STAGES and fit_stage(self.stage) is None:
@@ -108,6 +113,8 @@ class TrainConfig:
         for k in ("objects", "conditions"):
             d[k] = list(d[k]) if d[k] else None
         d["finetune_trainable"] = list(self.finetune_trainable)
+        d["val_trials"] = (None if self.val_trials is None
+                           else [int(t) for t in self.val_trials])
         return d
 
 

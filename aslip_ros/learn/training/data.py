@@ -66,11 +66,22 @@ def feature_cache(ds: WindowSet, fcfg: FeatureConfig, channels: Sequence[str],
 
 
 def split_windows(ds: WindowSet, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Training and validation window indices (by trial, with the config's filters)."""
+    """Training and validation window indices (by trial, with the config's filters). With
+    ``cfg.val_trials`` the split's training and validation trials are shared out again:
+    those trials validate, the rest train (``()``: all train, the validation is empty)."""
     kw = dict(induced=cfg.induced, objects=cfg.objects, conditions=cfg.conditions,
               seed=cfg.split_seed)
     tr = select_windows(ds, "train", **kw)
     va = select_windows(ds, "val", **kw)
+    if cfg.val_trials is not None:
+        dev = np.sort(np.concatenate([tr, va]))
+        held = np.isin(np.asarray(ds.windows["trial"])[dev],
+                       np.asarray(cfg.val_trials, dtype=np.int64))
+        tr, va = dev[~held], dev[held]
+        if tr.size == 0:
+            raise ValueError(f"no training windows in {ds.root} once trials "
+                             f"{list(cfg.val_trials)} are held out")
+        return tr, va
     if tr.size == 0:
         raise ValueError(f"no training windows in {ds.root} with these filters")
     if va.size == 0:

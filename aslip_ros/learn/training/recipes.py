@@ -33,7 +33,10 @@ stands in the final choice. Training resumes where it paused (the CNN's job,
 learn/models/aslip_cnn_fit.py), so the winner's run is one run, not a restart.
 
 Selection is on the validation trials (``data.dataset.split_trials`` by trial, never a
-training trial; test trials are neither trained on nor looked at), by the criterion of
+training trial; test trials are neither trained on nor looked at); where the split has
+fewer than ``folds.K_FOLD_BELOW`` of them, on folds by trial of the training and validation
+trials, the final model then trained on all of them (``learn.training.folds``); by the
+criterion of
 ``learn.training.selection`` (lowest wins; 3.0: best at all three metrics), which also says
 what the choice is worth. With fewer than ``MIN_VAL_TRIALS`` validation trials, or none
 with slip, selection refuses and says what is missing. The comparison is printed, written
@@ -60,9 +63,12 @@ from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ENCODER_PARTS
 from aslip_ros.learn.models.aslip_cnn_fit import finetune, scratch, train_cnn
 from aslip_ros.learn.models.svm import SvmConfig
-from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, successive_halving)
+from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, OneShot,
+                                                 successive_halving)
 from aslip_ros.learn.training.config import TrainConfig, TrainResult, resolve_device
 from aslip_ros.learn.training.data import split_windows
+from aslip_ros.learn.training.folds import (K_FOLD_BELOW, REFIT_FRACTION, FoldJob,
+                                            fold_windows, refit, trial_folds)
 from aslip_ros.learn.models.per_output import PerOutputBackend
 from aslip_ros.learn.training.selection import (CRITERION, METRICS, choose_outputs,
                                                 combination_cost, compose,
@@ -152,10 +158,19 @@ def plan(recipes: Iterable[str | Candidate] = DEFAULT_RECIPES,
     return out, skipped
 
 
-def validation_split(ds: WindowSet, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Training and validation windows by trial; ValueError saying what is missing when the
-    validation trials are too few (or have no slip) to choose on."""
+def validation_split(ds: WindowSet, cfg: TrainConfig
+                     ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, ...]] | None]:
+    """Training and validation windows by trial, and the folds to choose on (None: the
+    split's validation trials; with fewer than ``K_FOLD_BELOW`` of them, folds by trial of
+    the training and validation trials, ``learn.training.folds``, whose pooled windows
+    are then the validation windows and the training windows every one of them).
+    ValueError saying what is missing when the validation trials are too few (or have no
+    slip) to choose on."""
     tr, va = split_windows(ds, cfg)
+    folds = trial_folds(ds, cfg)
+    if folds is not None:
+        va = fold_windows(ds, cfg, folds)[0]
+        tr = va
     trials = np.asarray(ds.windows["trial"])
     n_val = np.unique(trials[va]).size
     if n_val < MIN_VAL_TRIALS or not ds.slip(va).any():
@@ -168,7 +183,7 @@ def validation_split(ds: WindowSet, cfg: TrainConfig) -> tuple[np.ndarray, np.nd
             f"): record and export more trials (about {MIN_VAL_TRIALS / 0.15:.0f} of one "
             "object and condition give that many), loosen the filters, or train one fixed "
             "recipe with --stage scratch|svm|pretrain|finetune")
-    return tr, va
+    return tr, va, folds
 
 
 # --- calibrated or not --------------------------------------------------------------------
@@ -231,8 +246,9 @@ class _Jobs:
     pretraining, then successive halving over the CNN candidates."""
 
     def __init__(self, ds: WindowSet, cfg: TrainConfig, pretrain_ds: WindowSet | None,
-                 budget_s: float, cnn_kw: dict[str, Any], svm_config: SvmConfig) -> None:
-        self.ds, self.cfg, self.pretrain_ds = ds, cfg, pretrain_ds
+                 budget_s: float, cnn_kw: dict[str, Any], svm_config: SvmConfig,
+                 folds: list[tuple[int, ...]] | None = None) -> None:
+        self.ds, self.cfg, self.pretrain_ds, self.folds = ds, cfg, pretrain_ds, folds
         self.budget_s, self.cnn_kw, self.svm_config = budget_s, cnn_kw, svm_config
         self.log: Callable[[str], None] = cnn_kw["log"]
         self.t0 = time.perf_counter()
@@ -269,8 +285,10 @@ class _Jobs:
         if not jobs:
             return
         others = {n: r.meta["provenance"]["metrics"]["val"] for n, r in self.results.items()}
+        # On folds, the final models' training keeps its share (``refit``).
+        share = self.left() * (1.0 - REFIT_FRACTION if self.folds else 1.0)
         winner, self.rounds, self.rest = successive_halving(
-            jobs, max(1.0, self.left()), others=others, log=self.log)
+            jobs, max(1.0, share), others=others, log=self.log)
         resumed = {r["name"] for r in self.rest}
         stopped_in = {n: r["round"] for r in self.rounds for n in r["stopped"]
                       if n not in resumed}
@@ -299,28 +317,57 @@ class _Jobs:
         self.pre_info.update(wall_s=round(time.perf_counter() - t, 1),
                              val=self.pretrained.meta["provenance"]["metrics"]["val"])
 
-    def start(self, cand: Candidate) -> Job:
-        """The candidate's job, built (features, calibration, network) but not trained."""
-        c = _job_config(self.cfg, cand, self.budget_s)
+    def job(self, cand: Candidate, c: TrainConfig) -> Job:
+        """The candidate's job for config ``c``, built (features, calibration, network)
+        but not trained."""
         kw = self.cnn_kw
-        self.log(f"recipe {cand.name}: starting")
         if cand.start is not None:
             return cand.start(c)
+        if cand.is_svm:
+            return OneShot(lambda c: train_svm(
+                self.ds, c, feature_config=kw["feature_config"],
+                svm_config=dataclasses.replace(self.svm_config,
+                                               features=SVM_FEATURES[cand.base]),
+                channels=kw["channels"], log=self.log), c)
         if cand.needs_pretrain:
             return finetune(self.ds, c, init=self.pretrained, cache_dir=kw["cache_dir"],
                             log=self.log)
         return scratch(self.ds, c, **kw)
 
+    def start(self, cand: Candidate) -> Job:
+        """The candidate's job (on the folds: one per fold, ``FoldJob``), not trained."""
+        c = _job_config(self.cfg, cand, self.budget_s)
+        self.log(f"recipe {cand.name}: starting"
+                 + (f" ({len(self.folds)} folds by trial)" if self.folds else ""))
+        if self.folds:
+            return FoldJob(self.ds, c, self.folds, lambda fc: self.job(cand, fc))
+        return self.job(cand, c)
+
+    def final(self, cands: dict[str, Candidate], names: Iterable[str], va: np.ndarray
+              ) -> None:
+        """On folds: ``names``' final models, each trained on every trial of the folds
+        (``folds.refit``), in place of their cross-validated results; the CNNs share the
+        time left."""
+        if not self.folds:
+            return
+        names = [n for n in names if n in self.results]
+        cnn = [n for n in names if not cands[n].is_svm]
+        for n in sorted(names, key=lambda n: n in cnn):       # the SVMs first
+            each = max(1.0, self.left() / max(1, len(cnn)))
+            if n in cnn:
+                cnn.remove(n)
+            cand = cands[n]
+            c = _job_config(self.cfg, cand, each)
+            self.results[n] = refit(self.ds, c, self.results[n], va,
+                                    lambda fc, cand=cand: self.job(cand, fc), each, self.log)
+
     def svm(self, cand: Candidate) -> None:
         t = time.perf_counter()
-        c = _job_config(self.cfg, cand, self.budget_s)
-        kw = self.cnn_kw
         self.log(f"recipe {cand.name}: training")
         try:
-            res = train_svm(self.ds, c, feature_config=kw["feature_config"],
-                            svm_config=dataclasses.replace(
-                                self.svm_config, features=SVM_FEATURES[cand.base]),
-                            channels=kw["channels"], log=self.log)
+            job = self.start(cand)
+            job.advance(self.budget_s)
+            res = job.result()
         except ValueError as exc:
             self.log(f"recipe {cand.name}: failed: {exc}")
             self.rows.append(_row(cand, "failed", error=str(exc)))
@@ -343,11 +390,14 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
     allocator and the reason. ``cfg`` carries the shared settings (split seed, filters,
     calibration, device...); its stage, seed and time budget are set per candidate.
     ValueError when the validation trials are too few or no candidate finished."""
-    tr, va = validation_split(ds, cfg)
+    tr, va, folds = validation_split(ds, cfg)
     cands, skipped = plan(recipes, seeds, pretrain_ds is not None, log, cfg.calibration)
+    if folds:
+        log(f"choosing on {len(folds)} folds by trial: the split has fewer than "
+            f"{K_FOLD_BELOW} validation trials (learn/training/folds.py)")
     run = _Jobs(ds, cfg, pretrain_ds, budget_s,
                 dict(feature_config=feature_config, model_options=model_options,
-                     channels=channels, cache_dir=cache_dir, log=log), svm_config)
+                     channels=channels, cache_dir=cache_dir, log=log), svm_config, folds)
     run.run(cands)
     winner, scores, why = select({n: r.meta["provenance"]["metrics"]["val"]
                                   for n, r in run.results.items()})
@@ -375,6 +425,12 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
     outputs = choose_outputs(ds, va, run.results, winner,
                              cost=combination_cost(ds, va, run.results, winner))
     selection["outputs"] = outputs
+    if folds:
+        selection["folds"] = {"n": len(folds), "trials": [_trial_names(
+            ds, fold_windows(ds, cfg, [f])[0]) for f in folds], "below": K_FOLD_BELOW,
+            "refit_fraction": REFIT_FRACTION}
+        run.final({c.name: c for c in cands},
+                  {row["from"] for row in outputs.values()} | {winner}, va)
     best = compose(ds, va, run.results, winner, outputs) or run.results[winner]
     if best.meta["model_type"] == PerOutputBackend.model_type:
         roles = best.meta["model_config"]
@@ -431,9 +487,16 @@ def comparison_markdown(sel: dict[str, Any]) -> str:
         "Each output from the candidate that gives it best: " + "; ".join(
             f"{role} from **{row['from']}** ({row['why']})" for role, row in outputs.items())
         + "." + _latency_text(sel.get("latency_ms") or {}))
+    folds = sel.get("folds")
+    trials_text = (
+        f"Chosen on {folds['n']} folds by trial (the split has fewer than {folds['below']} "
+        "validation trials): every candidate trained once per fold and was scored on the "
+        "pooled out-of-fold predictions of every fold's trials ("
+        + "; ".join(", ".join(f) for f in folds["trials"]) + "); the final model trained "
+        "on all of them for the folds' mean best epoch. " if folds else
+        f"Validation trials ({len(sel['val_trials'])}): {', '.join(sel['val_trials'])}; ")
     return ("\n".join(lines) + f"\n\nChosen: **{sel['winner']}**. {sel['reason']}.\n\n"
-            + "".join(t + "\n\n" for t in (worth_text, per_output) if t) +
-            f"Validation trials ({len(sel['val_trials'])}): {', '.join(sel['val_trials'])}; "
+            + "".join(t + "\n\n" for t in (worth_text, per_output) if t) + trials_text +
             f"training trials: {len(sel['train_trials'])}; test trials, not looked at: "
             f"{len(sel['test_trials_untouched'])}. Whole call: {sel['wall_s']:.0f} s "
             f"(budget {sel['budget_s']:.0f} s).\n")

@@ -264,23 +264,24 @@ def choose_outputs(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult
 def _cheaper_part(row: dict[str, Any], role: str, trial: np.ndarray, fns: dict, vals: dict,
                   winner: str, higher: bool, cost: Callable[[str, str], float], n_boot: int,
                   seed: int) -> None:
-    """``row`` (best chosen, better than the winner) given instead by the cheapest candidate
-    that is also better than the winner and cannot be told apart from the best, where its
-    combination costs at most ``CHEAPER`` of the best's."""
+    """``row`` (best chosen, better than the winner) given instead by the best-scoring
+    other candidate that is also better than the winner, cannot be told apart from the best
+    and whose combination costs at most ``CHEAPER`` of the best's. Only such candidates are
+    timed (``cost`` assembles and runs a model)."""
     best = row["from"]
     costs = {best: cost(role, best)}
     row["cost_ms"] = {best: costs[best]}
     for n in sorted(vals, key=lambda n: -vals[n] if higher else vals[n]):
         if n in (best, winner):
             continue
-        costs[n] = cost(role, n)
-        row["cost_ms"][n] = costs[n]
-        if costs[n] > CHEAPER * costs[best]:
-            continue
         vs_winner = paired_difference(trial, fns[n], fns[winner], n_boot=n_boot, seed=seed)
         vs_best = paired_difference(trial, fns[n], fns[best], n_boot=n_boot, seed=seed)
         if not (vs_winner[1] > 0.0 if higher else vs_winner[2] < 0.0) or \
                 not vs_best[1] <= 0.0 <= vs_best[2]:
+            continue
+        costs[n] = cost(role, n)
+        row["cost_ms"][n] = costs[n]
+        if costs[n] > CHEAPER * costs[best]:
             continue
         row.update({"from": n, "value": vals[n]})
         row["why"] = (f"{n} cannot be told apart from {best} ({row['metric']} "

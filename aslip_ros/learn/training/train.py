@@ -73,18 +73,23 @@ def train_svm(ds: WindowSet, cfg: TrainConfig, *, feature_config: FeatureConfig 
     t0 = time.perf_counter()
     arrays, _ = fit_svm(feats(tr), ds.slip(tr), ds.velocity(tr), svm_config,
                         angular=ds.angular(tr) if ds.has_angular(tr) else None)
-    prob, v, w = arrays.predict(feats(va))
-    val_metrics = compute_metrics(prob, v, ds.velocity(va), ds.slip(va), ds.window_s,
-                                  **rotation_args(ds, va, w))
+    if va.size:
+        prob, v, w = arrays.predict(feats(va))
+        val_metrics = compute_metrics(prob, v, ds.velocity(va), ds.slip(va), ds.window_s,
+                                      **rotation_args(ds, va, w))
+    else:                # no validation (learn/training/folds.py fits the rest)
+        val_metrics = {}
     prov = provenance(ds, cfg, None)
     prov.update(metrics={"val": val_metrics},
                 training={"train_time_s": time.perf_counter() - t0,
                           "n_train_windows": int(tr.size), "n_val_windows": int(va.size)})
     meta = checkpoint_meta(
         SvmBackend.model_type, svm_config, fcfg, ds, channels, provenance=prov,
-        calibration=cal, train_config=cfg.to_dict(), angular=w is not None,
+        calibration=cal, train_config=cfg.to_dict(), angular=arrays.angular is not None,
         normalization={"mean": arrays.mean.tolist(), "std": arrays.std.tolist(),
                        "scope": "per handcrafted feature over training windows"})
+    if not va.size:
+        return TrainResult(meta=meta, tensors=arrays.to_tensors(), history=[], model=arrays)
     meta.update(checkpoint_fields(prob, v, ds.velocity(va), ds.slip(va), w_pred=w,
                                   w_true=ds.angular(va)))
     return TrainResult(meta=meta, tensors=arrays.to_tensors(), history=[], model=arrays,
