@@ -12,6 +12,13 @@ time, model-free, and (2) direction / magnitude / detection of the plain CNN and
 SVM given raw features (one window), calibrated features, or the true gains (oracle), with
 bootstrap confidence intervals over test trials.
 
+``--self-check`` measures the estimate's self-check instead (``CalibrationState.trusted``,
+docs/model.md): constants fitted on default-scene grasps (arm moving and still), then on
+held-out grasps of the default scene, the coupling variant and the path variant (the hand's
+and the arm's noise by +-6 dB paths of their own), both arm conditions, the same seeds in
+each scene: the share of grasps flagged untrustworthy and the RMS gain error of flagged and
+unflagged grasps, at a few times after the grasp started (``<out>/self_check.json``).
+
 Small on purpose (minutes of CPU): audio is rendered at 16 kHz, the stream's own rate for
 the features, and labels are the scene's true mean slip velocity per 200 ms window (the
 export path and its labels are tested elsewhere). Rendered features are cached in ``--out``.
@@ -73,19 +80,23 @@ def render_trial(scn: sc.Scenario) -> dict[str, np.ndarray]:
 
 
 def load_split(out: Path, variant: str, split: str, n: int, duration_s: float,
-               log=print) -> list[dict[str, np.ndarray]]:
-    path = out / f"{variant}-{split}-{n}x{duration_s:g}s.npz"
+               log=print, make=None, name: str | None = None) -> list[dict[str, np.ndarray]]:
+    """``n`` rendered trials, cached in ``out``; ``make(k)`` builds trial ``k``'s scenario
+    (default: :func:`scenario` of the variant), ``name`` names the cache file."""
+    name = name or variant
+    path = out / f"{name}-{split}-{n}x{duration_s:g}s.npz"
     if path.is_file():
         with np.load(path) as z:
             return [{k[len(f"{i}_"):]: z[k] for k in z.files if k.startswith(f"{i}_")}
                     for i in range(n)]
     t0 = time.time()
-    trials = [render_trial(scenario(variant, split, k, duration_s)) for k in range(n)]
+    make = make or (lambda k: scenario(variant, split, k, duration_s))
+    trials = [render_trial(make(k)) for k in range(n)]
     out.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, **{f"{i}_{k}": v for i, t in enumerate(trials) for k, v in t.items()})
     tmp.replace(path)
-    log(f"rendered {variant}/{split}: {n} trials in {time.time() - t0:.0f} s")
+    log(f"rendered {name}/{split}: {n} trials in {time.time() - t0:.0f} s")
     return trials
 
 
@@ -264,6 +275,78 @@ def one_sided_share(trials: list[dict]) -> float:
     return inside / max(total, 1)
 
 
+CHECK_SCENES = ("default", "coupling", "path")
+CHECK_CONDITIONS = ("robot_moving", "robot_stationary")
+CHECK_TIMES_S = (2.0, 5.0, 10.0, 20.0)
+
+
+def check_scenario(scene: str, condition: str, split: str, k: int,
+                   duration_s: float) -> sc.Scenario:
+    """Grasp ``k`` of the self-check: one seed per (condition, split, k) in every scene, so
+    the scenes differ only in what the variant moves."""
+    seed = 50000 + (0 if split == "train" else 5000) \
+        + CHECK_CONDITIONS.index(condition) * 2500 + k
+    scn = sc.external_induced(seed=seed, object=list(OBJECTS)[k % len(OBJECTS)],
+                              duration_s=duration_s, sample_rate=RATE, condition=condition)
+    return scn if scene == "default" else sc.VARIANTS[scene](scn)
+
+
+def _rms(v) -> float | None:
+    return float(np.sqrt(np.mean(np.square(v)))) if len(v) else None
+
+
+def self_check(out: Path, n_train: int, n_test: int, duration_s: float,
+               times_s=CHECK_TIMES_S, log=print) -> dict[str, Any]:
+    """Flag rate and gain error [dB] of flagged / unflagged held-out grasps per scene,
+    arm condition and time since the grasp started (see the module docstring)."""
+    def split(scene, cond, name, n):
+        return load_split(out, scene, name, n, duration_s, log=log,
+                          make=lambda k: check_scenario(scene, cond, name, k, duration_s),
+                          name=f"check-{scene}-{cond}")
+    train = [t for c in CHECK_CONDITIONS for t in split("default", c, "train", n_train)]
+    k = fit(train, "background")
+    rep: dict[str, Any] = {"trust_spread_db": k.trust_spread_db, "train_grasps": len(train),
+                           "test_grasps_per_row": n_test, "duration_s": duration_s, "rows": []}
+    log(f"self-check threshold {k.trust_spread_db:.2f} dB (fitted on {len(train)} "
+        f"default-scene grasps)")
+    log("| scene | arm | t [s] | flagged | spread dB (median) | gain error dB: flagged | "
+        "unflagged | all |")
+    log("|---|---|---|---|---|---|---|---|")
+    for scene in CHECK_SCENES:
+        for cond in CHECK_CONDITIONS:
+            per_t = {t: [] for t in times_s}
+            for tr in split(scene, cond, "test", n_test):
+                f = tr["frames"].astype(np.float32)
+                truth = calibration.relative_log_gain(tr["gain"])
+                state, done = calibration.CalibrationState(k), 0
+                for t in times_s:
+                    end = min(int(round(t / k.hop_s)), f.shape[2])
+                    state.update(f[:, :, done:end])
+                    done = end
+                    err = np.sqrt(np.mean((state.offsets - truth) ** 2)) * 10 / np.log(10)
+                    per_t[t].append((state.trusted, state.spread_db, err))
+            for t, got in per_t.items():
+                flagged = [e for ok, _, e in got if ok is False]
+                passed = [e for ok, _, e in got if ok is not False]
+                row = {"scene": scene, "condition": cond, "t_s": t, "grasps": len(got),
+                       "converged": sum(ok is not None for ok, _, _ in got),
+                       "flagged": len(flagged),
+                       "spread_db_median": float(np.median([s for _, s, _ in got])),
+                       "gain_error_db_flagged": _rms(flagged),
+                       "gain_error_db_unflagged": _rms(passed),
+                       "gain_error_db": _rms([e for _, _, e in got])}
+                rep["rows"].append(row)
+
+                def fmt(v):
+                    return "-" if v is None else f"{v:.2f}"
+                log(f"| {scene} | {cond.split('_')[1]} | {t:g} | {len(flagged)}/{len(got)} | "
+                    f"{row['spread_db_median']:.2f} | {fmt(row['gain_error_db_flagged'])} | "
+                    f"{fmt(row['gain_error_db_unflagged'])} | {fmt(row['gain_error_db'])} |")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "self_check.json").write_text(json.dumps(rep, indent=1))
+    return rep
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="data/calib_exp")
@@ -279,9 +362,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--summary", action="store_true",
                     help="only print paired differences from saved predictions")
+    ap.add_argument("--self-check", action="store_true",
+                    help="only measure the calibration's self-check (--train grasps per arm "
+                         "condition, --test per scene and condition)")
     a = ap.parse_args(argv)
     if a.summary:
         summary(Path(a.out))
+        return 0
+    if a.self_check:
+        self_check(Path(a.out), a.train, a.test, a.duration,
+                   tuple(t for t in CHECK_TIMES_S if t <= a.duration))
         return 0
     import torch
     torch.set_num_threads(a.threads)

@@ -28,3 +28,18 @@ def test_tiny_run_writes_report_and_predictions(tmp_path, capsys):
     assert "rendered" not in capsys.readouterr().out
     ex.main(["--out", str(tmp_path), "--summary"])
     assert "calibrated - raw" in capsys.readouterr().out
+
+
+def test_tiny_self_check_writes_flag_rates_per_scene(tmp_path):
+    rc = ex.main(["--out", str(tmp_path), "--self-check", "--train", "2", "--test", "2",
+                  "--duration", "3"])
+    assert rc == 0
+    rep = json.loads((tmp_path / "self_check.json").read_text())
+    assert rep["trust_spread_db"] > 0 and rep["train_grasps"] == 4
+    rows = rep["rows"]
+    assert {(r["scene"], r["condition"]) for r in rows} == {
+        (s, c) for s in ex.CHECK_SCENES for c in ex.CHECK_CONDITIONS}
+    assert {r["t_s"] for r in rows} == {2.0}                   # times within the duration
+    for r in rows:
+        assert r["grasps"] == 2 and 0 <= r["flagged"] <= r["converged"] <= 2
+        assert r["gain_error_db"] is not None and r["gain_error_db"] >= 0

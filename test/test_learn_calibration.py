@@ -208,3 +208,106 @@ def test_bad_input_is_refused(fitted):
         k.with_(method="median")
     with pytest.raises(ValueError, match="both slip and no-slip"):
         cal.fit_constants([np.zeros((C, M, 10))], [np.zeros(10, bool)], NAMES, 0.01)
+
+
+def mixed_background_grasp(rng, gains, path_a, path_b, n=1500):
+    """Like ``grasp``, but the background comes from two sources, each reaching every
+    microphone through its own path (log-power ``path_a``, ``path_b`` per channel), mixed in
+    a share that changes every 20 frames: the background is no longer common mode."""
+    f, slip, ang = grasp(rng, gains, n=n)
+    share = np.repeat(rng.uniform(0.0, 1.0, n // 20 + 1), 20)[:n]              # of source a
+    mix = np.log(share[None, :] * np.exp(path_a)[:, None]
+                 + (1.0 - share[None, :]) * np.exp(path_b)[:, None])         # (C, n)
+    background = (f[0].mean(axis=0) > -11.0) & ~slip
+    f[:, :, background] += mix[:, None, background].astype(np.float32)
+    return f, slip, ang
+
+
+def test_self_check_trusts_a_pure_coupling_and_not_a_background_of_mixed_paths(fitted):
+    """spread_db: low when every background frame of a channel moves alike (a gain), high
+    when each channel's deviation depends on the mix of background sources (a path)."""
+    k = fitted["background"]
+    assert k.trust_spread_db is not None and 0.0 < k.trust_spread_db < 0.5
+    rng = np.random.default_rng(11)
+    g = rel(np.array([0.5, -0.4, 0.3, -0.4]))
+    pure, _, _ = grasp(rng, g, n=1500)
+    path = rel(np.array([0.7, -0.7, 0.7, -0.7]))                  # +-3 dB, source a only
+    mixed, _, _ = mixed_background_grasp(rng, g, path, np.zeros(C))
+    states = {}
+    for name, f in (("pure", pure), ("mixed", mixed)):
+        s = cal.CalibrationState(k)
+        s.update(f[:, :, :10])
+        assert not s.converged and s.trusted is None           # not known before convergence
+        s.update(f[:, :, 10:])
+        assert s.converged
+        states[name] = s
+    assert states["pure"].spread_db < 0.2 < 0.6 < states["mixed"].spread_db
+    assert states["pure"].trusted is True and states["mixed"].trusted is False
+    # The untrusted estimate is the biased one: half the path's mean share is in it.
+    err = {n: np.abs(s.offsets - g).max() for n, s in states.items()}
+    assert err["pure"] < 0.05 < 0.2 < err["mixed"]
+    # Constants without a threshold (fitted before the check) never judge.
+    s = cal.CalibrationState(k.with_(trust_spread_db=None))
+    s.update(mixed)
+    assert s.trusted is None and s.spread_db == pytest.approx(states["mixed"].spread_db)
+    s.reset()
+    assert s.spread_db == 0.0 and s.trusted is None
+
+
+def test_self_check_streams_as_offline_and_its_threshold_is_fitted(fitted):
+    k = fitted["background"]
+    rng = np.random.default_rng(12)
+    f, _, _ = mixed_background_grasp(rng, rel(rng.uniform(-0.7, 0.7, C)),
+                                     rel(rng.uniform(-0.7, 0.7, C)), np.zeros(C), n=600)
+    state, ends, spreads = cal.CalibrationState(k), [], []
+    for s in range(0, 600, 41):
+        state.update(f[:, :, s:s + 41])
+        ends.append(min(s + 41, 600))
+        spreads.append(state.spread_db)
+    np.testing.assert_allclose(cal.spread_at(f, np.array(ends), k), spreads, atol=1e-9)
+    with pytest.raises(ValueError, match="within"):
+        cal.spread_at(f, [601], k)
+    # The threshold: margin x the 95th percentile of the training grasps' peaks once
+    # converged; every constant but the threshold is the same for any percentile or margin.
+    rng = np.random.default_rng(0)
+    frames, labels, offsets = [], [], []
+    for _ in range(6):                            # the fixture's training grasps, again
+        g = rel(rng.uniform(-0.7, 0.7, C))
+        fr, sl, _ = grasp(rng, g, n=1500)
+        frames.append(fr)
+        labels.append(sl)
+        offsets.append(g)
+    kw = dict(true_offsets=offsets, prior_frames=10.0, converge_frames=200)
+
+    def peak(fr):                                 # the largest spread once converged
+        w = cal.frame_weights(*cal.frame_stats(fr, k)[1:], k)
+        return cal.spread_at(fr, np.flatnonzero(np.cumsum(w) >= k.converge_frames) + 1,
+                             k).max()
+    peaks = [peak(fr) for fr in frames]
+    assert k.trust_spread_db == pytest.approx(
+        cal.TRUST_MARGIN * np.percentile(peaks, cal.TRUST_PERCENTILE))
+    wide = cal.fit_constants(frames, labels, NAMES, 0.01, trust_margin=3.0, **kw)
+    assert wide.trust_spread_db == pytest.approx(k.trust_spread_db * 3.0 / cal.TRUST_MARGIN)
+    assert wide.with_(trust_spread_db=None) == k.with_(trust_spread_db=None)
+    with pytest.raises(ValueError, match="margin"):
+        cal.trust_threshold(frames, k, margin=0.5)
+
+
+def test_old_calibration_documents_without_the_self_check_still_load(fitted, tmp_path):
+    k = fitted["background"]
+    old = json.loads(json.dumps(k.to_dict()))
+    del old["trust_spread_db"]                     # a checkpoint written before the check
+    back = cal.CalibrationConstants.from_dict(old)
+    assert back.trust_spread_db is None and back == k.with_(trust_spread_db=None)
+    assert cal.meta_problems(old, list(NAMES), M, 0.01) == []
+    meta = {"model_type": "svm", "model_config": SvmConfig().to_dict(),
+            "feature_config": FeatureConfig(n_mels=M).to_dict(), "channel_names": list(NAMES),
+            "sample_rate": 16000.0, "window_s": 0.2, "window_samples": 3200,
+            "epsilon_m_s": 0.005, "threshold": 0.5, "calibration": old}
+    save_checkpoint(tmp_path / "old.pt", meta, {})
+    loaded = load_checkpoint(tmp_path / "old.pt").meta["calibration"]
+    assert cal.CalibrationConstants.from_dict(loaded).trust_spread_db is None
+    assert json.loads(json.dumps(k.to_dict()))["trust_spread_db"] == k.trust_spread_db
+    for bad in (-1.0, 0.0, float("nan"), "1", True):
+        assert "trust_spread_db" in cal.meta_problems({**old, "trust_spread_db": bad},
+                                                      list(NAMES), M, 0.01)[0]

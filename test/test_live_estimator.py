@@ -210,6 +210,62 @@ def test_a_calibrated_stream_says_when_it_converged_and_restarts_at_a_gap(stream
     assert kinds.count("converged") == 2 and kinds.count("restart") == 1     # the gap
     assert est.calibration_converged and later[-1].direction_sigma != UNCONVERGED_DIRECTION_SIGMA
     assert est.new_grasp("~/recalibrate") and not est.calibration_converged
+    # Constants written before the self-check: it never judges, and the diagnostics say so.
+    summary = est.report()["summary"]
+    assert est.calibration_trusted is None and "calibration_trusted" not in summary
+    assert "untrusted" not in kinds and summary["calibration_spread_db"] >= 0.0
+
+
+@pytest.fixture(scope="module")
+def stream_check_ckpt(tmp_path_factory):
+    """stream_cal_ckpt with the calibration's self-check: untrusted above 1 dB of spread."""
+    from test_learn_streaming_model import calibration_doc
+    from test_learn_streaming_model import make_checkpoint as make_stream
+    doc = dict(calibration_doc(converge_frames=10), trust_spread_db=1.0)
+    return make_stream(tmp_path_factory.mktemp("live") / "stream_check.pt", threshold=0.5,
+                       calibration=doc, angular=True)
+
+
+def common_mode_stream(names, gains_db, seconds: float = 0.6, seed: int = 0):
+    """recorded_stream's blocks, but one background source heard by every microphone
+    through a fixed gain of its own (a pure coupling: the balance never changes)."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * RATE)
+    env = 0.5 + 0.5 * np.sin(2 * np.pi * 1.5 * np.arange(n) / RATE)
+    audio = (0.05 * env * rng.standard_normal(n))[:, None] \
+        * 10.0 ** (np.asarray(gains_db) / 20.0) + 1e-4 * rng.standard_normal((n, len(names)))
+    return [AudioData(i, 1_000_000_000_000 + i // BLOCK * 10_000_000, RATE, list(names), "4mic",
+                      "aslip_sensor", audio[i:i + BLOCK].astype(np.float32))
+            for i in range(0, n - BLOCK + 1, BLOCK)]
+
+
+def test_the_calibration_says_when_its_estimate_cannot_be_trusted(stream_check_ckpt):
+    """calibration_trusted and the ``untrusted`` event (once per grasp): False when the
+    balance between the microphones keeps changing (recorded_stream), True for a pure
+    coupling, unknown before convergence and after a new grasp."""
+    est = LiveEstimator(load_predictor(stream_check_ckpt))
+    blocks = recorded_stream(STREAM_NAMES, seconds=0.6)
+    est.feed(blocks[0])
+    assert not est.calibration_converged and est.calibration_trusted is None
+    for b in blocks[1:]:
+        est.feed(b)
+    summary = est.report()["summary"]
+    assert est.calibration_converged and est.calibration_trusted is False
+    assert summary["calibration_trusted"] is False and summary["calibration_spread_db"] > 1.0
+    assert summary["calibration_trust_spread_db"] == 1.0
+    events = est.take_events()
+    untrusted = [e for e in events if e.kind == "untrusted"]
+    assert len(untrusted) == 1 and "above 1.00 dB" in untrusted[0].detail, events
+    assert [e.kind for e in events].index("converged") < events.index(untrusted[0])
+    assert est.new_grasp("~/recalibrate") and est.calibration_trusted is None
+
+    est = LiveEstimator(load_predictor(stream_check_ckpt))
+    for b in common_mode_stream(STREAM_NAMES, [3.0, -3.0]):
+        est.feed(b)
+    summary = est.report()["summary"]
+    assert est.calibration_trusted is True and summary["calibration_spread_db"] < 0.5
+    assert summary["gain_db"]["m0"] == pytest.approx(3.0, abs=0.5)     # gain, relative
+    assert "untrusted" not in [e.kind for e in est.take_events()]
 
 
 @pytest.mark.ros

@@ -21,6 +21,7 @@ SLIP = "/aslip/slip"
 DIAG = "/aslip/diagnostics"
 RATE, BLOCK = 48000.0, 480
 GAINS = np.array([2.0, 1.0, 0.5, 1.4])             # per-microphone coupling of the test grasp
+TRUST_DB = 1.0                                      # the live fixture's self-check threshold
 
 
 def constants(names=SCENE_NAMES, **kw):
@@ -90,7 +91,10 @@ def live(tmp_path_factory):
     from aslip_ros.msg import AudioFrame, SlipVector
     from aslip_ros.nodes import common as c
     from aslip_ros.runtime.qos import RELIABLE_QOS, SENSOR_QOS
-    ckpt = calibrated_checkpoint(tmp_path_factory.mktemp("cal") / "cal.pt")
+    # With the self-check at 1 dB: stream_audio's bursts on one channel at a time are a
+    # background whose balance keeps changing, so the node reports it untrusted.
+    ckpt = calibrated_checkpoint(tmp_path_factory.mktemp("cal") / "cal.pt",
+                                 constants(trust_spread_db=TRUST_DB))
     with domain_id() as did:
         env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                    PYTHONUNBUFFERED="1")
@@ -177,6 +181,13 @@ def test_streaming_calibration_in_the_node_equals_offline(live):
         assert values[f"gain_db_{name}"] == pytest.approx(g, abs=1e-3)
     assert values["calibration_converged"] is True
     assert values["calibration_accepted_frames"] == total
+    # The self-check, as offline: the bursts move one channel at a time, not common mode.
+    assert values["calibration_spread_db"] == pytest.approx(final.spread_db, abs=1e-3)
+    assert final.trusted is False and values["calibration_trusted"] is False
+    assert values["calibration_trust_spread_db"] == TRUST_DB
+    doc = [d for d in bus.diagnostics("slip_inference")
+           if d["values"].get("calibration_frames") == total][0]
+    assert doc["level"] == 1 and "calibration not trusted" in doc["message"], doc
 
 
 def test_calibration_resets_on_gap_restart_time_jump_and_service(live):
@@ -264,6 +275,13 @@ def test_a_controller_restarts_the_calibration_at_a_grasp_and_says_when_it_conve
         proc.output[-3000:]
     assert cal.values()["calibration_converged_after_s"] > 0
     assert any(t.startswith("calibration converged") for _, t in node.lines), node.lines
+    # The grasp's background is not common mode: /aslip/calibration says so once, and the
+    # controller warns the user.
+    assert bus.wait(lambda: cal.values().get("calibration_trusted") is False, 20), \
+        proc.output[-3000:]
+    assert any(level == "warning" and "calibration not trusted" in t
+               for level, t in node.lines), node.lines
+    assert "per-grasp calibration not trusted" in proc.output
 
 
 def test_calibration_for_another_stream_is_refused_at_start(rclpy_context, tmp_path):

@@ -33,7 +33,7 @@ def test_simulate_knows_every_scene_variant():
     assert set(simulate.VARIANTS) == set(variants.VARIANTS)
 
 
-@pytest.mark.parametrize("variant", ["contact", "confounders"])
+@pytest.mark.parametrize("variant", ["contact", "confounders", "speed", "path"])
 def test_new_variants_reach_the_bags(tmp_path, variant):
     assert cli.main(ARGS + ["--variant", variant, "-o", str(tmp_path / variant)]) == 0
     assert _meta(tmp_path / variant / TRIAL)["variant"] == variant

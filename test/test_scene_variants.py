@@ -7,6 +7,7 @@ import pytest
 from aslip_ros.scene import World
 from aslip_ros.scene import scenarios as sc
 from aslip_ros.scene import variants as va
+from aslip_ros.scene.layouts import OBJECTS
 
 RATE = 16000.0
 
@@ -144,7 +145,7 @@ def test_bad_no_slip_touch_fraction_is_refused(value):
 
 def test_every_variant_is_named_and_keeps_the_grasp():
     assert set(sc.VARIANTS) == {"coupling", "one_sided", "contact", "confounders", "mocap",
-                                "rate"}
+                                "rate", "speed", "path"}
     base = sc.external_induced(seed=5)
     for name, make in sc.VARIANTS.items():
         v = make(base)
@@ -162,3 +163,99 @@ def test_rate_variant_records_at_a_sound_cards_rate():
     w = World(scn)
     audio = np.concatenate([c.audio for c in w.stream(block_frames=441)])
     assert audio.shape == (22050, 4) and w.metadata()["sample_rate"] == 44100.0
+
+
+def test_speed_variant_gives_each_object_its_own_exponent_within_its_range():
+    lo, hi = va.SPEED_EXPONENT_RANGE
+    assert lo < 0.75 < hi                                   # around the reported 0.75
+    exps = {}
+    for obj in sorted(OBJECTS):
+        base = sc.external_induced(seed=1, object=obj)
+        assert base.acoustics.speed_exponent == 0.75       # the default scene: one for all
+        v = sc.speed_variant(base)
+        exps[obj] = v.acoustics.speed_exponent
+        assert lo <= exps[obj] <= hi
+        # One object, one exponent: the same in every grasp; nothing else moves.
+        assert sc.speed_variant(base.with_(seed=9)).acoustics.speed_exponent == exps[obj]
+        assert v.with_(acoustics=base.acoustics) == base
+    assert len(set(exps.values())) == len(exps) and np.ptp(list(exps.values())) > 0.3
+    with pytest.raises(ValueError, match="speed exponent"):
+        va.object_speed_exponent("chips_can", 1.0, 0.5)
+
+
+def test_default_scene_is_unchanged_by_the_speed_variant_at_its_default_exponent():
+    base = sc.external_induced(seed=3, duration_s=2.0, sample_rate=RATE)
+    same = sc.speed_variant(base, 0.75, 0.75)
+    assert same == base
+    _, a, v = render(base)
+    _, b, u = render(same)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(v, u)
+
+
+def level_speed_slope(scn, speeds=(0.005, 0.01, 0.02, 0.04, 0.08), seg_s=0.3):
+    """Slope of log slip RMS against log speed over scripted pushes along +x, one per speed."""
+    segs = [(0.1 + k * (seg_s + 0.1), 0.1 + k * (seg_s + 0.1) + seg_s, s, 0.0)
+            for k, s in enumerate(speeds)]
+    scn = scn.with_(kind="scripted", script=tuple(segs), duration_s=segs[-1][1] + 0.1)
+    w, a, v = render(scn)
+    fs = w.fs
+    rms = []
+    for t0, t1, _, _ in segs:
+        i0, i1 = int((t0 + 0.05) * fs), int((t1 - 0.02) * fs)     # settled inside the push
+        rms.append(np.sqrt(np.mean(a[i0:i1] ** 2)))
+    return np.polyfit(np.log(speeds), np.log(rms), 1)[0]
+
+
+def test_speed_variant_changes_how_loudness_follows_speed_per_object():
+    # No coupling, the arm off, a textured pad: the slip alone above the noise floor. The slow
+    # force variation moves a grasp's fitted slope by about 0.1, alike for every exponent
+    # with one seed, so each variant slope is read against the default's on the same grasp.
+    def scene(obj, seed):
+        base = sc.scripted(seed, [(0.0, 0.1, 0.01, 0.0)], object=obj, sample_rate=RATE)
+        return sc.coupling_variant(base, 0.0, 0.0)
+    objs = ("chips_can", "pla_rod")                    # exponents 0.50 and 1.04
+    for seed in (0, 1):
+        slopes = {o: level_speed_slope(sc.speed_variant(scene(o, seed))) for o in objs}
+        default = {o: level_speed_slope(scene(o, seed)) for o in objs}
+        assert abs(default["pla_rod"] - default["chips_can"]) < 0.02   # one law for all
+        assert abs(default["chips_can"] - 0.75) < 0.2
+        for o in objs:
+            moved = va.object_speed_exponent(o) - 0.75
+            assert abs(slopes[o] - default[o] - moved) < 0.02, (o, seed, slopes, default)
+        assert slopes["pla_rod"] - slopes["chips_can"] > 0.4
+
+
+def test_path_variant_sends_the_hand_and_the_arm_by_paths_of_their_own():
+    base = sc.external_induced(seed=6, duration_s=1.0, sample_rate=RATE,
+                               condition="robot_moving")
+    v = sc.VARIANTS["path"](base)
+    assert base.acoustics.handling_path_db == base.acoustics.robot_path_db == 1.0
+    assert v.acoustics.handling_path_db == v.acoustics.robot_path_db == va.PATH_DB == 6.0
+    assert v.with_(acoustics=base.acoustics) == base                  # nothing else moves
+    w0, w1 = World(base).synth, World(v).synth
+    np.testing.assert_array_equal(w0.gain, w1.gain)                   # the same coupling
+    # The grasp's own draws, scaled: the variant draws nothing the default scene does not.
+    for name in ("_handling_path", "_robot_coupling"):
+        p0, p1 = (20 * np.log10(getattr(w, name).astype(float)) for w in (w0, w1))
+        np.testing.assert_allclose(p1, 6.0 * p0, atol=1e-4)
+        assert np.all(np.abs(p1) <= 6.0) and np.ptp(p1) > 2.0, (name, p1)
+    # The arm's noise reaches each microphone through its path: its level pattern is it.
+    n = 16000
+    z = np.random.default_rng(0).standard_normal((n, 18)).astype(np.float32)
+    robot = w1._robot(z, np.tile([0.05, 0.0, 0.0], (n, 1)))
+    level = 10 * np.log10((robot.astype(float) ** 2).mean(axis=0))
+    path = 20 * np.log10(w1._robot_coupling)
+    np.testing.assert_allclose(level - level.mean(), path - path.mean(), atol=1e-3)
+
+
+def test_default_scene_is_unchanged_by_the_path_variant_at_the_default_paths():
+    base = sc.external_induced(seed=3, duration_s=2.0, sample_rate=RATE,
+                               condition="robot_moving")
+    same = sc.path_variant(base, 1.0, 1.0)
+    assert same == base
+    _, a, v = render(base)
+    _, b, u = render(same)
+    assert np.abs(a).max() > 0.0
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(v, u)

@@ -6,7 +6,9 @@ scene the audio stream starts with the grasp; on a real cell the audio runs acro
 and only the controller knows when a task (a grasp) begins. At the start of each task the
 controller calls ``slip_inference``'s ``~/recalibrate`` (std_srvs/Trigger), tells the user to
 hold the object still, and says when ``/aslip/calibration`` reports the new grasp converged
-(or that the checkpoint has no calibration). Nothing here moves or holds the arm.
+(or that the checkpoint has no calibration), and warns when it reports the grasp's estimate
+untrusted (the calibration's self-check, docs/model.md). Nothing here moves or holds the
+arm.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ class GraspCalibration:
         self._begun_t: Optional[float] = None
         self._begun_grasp = 0
         self.converged_after_s: Optional[float] = None
+        #: The self-check's verdict on the current task's grasp (None: not known yet).
+        self.trusted: Optional[bool] = None
         self.requests = 0
         self.replies = 0                           # answered or failed calls
         self._pending = False
@@ -52,6 +56,7 @@ class GraspCalibration:
         """A task starts with an object in the grasp: calibrate for this grasp."""
         self._begun_t, self._begun_grasp = self.clock(), self.grasp
         self.converged_after_s = None
+        self.trusted = None
         self._pending = self.client is not None and self.calibrated is not False
         self._request()
 
@@ -96,6 +101,14 @@ class GraspCalibration:
             self.converged_after_s = self.clock() - self._begun_t
             self.node.get_logger().info(f"calibration converged {self.converged_after_s:.2f} s "
                                         "after the grasp began")
+        trusted = state.get("trusted")          # absent from an older slip_inference
+        if converged and self._begun_t is not None and grasp > self._begun_grasp and \
+                isinstance(trusted, bool) and trusted != self.trusted:
+            self.trusted = trusted
+            if not trusted:
+                self.node.get_logger().warning(
+                    "calibration not trusted: the background does not reach the "
+                    "microphones alike (docs/model.md); slip directions may be biased")
 
     def values(self) -> dict:
         """Diagnostics values: ``calibration`` none / calibrating / converged / unknown."""
@@ -108,4 +121,6 @@ class GraspCalibration:
         out = {"calibration": state}
         if self.converged_after_s is not None:
             out["calibration_converged_after_s"] = round(self.converged_after_s, 3)
+        if self.trusted is not None:
+            out["calibration_trusted"] = self.trusted
         return out

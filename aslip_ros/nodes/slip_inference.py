@@ -40,9 +40,14 @@ checkpoints without calibration, the predictor's calibrated one-sigma direction 
 the estimate's speed (``learn.calibration.output``; -1 when the checkpoint has no sigma
 model, as older ones; a message that is not slipping carries -1). ``/diagnostics`` shows
 ``calibration_converged``, ``calibration_accepted_frames``, ``calibration_frames``,
-``calibration_resets`` and ``gain_db_<channel>``. Every new grasp and every convergence is
-also announced on the latched ``/aslip/calibration`` (std_msgs/String, JSON: ``calibrated``,
-``grasp``, ``converged``, ``reason``, ``stamp_s``), which the controllers report to the user.
+``calibration_resets``, ``gain_db_<channel>`` and the calibration's self-check:
+``calibration_spread_db`` and, once converged (with a checkpoint whose constants carry the
+check's threshold), ``calibration_trusted``; an estimate it does not trust (a background
+that is not common mode: docs/model.md) turns the diagnostics to WARN and is logged. Every
+new grasp, every convergence and every untrusted estimate (once per grasp) is also announced
+on the latched ``/aslip/calibration`` (std_msgs/String, JSON: ``calibrated``, ``grasp``,
+``converged``, ``trusted``, ``reason``, ``stamp_s``), which the controllers report to the
+user.
 
 Timing: the model runs on a thread of its own, never inside the audio callback, so a slow
 forward pass cannot hold up the audio subscription (which would overflow its best-effort
@@ -292,7 +297,8 @@ class SlipInference(Node):
             self._grasp += 1
         self.pub_calibration.publish(String(data=json.dumps({
             "calibrated": calibrated, "grasp": self._grasp, "converged": converged,
-            "reason": reason, "stamp_s": time.time()})))
+            "trusted": self.est.calibration_trusted, "reason": reason,
+            "stamp_s": time.time()})))
 
     def _report(self) -> None:
         """The estimator's events as log lines and calibration announcements."""
@@ -319,6 +325,11 @@ class SlipInference(Node):
                     self._announce_calibration(e.reason)
             elif e.kind == "converged":
                 self._announce_calibration("converged")
+            elif e.kind == "untrusted":
+                log.warning(f"per-grasp calibration not trusted ({e.detail}): the background "
+                            "does not reach the microphones alike, so the gain estimate mixes "
+                            "its paths with the coupling; directions may be biased")
+                self._announce_calibration("untrusted")
 
     def _on_audio(self, msg: AudioFrame) -> None:
         t_in = time.perf_counter()
@@ -476,6 +487,11 @@ class SlipInference(Node):
             level, message = c.Diagnostics.WARN, f"{drops} frames dropped"
         elif not recent:
             level, message = c.Diagnostics.WARN, "no audio"
+        elif cal is not None and cal.get("calibration_trusted") is False:
+            level, message = c.Diagnostics.WARN, (
+                f"per-grasp calibration not trusted: spread "
+                f"{cal['calibration_spread_db']:.2f} dB above "
+                f"{cal['calibration_trust_spread_db']:.2f} dB")
         if self.last_error:
             values["last_error"] = self.last_error
         self.diag.publish(level, message, values)

@@ -18,8 +18,9 @@ ablation in ``scene/ablation.py`` shows a result that depends on it (docs/scene.
 - Nuisances that make detection near the slip threshold honest: slow normal-force variation,
   per-grasp coupling of each microphone (gain mismatch, and the hand's own path to it),
   stick-slip and handling clicks, handling noise without slip, and a microphone noise floor.
-- Robot operating noise: common mode, gear-mesh lines tied to joint speed plus broadband,
-  silent when the arm is still.
+- Robot operating noise: nearly common mode (its own +-1 dB path per microphone,
+  ``robot_path_db``), gear-mesh lines tied to joint speed plus broadband, silent when the
+  arm is still.
 
 All random draws come from pages keyed by ``(seed, page index)``, and every filter carries
 its state across blocks, so the output does not depend on how the stream is cut into blocks.
@@ -87,6 +88,7 @@ class Acoustics:
     force_tau_s: float = 0.4
     gain_mismatch_db: float = 3.0     # per-grasp coupling of each microphone (+-dB; scene.md)
     handling_path_db: float = 1.0     # per-grasp path difference of handling noise (+-dB)
+    robot_path_db: float = 1.0        # per-grasp path difference of robot noise (+-dB)
     click_rate_slip_smooth: float = 300.0   # stick-slip clicks per (m/s) per s, smooth pad
     click_rate_slip_textured: float = 60.0
     click_rate_touch: float = 25.0    # handling clicks per second while touched
@@ -232,7 +234,10 @@ class Synth:
         # Jacobian of the pose the arm holds in this trial [rad/s per m/s].
         q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
         self._jac = q * rng.uniform(1.5, 3.5, 3)[:, None]
-        self._robot_coupling = 10.0 ** (rng.uniform(-1, 1, c) / 20.0)
+        # The arm's noise reaches each microphone through its own path too (+-1 dB by
+        # default); the same draw for every robot_path_db, so 1 dB renders what it always did.
+        self._robot_coupling = 10.0 ** (rng.uniform(-1, 1, c) * acoustics.robot_path_db
+                                        / 20.0)
         # The hand reaches each microphone through its own path in the object; drawn from a
         # separate stream so that 0 dB (:data:`UNCOUPLED`) renders exactly what version 2 did.
         path_rng = np.random.default_rng([int(seed), 0x4A7D])

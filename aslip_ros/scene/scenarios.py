@@ -32,9 +32,9 @@ from aslip_ros.motion import PulseTrain, direction_back, slip_speed
 from .layouts import get_object
 from .scenario import CONDITIONS, KINDS, Scenario  # noqa: F401 - KINDS, CONDITIONS: re-exported
 # The variants live in their own module; re-exported here, where the scenarios are.
-from .variants import (COUPLING_DB, HANDLING_PATH_DB, LAB_MOCAP, VARIANTS,  # noqa: F401
-                       confounders_variant, contact_variant, coupling_variant,
-                       mocap_variant, one_sided_variant)
+from .variants import (COUPLING_DB, HANDLING_PATH_DB, LAB_MOCAP, PATH_DB,  # noqa: F401
+                       VARIANTS, confounders_variant, contact_variant, coupling_variant,
+                       mocap_variant, one_sided_variant, path_variant, speed_variant)
 
 #: Pause between an agent's touches [s] (uniform range) and the longest slide of one push [m].
 _TOUCH_GAP_S = (0.1, 0.8)

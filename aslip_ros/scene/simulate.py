@@ -34,8 +34,10 @@ DEFAULT_START_NS = 1_700_000_000_000_000_000   # a fixed ROS time so bags are re
 DEFAULT_BLOCK_FRAMES = 480
 #: Scene variants (docs/scene.md, ``scene.variants.VARIANTS``): wider per-grasp coupling,
 #: one-sided slip, off-centre contact, confounders without slip, a lab's motion capture, a
-#: 44.1 kHz sound card.
-VARIANTS = ("coupling", "one_sided", "contact", "confounders", "mocap", "rate")
+#: 44.1 kHz sound card, another loudness-speed exponent per object, a background that is
+#: not common mode.
+VARIANTS = ("coupling", "one_sided", "contact", "confounders", "mocap", "rate", "speed",
+            "path")
 
 
 def trial_seed(base_seed: int, kind: str, object: str, condition: str, index: int) -> int:
@@ -219,8 +221,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variant", choices=VARIANTS, default=None,
                         help="held-out scene variant (docs/scene.md): +-6 dB coupling; 80 %% "
                              "of the slip one way; off-centre contact; confounders without "
-                             "slip; a lab's motion capture; 44.1 kHz audio (default: the plain "
-                             "scene)")
+                             "slip; a lab's motion capture; 44.1 kHz audio; another "
+                             "loudness-speed exponent per object; the hand's and the arm's "
+                             "noise by +-6 dB paths (default: the plain scene)")
     parser.add_argument("--twist-fraction", type=float, default=0.0,
                         help="external only: share of the agent's slipping pushes that twist "
                              "the object about the pad normal, half pure twists and half with "

@@ -14,10 +14,18 @@ but physically sourced range than the default scene's; no model is trained or tu
   noise and clicks twice as loud and as frequent, the arm 6 dB louder.
 - ``mocap``: a lab's motion capture (100 Hz, 0.3 mm, 2 % dropped frames, 15 ms latency).
 - ``rate``: audio recorded at 44.1 kHz instead of 48 kHz.
+- ``speed``: the slip noise's loudness against slip speed with another exponent per object
+  (``Acoustics.speed_exponent``, 0.75 for every object in the default scene), drawn once per
+  object in 0.45 to 1.05.
+- ``path``: the background reaches the microphones by other paths: the hand's noise and the
+  arm's noise each through their own +-6 dB per microphone and grasp (the default scene has
+  +-1 dB each), so the background is no longer common mode and its mix moves each channel's
+  level (what the per-grasp calibration's self-check is for, docs/model.md).
 """
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import replace
 from typing import Callable
 
@@ -91,6 +99,50 @@ def mocap_variant(scn: "Scenario") -> "Scenario":
     return scn.with_(**LAB_MOCAP)
 
 
+#: The speed variant: range of each object's amplitude speed exponent (slip noise RMS grows
+#: as ``speed ** exponent``). The default scene's 0.75 for every object is the exponent
+#: reported for roughness noise (Ben Abdelounis et al. 2010; shared/docs/scene-physics.md,
+#: item 2); no source gives its spread over surface pairs, so +-0.3 around it is an
+#: assumption (sources in docs/scene.md).
+SPEED_EXPONENT_RANGE = (0.45, 1.05)
+
+
+def object_speed_exponent(obj: str, low: float = SPEED_EXPONENT_RANGE[0],
+                          high: float = SPEED_EXPONENT_RANGE[1], seed: int = 0) -> float:
+    """The speed variant's exponent of object ``obj``: uniform in [low, high], drawn from the
+    object's name (and ``seed``), so one object keeps it in every grasp and every scenario."""
+    if not 0.0 <= low <= high or not np.isfinite(high):
+        raise ValueError(f"speed exponent range must satisfy 0 <= low <= high, got "
+                         f"({low}, {high})")
+    rng = np.random.default_rng([int(seed), 0x5BEED, zlib.crc32(str(obj).encode())])
+    return float(rng.uniform(low, high))
+
+
+def speed_variant(scn: "Scenario", low: float = SPEED_EXPONENT_RANGE[0],
+                  high: float = SPEED_EXPONENT_RANGE[1], seed: int = 0) -> "Scenario":
+    """``scn`` whose object's slip noise grows with speed by its own exponent
+    (:func:`object_speed_exponent`) instead of the scene's 0.75; the level at
+    ``Acoustics.speed_ref_m_s`` is kept."""
+    ex = object_speed_exponent(scn.object, low, high, seed)
+    return scn.with_(acoustics=replace(scn.acoustics, speed_exponent=ex))
+
+
+#: The path variant: per-grasp path difference of the hand's and of the arm's noise to each
+#: microphone [+-dB], against +-1 dB each in the default scene. A source's level falls as
+#: ``1 / (1 + r / falloff_m)`` with its distance (``physics.Acoustics.falloff_m``, 10 mm):
+#: a hand 3 cm from one pad and 10 cm from the other is 9 dB louder at the first, so +-6 dB
+#: is within the scene's own law (sources in docs/scene.md).
+PATH_DB = 6.0
+
+
+def path_variant(scn: "Scenario", handling_db: float = PATH_DB,
+                 robot_db: float = PATH_DB) -> "Scenario":
+    """``scn`` whose background is not common mode: the hand's noise reaches each channel
+    with its own +-handling_db and the arm's with its own +-robot_db, per grasp."""
+    return scn.with_(acoustics=replace(scn.acoustics, handling_path_db=float(handling_db),
+                                       robot_path_db=float(robot_db)))
+
+
 #: The scene variants by name (``aslip simulate --variant``): each maps a scenario to its
 #: variant. Every variant keeps the default scene's per-grasp coupling unless it widens it.
 VARIANTS: dict[str, Callable[["Scenario"], "Scenario"]] = {
@@ -100,4 +152,6 @@ VARIANTS: dict[str, Callable[["Scenario"], "Scenario"]] = {
     "confounders": confounders_variant,
     "mocap": mocap_variant,
     "rate": rate_variant,
+    "speed": speed_variant,
+    "path": path_variant,
 }

@@ -108,15 +108,21 @@ class StreamCalibration:
         return self.state.offsets
 
     def summary(self) -> dict[str, Any]:
-        """What the diagnostics show: convergence, per-channel gain, frame counts."""
+        """What the diagnostics show: convergence, per-channel gain, frame counts, the
+        self-check's statistic and, once known, its verdict (``calibration_trusted``)."""
         s = self.state
         out = {"calibration_converged": bool(s.converged),
                "calibration_accepted_frames": int(round(s.weight)),
                "calibration_frames": int(s.n_frames), "calibration_resets": self.resets,
+               "calibration_spread_db": round(s.spread_db, 3),
                "gain_db": {n: round(float(g), 3)
                            for n, g in zip(s.k.channel_names, s.gain_db)}}
         if s.converged_after_s is not None:     # seconds of the grasp's audio, once converged
             out["calibration_converged_after_s"] = round(s.converged_after_s, 3)
+        trusted = s.trusted
+        if trusted is not None:                 # converged, with a threshold in the constants
+            out["calibration_trusted"] = trusted
+            out["calibration_trust_spread_db"] = s.k.trust_spread_db
         return out
 
 

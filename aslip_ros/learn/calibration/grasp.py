@@ -27,6 +27,17 @@ benchmarks.calibration_pipeline --frames-table``; docs/model.md, "Per-grasp cali
 Units: offsets are natural-log power (what log-mel features add), ``gain_db`` is the same in
 dB (relative to the channel mean).
 
+Self-check: the estimate assumes the background is common mode. Where it reaches the
+microphones by different paths (the hand's noise by one, the arm's by another), each channel's
+deviation moves with the mix of sources in a frame, and the average mixes path and coupling.
+``spread_db``, the RMS over channels of the accepted frames' weighted standard deviation
+around their mean, says so: a pure coupling gain moves every background frame of a channel
+alike. ``trusted`` is False once converged with ``spread_db`` above ``trust_spread_db`` (a
+high percentile of the statistic on the training grasps, with a margin; ``fit_constants``),
+None before convergence or for constants without a threshold (fitted before the check). A
+background that reaches each microphone by a path of its own but alone (no second source to
+mix with) moves every frame alike too: no level statistic can tell that path from a gain.
+
 Methods: ``background`` (the default: no-slip frames above the floor), ``slip`` (slip frames
 only; kept to measure why it fails on one-sided slip) and ``all`` (every frame above the
 floor). docs/model.md, "Per-grasp calibration", has the measurements.
@@ -46,6 +57,10 @@ from aslip_ros.learn.compat import CheckpointMismatch
 
 METHODS = ("background", "slip", "all")
 _DB_PER_NEPER_POWER = 10.0 / np.log(10.0)
+#: The self-check's threshold: this percentile over training grasps of each grasp's largest
+#: ``spread_db`` once converged, times this margin (docs/model.md, "Per-grasp calibration").
+TRUST_PERCENTILE = 95.0
+TRUST_MARGIN = 1.5
 
 
 @dataclass(frozen=True)
@@ -65,6 +80,9 @@ class CalibrationConstants:
     gate_threshold: float = 0.2
     prior_frames: float = 10.0
     converge_frames: int = 60
+    #: The self-check's threshold on ``CalibrationState.spread_db`` [dB]; None: no check
+    #: (constants written before it), ``trusted`` is then None.
+    trust_spread_db: float | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -81,6 +99,11 @@ class CalibrationConstants:
                 and 0.0 < self.gate_threshold < 1.0):
             raise ValueError("calibration hop_s, prior_frames, converge_frames or "
                              "gate_threshold out of range")
+        t = self.trust_spread_db
+        if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float))
+                              or not np.isfinite(t) or t <= 0):
+            raise ValueError(f"calibration trust_spread_db must be a positive number or "
+                             f"null, got {t!r}")
 
     @property
     def convergence_s(self) -> float:
@@ -205,13 +228,18 @@ class CalibrationState:
         #: frames of the grasp seen when the state first converged (None until then)
         self.converged_at_frame: int | None = None
         self._sum = np.zeros(len(self.k.channel_names))
+        self._sum_sq = np.zeros(len(self.k.channel_names))     # for the self-check
+        self._spread: float | None = None                       # spread_db, until an update
 
     def update(self, frames: np.ndarray) -> np.ndarray:
         """Consume new log-mel frames ``(C, M, T)`` (each frame once); return the offsets."""
         dev, p, active = _frame_stats(frames, self.k, self._gate)
         w = frame_weights(p, active, self.k)
         self.weight += float(w.sum())
-        self._sum += (dev - self._ref[:, None]) @ w
+        d = dev - self._ref[:, None]
+        self._sum += d @ w
+        self._sum_sq += (d * d) @ w
+        self._spread = None
         if self.converged_at_frame is None and self.converged:
             # the frame of this batch at which the accepted weight reached the criterion
             need = self.k.converge_frames - (self.weight - float(w.sum()))
@@ -241,6 +269,23 @@ class CalibrationState:
     def converged(self) -> bool:
         return self.weight >= self.k.converge_frames
 
+    @property
+    def spread_db(self) -> float:
+        """The self-check's statistic [dB]: RMS over channels of the accepted frames'
+        weighted standard deviation of the level deviation (0 before any frame)."""
+        if self._spread is None:
+            self._spread = float(_spread_db(self._sum, self._sum_sq, np.float64(self.weight)))
+        return self._spread
+
+    @property
+    def trusted(self) -> bool | None:
+        """False once converged with ``spread_db`` above the constants' threshold, True when
+        converged within it; None before convergence or without a threshold."""
+        t = self.k.trust_spread_db
+        if t is None or not self.converged:
+            return None
+        return self.spread_db <= t
+
     def apply(self, features: np.ndarray) -> np.ndarray:
         """``features`` ``(..., C, M, T)`` with the current offsets removed."""
         return np.asarray(features, dtype=np.float32) \
@@ -268,6 +313,38 @@ def offsets_at(frames: np.ndarray, ends: np.ndarray, k: CalibrationConstants) ->
     return out
 
 
+def _spread_db(s1: np.ndarray, s2: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``spread_db`` from per-channel weighted sums of deviations ``s1`` and of their
+    squares ``s2`` (``(..., C)``) over ``w`` (``(...)``) frames of weight."""
+    w = np.asarray(w, dtype=np.float64)
+    safe = np.where(w > 0, w, 1.0)[..., None]
+    var = np.maximum(s2 / safe - (s1 / safe) ** 2, 0.0)
+    return np.where(w > 0, np.sqrt(var.mean(axis=-1)), 0.0) * _DB_PER_NEPER_POWER
+
+
+def spread_at(frames: np.ndarray, ends: np.ndarray, k: CalibrationConstants) -> np.ndarray:
+    """Offline, for a whole grasp: ``spread_db`` after frames ``[0, end)`` for each ``end``
+    (equal to a :class:`CalibrationState` fed the frames in order; tested)."""
+    cw, cs, cs2 = _cumulative(frames, k)
+    ends = np.asarray(ends, dtype=np.int64)
+    if np.any(ends < 0) or np.any(ends >= cw.size):
+        raise ValueError("window ends must lie within the grasp's frames")
+    return _spread_db(cs[ends], cs2[ends], cw[ends])
+
+
+def _cumulative(frames: np.ndarray, k: CalibrationConstants
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Accepted weight ``(T+1,)`` and sums of deviations and of their squares ``(T+1, C)``
+    after each number of frames."""
+    dev, p, active = frame_stats(frames, k)
+    w = frame_weights(p, active, k)
+    d = dev - np.asarray(k.ref_offset, dtype=np.float64)[:, None]
+    zero = np.zeros((1, d.shape[0]))
+    return (np.concatenate([[0.0], np.cumsum(w)]),
+            np.concatenate([zero, np.cumsum((d * w).T, axis=0)]),
+            np.concatenate([zero, np.cumsum((d * d * w).T, axis=0)]))
+
+
 def relative_log_gain(gain: np.ndarray) -> np.ndarray:
     """The offsets a perfect calibration would find for linear amplitude gains ``(C,)``."""
     lg = 2.0 * np.log(np.asarray(gain, dtype=np.float64))
@@ -278,7 +355,9 @@ def fit_constants(frames: Sequence[np.ndarray], frame_slip: Sequence[np.ndarray]
                   channel_names: Sequence[str], hop_s: float, *,
                   true_offsets: Sequence[np.ndarray] | None = None,
                   method: str = "background", floor_margin_db: float = 10.0,
-                  max_frames: int = 60000, seed: int = 0, **options: Any
+                  max_frames: int = 60000, seed: int = 0,
+                  trust_percentile: float = TRUST_PERCENTILE,
+                  trust_margin: float = TRUST_MARGIN, **options: Any
                   ) -> CalibrationConstants:
     """Fit the gate, the floor and the reference offset on training grasps.
 
@@ -287,6 +366,11 @@ def fit_constants(frames: Sequence[np.ndarray], frame_slip: Sequence[np.ndarray]
     known relative log gains (a simulator's truth); without them the reference offset is the
     mean over grasps of each grasp's final estimate, which assumes that coupling averages out
     over many grasps.
+
+    The self-check's threshold ``trust_spread_db`` is ``trust_margin`` times the
+    ``trust_percentile`` percentile over training grasps of each grasp's largest
+    ``spread_db`` once converged (what the node would have seen at any time of the grasp);
+    None when no training grasp converges.
     """
     from sklearn.linear_model import LogisticRegression
 
@@ -323,7 +407,27 @@ def fit_constants(frames: Sequence[np.ndarray], frame_slip: Sequence[np.ndarray]
             est = est - np.asarray(true_offsets[i], dtype=np.float64)
         ests.append(est)
     ref = np.mean(ests, axis=0) if ests else np.zeros(len(channel_names))
-    return k.with_(ref_offset=tuple(float(v) for v in ref))
+    k = k.with_(ref_offset=tuple(float(v) for v in ref))
+    return k.with_(trust_spread_db=trust_threshold(frames, k, trust_percentile, trust_margin))
+
+
+def trust_threshold(frames: Sequence[np.ndarray], k: CalibrationConstants,
+                    percentile: float = TRUST_PERCENTILE, margin: float = TRUST_MARGIN
+                    ) -> float | None:
+    """``trust_spread_db`` from training grasps (log-mel ``(C, M, T)`` each) under ``k``:
+    ``margin`` times the ``percentile`` over grasps of the largest ``spread_db`` each reaches
+    once converged; None when none converges."""
+    if not 0.0 < percentile <= 100.0 or not margin >= 1.0:
+        raise ValueError("trust percentile must lie in (0, 100] and the margin be >= 1")
+    peaks = []
+    for f in frames:
+        cw, cs, cs2 = _cumulative(f, k)
+        on = cw >= k.converge_frames
+        if np.any(on):
+            peaks.append(float(np.max(_spread_db(cs[on], cs2[on], cw[on]))))
+    if not peaks:
+        return None
+    return float(max(margin * np.percentile(peaks, percentile), 1e-3))
 
 
 def _mean_level(frames: np.ndarray) -> np.ndarray:

@@ -135,8 +135,10 @@ class Stats:
 #: Kinds of ``events``: ``drop`` (a block dropped, ``reason`` says why), ``refuse`` (the
 #: stream does not fit the checkpoint), ``restart`` (window, calibration and state start
 #: again: gap, time jump, new stream, request), ``converged`` (the per-grasp calibration),
-#: ``dead`` (channels named in ``detail``; no estimate) and ``bad_estimate``.
-EVENT_KINDS = ("drop", "refuse", "restart", "converged", "dead", "bad_estimate")
+#: ``untrusted`` (the calibration's self-check says its estimate cannot be trusted: the
+#: background is not common mode; once per grasp, ``detail`` gives the figures), ``dead``
+#: (channels named in ``detail``; no estimate) and ``bad_estimate``.
+EVENT_KINDS = ("drop", "refuse", "restart", "converged", "untrusted", "dead", "bad_estimate")
 
 
 @dataclass(frozen=True)
@@ -221,6 +223,7 @@ class LiveEstimator:
         self._pushed = 0                   # samples into the window since its last restart
         self._epoch = 0                    # window restarts so far
         self._announced_converged = False
+        self._announced_untrusted = False
         #: Timing of the last ``run`` (window models) or streaming block [s]: see the module
         #: docstring. Each is written and read on the thread that runs the model.
         self.last_features_s = 0.0
@@ -296,6 +299,12 @@ class LiveEstimator:
     def calibration_converged(self) -> bool:
         return self.calibrated and bool(self.predictor.calibration_converged)
 
+    @property
+    def calibration_trusted(self) -> Optional[bool]:
+        """The calibration's self-check: False when its estimate cannot be trusted, True when
+        it can, None when not known (no calibration, not converged, no threshold)."""
+        return self.predictor.calibration_trusted if self.calibrated else None
+
     # --- input ----------------------------------------------------------------------------
     def drop(self, reason: str, detail: str) -> None:
         """Count a block the caller could not decode, or that ``accept`` refused; a streaming
@@ -323,6 +332,7 @@ class LiveEstimator:
                 return False
             self.predictor.reset_calibration()
             self._announced_converged = False
+            self._announced_untrusted = False
             self._event("restart", reason)
             return True
 
@@ -336,6 +346,7 @@ class LiveEstimator:
             self._pushed = 0
             self._epoch += 1
         self._announced_converged = False
+        self._announced_untrusted = False
         self._event("restart", reason)
 
     def _reset_stream(self, reason: str) -> None:
@@ -447,9 +458,18 @@ class LiveEstimator:
         return out
 
     def _note_convergence(self) -> None:
-        if self.calibration_converged and not self._announced_converged:
+        if not self.calibrated or not self.predictor.calibration_converged:
+            return
+        if not self._announced_converged:
             self._announced_converged = True
             self._event("converged", "converged")
+        # The self-check, once per grasp (a cached statistic: a comparison per block).
+        if not self._announced_untrusted and self.predictor.calibration_trusted is False:
+            self._announced_untrusted = True
+            s = self.predictor.calibration_summary()
+            self._event("untrusted", "untrusted",
+                        f"spread {s['calibration_spread_db']:.2f} dB above "
+                        f"{s['calibration_trust_spread_db']:.2f} dB")
 
     # --- the model ------------------------------------------------------------------------
     def run(self, job: Job) -> Optional[Estimate]:

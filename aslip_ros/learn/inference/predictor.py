@@ -184,8 +184,16 @@ class PredictorBase(CheckpointFacts):
     def calibration_converged(self) -> bool:
         return self._stream_cal is not None and self._stream_cal.state.converged
 
+    @property
+    def calibration_trusted(self) -> bool | None:
+        """The per-grasp calibration's self-check (``CalibrationState.trusted``): False when
+        its background is not common mode; None without calibration, before convergence or
+        for constants without a threshold."""
+        return None if self._stream_cal is None else self._stream_cal.state.trusted
+
     def calibration_summary(self) -> dict[str, Any] | None:
-        """Converged, per-channel gain [dB], accepted and seen frames, resets (or None)."""
+        """Converged, per-channel gain [dB], accepted and seen frames, resets, the
+        self-check (or None)."""
         return None if self._stream_cal is None else self._stream_cal.summary()
 
 
