@@ -17,11 +17,12 @@ PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/p
 # checkout's. ARGS adds options: make demo ARGS="--trials 2 --tasks slip_stop".
 BENCHMARK := $(ROS) PYTHONPATH="$$PYTHONPATH:$(CURDIR)" $(VENV)/bin/python -P -m
 
-.PHONY: help setup build test test-install test-fast demo datasets ablation bench stability transfer lint clean
+.PHONY: help setup build test test-install test-fast demo demo-variants datasets ablation bench stability transfer lint clean
 .PHONY: ablation-baselines magnitude flake-hunt soak-recording latency recipe-budget rotation
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
+	@echo "make demo-variants  the same loops under scene variants and louder robot noise (results/demo_variants/)"
 	@echo "make test       the test suite (all but the install tier)"
 	@echo "make test-install  make setup's own test and the hardware rehearsal (CI: own step)"
 	@echo "make flake-hunt the tests that start processes, RUNS times beside HOGS CPU hogs"
@@ -78,6 +79,10 @@ soak-recording: setup
 
 demo: setup
 	$(BENCHMARK) benchmarks.demo $(ARGS)
+
+# The closed loops in held-out scene variants and with 2x and 4x robot noise (issue #37).
+demo-variants: setup
+	$(BENCHMARK) benchmarks.demo_variants $(ARGS)
 
 datasets: setup
 	$(BENCHMARK) benchmarks.ablation --datasets-only --out results/ablation $(ARGS)

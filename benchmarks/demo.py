@@ -427,7 +427,7 @@ def _run_planned(args, t0: float, eps: list, models: dict, used: list, out: Path
           f"{models['source']}", file=sys.stderr, flush=True)
     t_run = time.perf_counter()
     results = run_episodes(eps, workers, out / "episodes", not args.no_progress)
-    meta = {"command": _command_line(), **asked, "hogs": args.hogs, "mode": args.mode,
+    meta = {"command": command_line(), **asked, "hogs": args.hogs, "mode": args.mode,
             "charge": args.charge if args.mode == "lockstep" else None,
             "lockstep_budget_s": LOCKSTEP_BUDGET_S if args.mode == "lockstep" else None,
             "headroom": headroom,
@@ -487,10 +487,11 @@ def episode_cores(checkpoint: str) -> float:
     return (time.process_time() - cpu0) / max(r["scene_s"], 1e-3)
 
 
-def _command_line() -> str:
-    """``python -m benchmarks.demo`` with this run's options when it was started so."""
-    started_here = Path(sys.argv[0]).resolve() == Path(__file__).resolve()
-    return " ".join(["python -m benchmarks.demo", *(sys.argv[1:] if started_here else [])])
+def command_line(module: str = "demo") -> str:
+    """``python -m benchmarks.<module>`` with this run's options when it was started so."""
+    started_here = Path(sys.argv[0]).resolve() == Path(__file__).with_name(f"{module}.py") \
+        .resolve()
+    return " ".join([f"python -m benchmarks.{module}", *(sys.argv[1:] if started_here else [])])
 
 
 def _load() -> Optional[float]:

@@ -149,21 +149,42 @@ class Episode:
     arm: str = dm.PIVOT_ARMS[0]
     mode: str = MODES[0]
     charge: str = CHARGES[0]
+    #: A held-out scene variant (a name in ``aslip_ros.scene.variants.VARIANTS``; None:
+    #: the default scene) and a factor on the arm's operating noise level, both handed to
+    #: ``scene_sim`` as its ``variant`` and ``robot_noise_x`` parameters.
+    variant: Optional[str] = None
+    robot_noise_x: float = 1.0
 
     def __post_init__(self) -> None:
+        from aslip_ros.scene.variants import VARIANTS
         if self.arm not in dm.PIVOT_ARMS:
             raise ValueError(f"arm must be one of {dm.PIVOT_ARMS}, got {self.arm!r}")
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         if self.charge not in CHARGES:
             raise ValueError(f"charge must be one of {CHARGES}, got {self.charge!r}")
+        if self.variant is not None and self.variant not in VARIANTS:
+            raise ValueError(f"variant must be None or one of {list(VARIANTS)}, got "
+                             f"{self.variant!r}")
+        if not (math.isfinite(self.robot_noise_x) and self.robot_noise_x >= 0.0):
+            raise ValueError(f"robot_noise_x must be finite and >= 0, got "
+                             f"{self.robot_noise_x!r}")
+
+    @property
+    def stressor(self) -> str:
+        """The scene's stressor in words: ``default``, the variant's name, ``robot<x>x``
+        for louder robot noise, or both joined by ``+``."""
+        parts = ([self.variant] if self.variant else []) + \
+            ([f"robot{self.robot_noise_x:g}x"] if self.robot_noise_x != 1.0 else [])
+        return "+".join(parts) or "default"
 
     @property
     def key(self) -> str:
-        """File-name key of the episode (pivot-stop episodes name their arm)."""
-        if self.task == "pivot_stop":
-            return f"{self.task}-{self.method}-{self.arm}-{self.object}-{self.trial:02d}"
-        return f"{self.task}-{self.method}-{self.object}-{self.trial:02d}"
+        """File-name key of the episode (pivot-stop episodes name their arm, an episode in
+        a stressed scene its stressor)."""
+        arm = f"-{self.arm}" if self.task == "pivot_stop" else ""
+        stressor = "" if self.stressor == "default" else f"-{self.stressor}"
+        return f"{self.task}-{self.method}{arm}-{self.object}-{self.trial:02d}{stressor}"
 
 
 def overrides(params: dict) -> list:
@@ -175,6 +196,10 @@ def overrides(params: dict) -> list:
 def node_params(ep: Episode, length_m: float) -> dict:
     """Parameters of every node of the episode (SI units)."""
     scene = {"seed": int(ep.seed), "object": ep.object, "layout": DEFAULT_LAYOUT}
+    if ep.variant is not None:
+        scene["variant"] = ep.variant
+    if ep.robot_noise_x != 1.0:
+        scene["robot_noise_x"] = float(ep.robot_noise_x)
     if ep.task == "slip_stop":
         s = ep.stop
         scene.update(scenario="wall_push", wall_distance_m=0.0)
@@ -223,9 +248,11 @@ def pivot_controller(s: PivotSettings, arm: str) -> dict:
 
 
 class _Recorder:
-    """Collects the predicted slip and the slip-stop result (a plain rclpy node)."""
+    """Collects the predicted slip, the arm commands (stamp, speed) and the slip-stop result
+    (a plain rclpy node)."""
 
     def __init__(self) -> None:
+        from geometry_msgs.msg import TwistStamped
         from rclpy.node import Node
         from std_msgs.msg import String
 
@@ -235,9 +262,17 @@ class _Recorder:
         from aslip_ros.nodes.slip_stop import RESULT_TOPIC
         self.node = Node("aslip_demo_recorder")
         self.slip: list[tuple] = []
+        self.commands: list[tuple[int, float]] = []
         self.result: Optional[dict] = None
         self.node.create_subscription(SlipVector, c.SLIP_TOPIC, self._on_slip, 100)
+        # Reliable, and deep enough to keep every command of an episode that falls behind.
+        self.node.create_subscription(TwistStamped, c.CMD_VEL_TOPIC, self._on_cmd, 1000)
         self.node.create_subscription(String, RESULT_TOPIC, self._on_result, LATCHED_QOS)
+
+    def _on_cmd(self, msg) -> None:
+        lin = msg.twist.linear
+        self.commands.append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
+                              math.sqrt(lin.x * lin.x + lin.y * lin.y + lin.z * lin.z)))
 
     def _on_slip(self, msg) -> None:
         st = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -370,6 +405,7 @@ def run_episode(ep: Episode, keep_trace: bool = True) -> dict:
                                              probe)
                 else:
                     outcome = _spin(ep, executor, sim, ctl, rec, t_wall0, probe)
+            _drain_commands(ep, executor, probe, ctl, rec)
             # Input arrival gaps and stop latency, as the controller saw them.
             timing = dict(ctl.inputs.values(), **ctl.stop_latency())
             ctl.before_shutdown()
@@ -466,6 +502,21 @@ def _spin_lockstep(ep: Episode, executor, sim, infer, ctl, rec, t_wall0: float,
             return ended
 
 
+def _drain_commands(ep: Episode, executor, probe: StallProbe, ctl, rec) -> None:
+    """Every arm command the controller published reaches the recorder before the score:
+    in lockstep as surely as the scene got them (a stall past the guard raises); in real
+    time for at most a second (``stop_hold`` then reads what arrived)."""
+    def done():
+        return len(rec.commands) >= getattr(ctl.arm, "published", 0)
+    if ep.mode == "lockstep":
+        _spin_until(executor, probe, done, "arm commands at the recorder")
+        return
+    t0 = time.monotonic()
+    while not done() and time.monotonic() - t0 < 1.0:
+        executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+        probe.tick()
+
+
 def _decided(ep: Episode, world, rec) -> Optional[str]:
     """Why the trial is decided, or None while it is not."""
     if ep.task == "slip_track":
@@ -490,6 +541,15 @@ def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:
     out = {"task": ep.task, "method": ep.method, "object": ep.object, "trial": ep.trial,
            "seed": ep.seed, "ended": ended, "scene_s": round(world.t, 3),
            "skipped_blocks": int(sim.scene.skipped_blocks), "n_slip_msgs": len(rec.slip)}
+    if ep.stressor != "default":
+        # What the scene node was given and built: its parameters and its robot noise level.
+        out.update(stressor=ep.stressor, scene={
+            "variant": sim.p["variant"], "robot_noise_x": sim.p["robot_noise_x"],
+            "robot_level": world.scenario.acoustics.robot_level})
+    cmd = np.array(rec.commands, dtype=float).reshape(-1, 2)
+    cmd_t = (cmd[:, 0] - start_ns) / 1e9
+    if ep.task in ("slip_stop", "pivot_stop"):
+        out["stop_hold"] = dm.stop_hold(cmd_t, cmd[:, 1], world.t)
     if ep.task == "slip_stop":
         first = world.wall_contacts[0][1] if world.wall_contacts else None
         o = dm.stop_outcome(traj["t"], traj["tcp"], world.wall_normal(), world.wall_contacts,
@@ -518,7 +578,9 @@ def _score(ep: Episode, sim, rec, length: float, ended: str) -> dict:
         "pred_t": ((slip[:, 0] - start_ns) / 1e9).astype(np.float32),
         "pred_v": slip[:, 1:3].astype(np.float32), "pred_p": slip[:, 3].astype(np.float32),
         "pred_w": slip[:, 5].astype(np.float32),
-        "push_dir": world.wall_normal().astype(np.float32)}
+        "push_dir": world.wall_normal().astype(np.float32),
+        # The arm commands: stamp (scene time [s], float64: stamps are compared) and speed.
+        "cmd_t": cmd_t, "cmd_speed": cmd[:, 1].astype(np.float32)}
     for k in ("angle", "w_rel"):        # the scene's rotation (scene version 4)
         if k in traj:
             out["trace"][k] = np.asarray(traj[k]).astype(np.float32)

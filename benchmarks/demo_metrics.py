@@ -347,6 +347,27 @@ def onset_to_stop_s(onset_s: Optional[float], stop_times: Sequence[float]) -> Op
     return float(after[0] - onset_s) if after else None
 
 
+def stop_hold(t_cmd_s, speeds, end_s: float) -> dict:
+    """The arm commands of a slip-stop trial after its stop, from their stamps (scene time
+    [s]) and speeds [m/s]: ``ends_on_stop``, the newest command is a stop and every moving
+    one is older (strictly); ``stop_s``, the first stop after the newest moving command
+    (None when the newest command moves); ``held_s``, the scene time from that stop to the
+    episode's end ``end_s`` with no moving command. A controller that stopped and stayed
+    stopped ends on a stop held for as long as the episode watched it (slip-stop: its
+    ``settle_result_s``); a moving command after the stop ends the trial moving or moves the
+    stop later, so ``held_s`` comes short."""
+    t = np.asarray(t_cmd_s, dtype=float).reshape(-1)
+    v = np.asarray(speeds, dtype=float).reshape(-1)
+    moving = t[v > 0.0]
+    last_move = float(moving.max()) if moving.size else -math.inf
+    after = t[(v == 0.0) & (t > last_move)]
+    stop = float(after.min()) if after.size else None
+    return {"commands": int(t.size), "moving": int(moving.size),
+            "ends_on_stop": stop is not None,
+            "stop_s": None if stop is None else round(stop, 6),
+            "held_s": None if stop is None else round(float(end_s) - stop, 6)}
+
+
 def mean_std(values: Iterable[float]) -> tuple[float, float, int]:
     """Mean, population std and count of the finite values (NaN, NaN, 0 if none)."""
     v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)

@@ -31,7 +31,8 @@ def build_world(values: dict, prefix: str = ""):
     ``values`` holds ``<prefix>scenario``, ``seed``, ``object``, ``layout``, ``pad``,
     ``condition``, ``sample_rate``, ``wall_distance_m``, ``drag_speed_m_s``, ``pivot_lever_m``
     (``pivot``: a wall push down, met that far along the fingers, so the object turns) and
-    (optional) ``drag_hold_s``; an unusable combination raises ValueError.
+    (optional) ``drag_hold_s``, ``variant`` and ``robot_noise_x`` (:func:`stressed`); an
+    unusable combination raises ValueError.
     """
     from aslip_ros.scene import World, scenarios
     g = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
@@ -56,7 +57,33 @@ def build_world(values: dict, prefix: str = ""):
                                           **common)
     except ValueError as exc:
         raise ValueError(f"cannot build the {kind} scenario: {exc}") from exc
-    return World(scn)
+    return World(stressed(scn, g.get("variant", NO_VARIANT), g.get("robot_noise_x", 1.0)))
+
+
+#: The ``variant`` parameter's value for the default scene.
+NO_VARIANT = "none"
+
+
+def stressed(scn, variant: str | None = NO_VARIANT, robot_noise_x: float = 1.0):
+    """``scn`` under a held-out scene variant (a name in
+    :data:`aslip_ros.scene.variants.VARIANTS`; ``none`` or None: the default scene), its
+    robot noise level then ``robot_noise_x`` times as loud (``Acoustics.robot_level``).
+    ``none`` and 1 return ``scn`` itself."""
+    from dataclasses import replace
+
+    from aslip_ros.scene.variants import VARIANTS
+    if variant not in (None, NO_VARIANT):
+        if variant not in VARIANTS:
+            raise ValueError(f"unknown scene variant {variant!r}; choose one of "
+                             f"{[NO_VARIANT, *VARIANTS]}")
+        scn = VARIANTS[variant](scn)
+    x = float(robot_noise_x)
+    if not (np.isfinite(x) and x >= 0.0):
+        raise ValueError(f"robot_noise_x must be finite and >= 0, got {robot_noise_x!r}")
+    if x != 1.0:
+        scn = scn.with_(acoustics=replace(scn.acoustics,
+                                          robot_level=scn.acoustics.robot_level * x))
+    return scn
 
 
 def world_metadata(world) -> dict:

@@ -4,7 +4,7 @@ source of ``audio_capture`` (the world itself is built by
 
 from __future__ import annotations
 
-from aslip_ros.hw.sources import CONDITIONS, SCENARIOS
+from aslip_ros.hw.sources import CONDITIONS, NO_VARIANT, SCENARIOS
 from aslip_ros.nodes import common as c
 
 #: The pivot's lever arm by default [m]: an object held 10 cm from where it meets the surface.
@@ -17,6 +17,7 @@ def scene_params(prefix: str = "") -> list:
     object starts in contact with the wall)."""
     from aslip_ros.scene import LAYOUTS, OBJECTS, PADS
     from aslip_ros.scene.scenario import Scenario
+    from aslip_ros.scene.variants import VARIANTS
     return [
         c.Param(prefix + "scenario", "external_induced",
                 f"scene task: {', '.join(SCENARIOS)}", c.one_of(*SCENARIOS), read_only=True),
@@ -44,4 +45,12 @@ def scene_params(prefix: str = "") -> list:
         c.from_config(Scenario, "drag_hold_s", "drag: the agent holds the object still this "
                       "long after the grasp before its first pull [s]",
                       c.in_range(0.0, 60.0), read_only=True, prefix=prefix),
+        c.Param(prefix + "variant", NO_VARIANT,
+                f"held-out scene variant (docs/scene.md, \"Variants\"): {NO_VARIANT} = the "
+                f"default scene; {', '.join(VARIANTS)}", c.one_of(NO_VARIANT, *VARIANTS),
+                read_only=True),
+        c.Param(prefix + "robot_noise_x", 1.0,
+                "the arm's operating noise this many times as loud as the scene's "
+                "(Acoustics.robot_level; after the variant)", c.in_range(0.0, 100.0),
+                read_only=True),
     ]
