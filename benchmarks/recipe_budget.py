@@ -12,6 +12,12 @@ and the chosen checkpoint is evaluated on the 3 test trials, which neither train
 selection read, with 95 % intervals from a bootstrap over those trials. The budget is wall
 time, so a busier machine trains fewer epochs in the same budget: run it on an idle one.
 
+Beside it, on the same test trials (``--no-baselines``: not): the plain log-mel CNN (with
+its speed head) and the plain RBF SVR that regresses the speed itself
+(``learn.baselines``), each trained on the 17 training and validation trials, as many as
+the default's final model trains on. Rows of budgets not run this time are kept from the
+previous ``budget.json``.
+
     python -m benchmarks.recipe_budget --out results/recipes      (make recipe-budget)
 """
 
@@ -95,6 +101,19 @@ def run_budget(data: dict[str, Path], budget_s: float, out: Path, models: Path,
             "rounds": sel["allocation"]["rounds"], "rest": sel["allocation"]["rest"]}
 
 
+def run_baselines(data: dict[str, Path], n_boot: int) -> dict[str, Any]:
+    """The plain CNN and the plain SVR on the test trials (module docstring)."""
+    from aslip_ros.learn.baselines import run_on_dataset
+    from aslip_ros.learn.data_io import open_dataset
+    log("plain baselines (trained on the training and validation trials)")
+    t0 = time.perf_counter()
+    out = run_on_dataset(open_dataset(data["external"]), n_boot=n_boot,
+                         train_splits=("train", "val"))
+    return {name: {"test": {k: m.get(k) for k in KEYS},
+                   "test_ci": {k: m.get(k + "_ci") for k in KEYS}}
+            for name, m in out.items()} | {"wall_s": round(time.perf_counter() - t0, 1)}
+
+
 def _cell(row: dict[str, Any], k: str, scale: float, nd: int) -> str:
     v, ci = row["test"].get(k), row["test_ci"].get(k)
     if v is None:
@@ -103,7 +122,8 @@ def _cell(row: dict[str, Any], k: str, scale: float, nd: int) -> str:
     return f"{v * scale:.{nd}f}{interval}"
 
 
-def markdown(rows: list[dict[str, Any]], command: str) -> str:
+def markdown(rows: list[dict[str, Any]], command: str,
+             baselines: dict[str, Any] | None = None) -> str:
     lines = ["# The default `aslip train` against its time budget", "",
              f"`{command}`. The data: results/recipes/README.md (12 robot-induced and 20 "
              "externally induced trials of 60 s). Test: the 3 test trials no training or "
@@ -117,6 +137,12 @@ def markdown(rows: list[dict[str, Any]], command: str) -> str:
             f"{_cell(r, 'detection_accuracy', 100, 1)} | {_cell(r, 'direction_mae_deg', 1, 1)} "
             f"| {_cell(r, 'magnitude_rmse_mm', 1, 2)} | {100 * v['detection_accuracy']:.1f} / "
             f"{v['direction_mae_deg']:.1f} / {v['magnitude_rmse_mm']:.2f} |")
+    for name, b in (baselines or {}).items():
+        if name != "wall_s":
+            lines.append(f"| - | - | {name} (train + val trials) | "
+                         f"{_cell(b, 'detection_accuracy', 100, 1)} | "
+                         f"{_cell(b, 'direction_mae_deg', 1, 1)} | "
+                         f"{_cell(b, 'magnitude_rmse_mm', 1, 2)} | - |")
     return "\n".join(lines) + "\n"
 
 
@@ -155,25 +181,35 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--budgets", default=",".join(f"{b:g}" for b in BUDGETS),
                    help="comma-separated whole-call budgets [s]")
     p.add_argument("--n-boot", type=int, default=1000)
+    p.add_argument("--no-baselines", action="store_true",
+                   help="leave out the plain CNN and plain SVR on the same test trials")
 
 
 def run(args: argparse.Namespace) -> int:
     budgets = [float(b) for b in args.budgets.split(",") if b.strip()]
-    if not budgets or min(budgets) <= 0:
+    if (not budgets and args.no_baselines) or (budgets and min(budgets) <= 0):
         raise ValueError("--budgets must be positive seconds")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     data = ensure_data(Path(args.data))
-    rows = []
+    before = read_json(out / "budget.json") if (out / "budget.json").is_file() else {}
+    kept = {r["budget_s"]: r for r in before.get("rows", [])}
+    baselines = before.get("baselines")
     for b in budgets:
-        rows.append(run_budget(data, b, out, Path(args.data) / "models", args.n_boot))
-        log(f"budget {b:g} s: {rows[-1]['winner']} in {rows[-1]['wall_s']:.0f} s, test "
-            + ", ".join(f"{k} {rows[-1]['test'][k]:.3g}" for k in KEYS))
-        write_json(out / "budget.json", {"rows": rows})
-    command = "python -m benchmarks.recipe_budget " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k in ("budgets",))
-    write_text(out / "budget.md", markdown(rows, command))
-    plot(rows, out / "budget.png")
+        kept[b] = run_budget(data, b, out, Path(args.data) / "models", args.n_boot)
+        log(f"budget {b:g} s: {kept[b]['winner']} in {kept[b]['wall_s']:.0f} s, test "
+            + ", ".join(f"{k} {kept[b]['test'][k]:.3g}" for k in KEYS))
+        write_json(out / "budget.json", {"rows": [kept[k] for k in sorted(kept)],
+                                         "baselines": baselines})
+    if not args.no_baselines:
+        baselines = run_baselines(data, args.n_boot)
+    rows = [kept[k] for k in sorted(kept)]
+    write_json(out / "budget.json", {"rows": rows, "baselines": baselines})
+    command = "python -m benchmarks.recipe_budget --budgets " + ",".join(
+        f"{r['budget_s']:g}" for r in rows)
+    write_text(out / "budget.md", markdown(rows, command, baselines))
+    if rows:
+        plot(rows, out / "budget.png")
     log(f"wrote {out / 'budget.json'}, budget.md and budget.png")
     return 0
 

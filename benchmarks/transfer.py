@@ -13,7 +13,10 @@ Scenes (``aslip simulate --variant``, ``scene/variants.py``, docs/scene.md): ``d
 seated off the pad centre, 5 mm); ``confounders`` (half the touches without slip, the hand
 and the arm louder); ``mocap`` (a lab's motion capture: 100 Hz, 0.3 mm, 2 % dropped, 15 ms);
 ``rate`` (a 44.1 kHz sound card, resampled to the models' 48 kHz as a driver would: every
-checkpoint refuses a stream at another rate).
+checkpoint refuses a stream at another rate); ``speed`` (the slip noise's loudness against
+slip speed with another exponent per object, 0.45 to 1.05 instead of 0.75); ``path`` (the
+hand's and the arm's noise reach each microphone by its own path, +-6 dB: a background that
+is not common mode, where the per-grasp calibration's self-check is meant to warn).
 
 Methods, each trained by ``aslip train`` itself (``train_arguments``): ``aslip`` (the
 command's defaults: ``--stage auto`` chooses a recipe on validation trials, per-grasp
@@ -43,7 +46,8 @@ import numpy as np
 
 from aslip_ros.util import atomic_path, write_json, write_text
 
-SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap", "rate")
+SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap", "rate",
+          "speed", "path")
 METHODS = ("aslip", "aslip_uncalibrated", "aslip_scratch", "paper_svm",
            "paper_svm_uncalibrated", "plain_cnn", "plain_svm")
 #: The methods of ``make transfer``: the package's default, its scratch recipe alone, the
@@ -59,7 +63,8 @@ OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pl
 CONDITIONS = ("robot_stationary", "robot_moving", "robot_off")
 #: Seed offset per scene, so no held-out scene replays the training scene's motions.
 SCENE_SEED = {"default": 0, "coupling": 10_000, "one_sided": 20_000, "mocap": 30_000,
-              "contact": 40_000, "confounders": 50_000, "rate": 60_000}
+              "contact": 40_000, "confounders": 50_000, "rate": 60_000, "speed": 70_000,
+              "path": 80_000}
 #: The scene's audio rate, which every model is trained at [Hz].
 TRAIN_RATE_HZ = 48000.0
 #: Seed offset of the fresh draw of the training scene that it is tested on.

@@ -89,6 +89,10 @@ def test_baselines_run_on_an_exported_dataset_with_its_split(tmp_path):
         lo, hi = r["detection_accuracy_ci"]
         assert lo <= r["detection_accuracy"] <= hi
     assert res["plain_svm"]["detection_accuracy"] > 0.8
+    # Trained on the validation trials too, it is tested on the same test windows.
+    more = baselines.run_on_dataset(ds, ("svm",), cache_dir=tmp_path / "cache", n_boot=50,
+                                    train_splits=("train", "val"))["plain_svm"]
+    assert more["n_windows"] == res["plain_svm"]["n_windows"]
     with pytest.raises(ValueError, match="unknown baseline"):
         baselines.run_on_dataset(ds, ("knn",), cache_dir=tmp_path / "cache")
 

@@ -253,17 +253,21 @@ def fit_plain_svm(x: np.ndarray, v: np.ndarray, slip: np.ndarray, *, max_train: 
 
 def run_on_dataset(ds, kinds=("cnn", "svm"), *, split_seed: int = 0, test_split: str = "test",
                    epochs: int = 25, seed: int = 0, cache_dir=None,
-                   n_boot: int = 500) -> dict[str, dict]:
-    """Train each baseline on an exported dataset's training trials and report the metrics
-    (with trial-bootstrap intervals) on ``test_split``; the same split and feature cache as
-    ``aslip train``. ``ds`` is a ``data_io.WindowSet``."""
+                   n_boot: int = 500, train_splits: tuple[str, ...] = ("train",)
+                   ) -> dict[str, dict]:
+    """Train each baseline on an exported dataset's ``train_splits`` trials (``("train",
+    "val")``: every trial ``aslip train``'s final model may train on; a plain baseline has
+    nothing to choose on them) and report the metrics (with trial-bootstrap intervals) on
+    ``test_split``; the same split and feature cache as ``aslip train``. ``ds`` is a
+    ``data_io.WindowSet``."""
     from aslip_ros.learn.data_io import select_windows
     from aslip_ros.learn.stats import bootstrap_metrics
     from aslip_ros.learn.training.data import feature_cache
 
     feats = feature_cache(ds, baseline_features(ds.sample_rate), ds.channel_names,
                           cache_dir=cache_dir)
-    tr = select_windows(ds, "train", seed=split_seed)
+    tr = np.sort(np.concatenate([select_windows(ds, s, seed=split_seed)
+                                 for s in train_splits]))
     te = select_windows(ds, test_split, seed=split_seed)
     if tr.size == 0 or te.size == 0:
         raise ValueError(f"{ds.root}: the split (seed {split_seed}) leaves no training or no "
