@@ -58,6 +58,12 @@ LOCKSTEP_BUDGET_S = {"aslip_stream": 0.003, "aslip_cnn": 0.005, "svm": 0.005,
 #: Lockstep: the longest the graph may take over one block before the episode is given up
 #: as stalled (wall clock; a guard against a lost message, never reached in a sound run).
 LOCKSTEP_STALL_S = 20.0
+#: Lockstep: the wall-clock guard of a whole episode. Scene time decides a lockstep trial,
+#: so a host too slow or too busy for ``Episode.wall_s_limit`` (the real-time guard) must
+#: not turn a trial into a failure: past this guard the episode is an error (reported,
+#: counted), never a scored trial. Measured: beside a training job and the test suite on 2
+#: cores, 3 of 400 lockstep episodes passed 30 s and were scored as failures.
+LOCKSTEP_WALL_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -143,7 +149,7 @@ class Episode:
     seed: int
     stop: StopSettings = field(default_factory=StopSettings)
     track: TrackSettings = field(default_factory=TrackSettings)
-    wall_s_limit: float = 30.0     # wall-clock guard per episode [s]
+    wall_s_limit: float = 30.0     # wall-clock guard per real-time episode [s]
     pivot: PivotSettings = field(default_factory=PivotSettings)
     #: pivot_stop: ``rotation_aware`` (stop_on_rotation) or ``ignores_rotation``.
     arm: str = dm.PIVOT_ARMS[0]
@@ -495,8 +501,9 @@ def _spin_lockstep(ep: Episode, executor, sim, infer, ctl, rec, t_wall0: float,
         _spin_until(executor, probe, lambda: ctl.control_steps > steps
                     and sim.n_commands + sim.n_rejected >= getattr(arm, "published", 0)
                     and cal.requests <= cal.replies, "control step")
-        if time.monotonic() - t_wall0 > ep.wall_s_limit:
-            return "wall_clock_limit"
+        if time.monotonic() - t_wall0 > LOCKSTEP_WALL_S:
+            raise LockstepStall(f"lockstep: the episode took more than {LOCKSTEP_WALL_S:g} s "
+                                "of wall time (a host this slow is an error, not a trial)")
         ended = _decided(ep, world, rec)
         if ended:
             return ended

@@ -87,3 +87,15 @@ def _first_motion_s(r: dict) -> float:
     tcp = r["trace"]["tcp"]
     moved = np.linalg.norm(tcp - tcp[0], axis=1) > 1e-5
     return float(r["trace"]["t"][np.argmax(moved)])
+
+
+def test_a_lockstep_episode_past_its_wall_guard_is_an_error_not_a_failed_trial(monkeypatch):
+    """Scene time decides a lockstep trial: the real-time guard (``wall_s_limit``) does not
+    end it, and a host too slow for the lockstep guard gets an error, never a score. Before,
+    3 of 400 episodes beside a training job passed 30 s and were scored as failures."""
+    from benchmarks import demo_episode as de
+    quick = _episode(STREAM, hogs=0, wall_s_limit=1e-3)       # the real-time guard: ignored
+    assert quick["ended"] == "duration"
+    monkeypatch.setattr(de, "LOCKSTEP_WALL_S", 0.0)
+    with pytest.raises(de.LockstepStall, match="wall time"):
+        _episode(STREAM, hogs=0)
