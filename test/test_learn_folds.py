@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from aslip_ros.learn.checkpoint import load_checkpoint
 from aslip_ros.learn.data_io import open_dataset, trial_splits
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.metrics import compute_metrics
@@ -115,7 +116,7 @@ def test_folds_choose_the_model_that_holds_on_every_trial_not_the_one_that_fits_
     assert picks == {"split": "memoriser", "folds": "steady"}
 
 
-def test_a_cnn_without_validation_trains_its_epochs_and_keeps_the_last(ds):
+def test_a_cnn_without_validation_trains_its_epochs_and_keeps_the_last(ds, tmp_path):
     """The final model of a cross-validated choice: no validation windows, so neither early
     stopping nor a best epoch; ``epochs`` ends it and the last epoch's weights are kept."""
     cfg = _cfg(epochs=2, patience=1, val_trials=())
@@ -125,12 +126,15 @@ def test_a_cnn_without_validation_trains_its_epochs_and_keeps_the_last(ds):
                                 model_options=SMALL_MODEL, log=lambda m: None)
     job.advance(1e9)
     res = job.result()
-    assert job.done and len(res.history) == 2 and np.isnan(res.history[-1]["val_loss"])
+    assert job.done and len(res.history) == 2 and res.history[-1]["val_loss"] is None
     prov = res.meta["provenance"]["training"]
     assert prov["stop_reason"] == "max_epochs" and prov["best_epoch"] == 1
     assert res.val_pred is None and "output_calibration" not in res.meta
     last = job.model.state_dict()
     assert all(torch.equal(res.tensors[k], last[k].cpu()) for k in last)
     assert prov["n_train_windows"] == tr.size
+    # Its checkpoint is strict JSON and loads (a NaN loss once refused to be written).
+    path = res.save(tmp_path / "final.pt")
+    assert load_checkpoint(path).meta["provenance"]["training"]["best_epoch"] == 1
     with pytest.raises(ValueError, match="held out"):
         split_windows(ds, dataclasses.replace(cfg, val_trials=tuple(range(len(ds.trials)))))

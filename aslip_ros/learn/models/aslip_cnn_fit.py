@@ -142,7 +142,7 @@ def param_groups(model: SlipNet, lr: float, encoder_lr_scale: float) -> list[dic
 class Fit:
     """What the epoch loop leaves: the best epoch (its weights are loaded) and the run."""
 
-    best_loss: float
+    best_loss: float | None       # None: trained without validation
     best_epoch: int
     stop_reason: str              # max_epochs | early_stopping | time_budget
     train_time_s: float
@@ -208,15 +208,17 @@ class EpochRun:
         train_loss = _train_epoch(self.model, self.data, order, self.opt, self.feat_mean,
                                   self.rng, self.cfg, self.weights, f"epoch {epoch}")
         val_loss = (evaluate_loss(self.model, self.data, self.va, self.weights)[0]
-                    if self.va.size else math.nan)
+                    if self.va.size else None)
         self.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss,
                              "time_s": self.train_time_s})
         if self.cfg.progress:
-            self.log(f"epoch {epoch:3d}  train {train_loss:.4f}  val {val_loss:.4f}")
-        if not self.va.size:
+            self.log(f"epoch {epoch:3d}  train {train_loss:.4f}  val "
+                     + ("-" if val_loss is None else f"{val_loss:.4f}"))
+        if val_loss is None:
             # No validation (the final model of a cross-validated choice): ``cfg.epochs``,
-            # chosen on the folds, sets the stop, and the last epoch is the model.
-            self.best = (math.nan, epoch, self.model.state_dict())
+            # chosen on the folds, sets the stop, and the last epoch is the model; no loss
+            # to record (None, not NaN: the checkpoint is strict JSON).
+            self.best = (None, epoch, self.model.state_dict())
         elif val_loss < self.best[0]:
             self.best = (val_loss, epoch, copy.deepcopy(self.model.state_dict()))
         elif epoch - self.best[1] >= self.cfg.patience:
