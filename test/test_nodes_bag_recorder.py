@@ -224,3 +224,47 @@ def test_a_timed_recording_counts_from_its_streams_not_the_start_up(rclpy_contex
     with BagReader(tmp_path / "bag") as reader:
         assert dict(reader.info.counts)[c.AUDIO_TOPIC] == rec.counts[c.AUDIO_TOPIC]
     graph.close()
+
+
+def test_a_timed_recording_waits_for_a_published_latched_message_still_on_its_way(
+        rclpy_context, tmp_path):
+    """A fresh-clone CI run closed a 3 s trial's bag without /tf_static: the recording
+    ended duration_s after its streams were in, before the static transforms, published
+    and latched, reached the recorder. Here a transient-local /tf_static publisher exists
+    but has sent nothing while the audio runs past duration_s: the recording is not done;
+    once the transforms are latched it ends with them in the bag."""
+    from rclpy.parameter import Parameter
+    from tf2_msgs.msg import TFMessage
+
+    from aslip_ros.data.bags import BagReader
+    from aslip_ros.msg import AudioFrame
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.bag_recorder import Recorder
+    from aslip_ros.runtime.qos import LATCHED_QOS, SENSOR_QOS
+    from aslip_ros import topics
+    graph = Graph(rclpy_context)
+    rec = graph.add(Recorder(context=graph.context, parameter_overrides=[
+        Parameter("output", value=str(tmp_path / "bag")),
+        Parameter("topics", value=[c.AUDIO_TOPIC, topics.TF_STATIC]),
+        Parameter("duration_topics", value=[c.AUDIO_TOPIC]),
+        Parameter("duration_s", value=0.2)]))
+    source = graph.node("frames")
+    static = source.create_publisher(TFMessage, topics.TF_STATIC, LATCHED_QOS)
+    pub = graph.node("audio_source").create_publisher(AudioFrame, c.AUDIO_TOPIC,
+                                                      SENSOR_QOS)
+    graph.until(lambda: pub.get_subscription_count() > 0
+                and static.get_subscription_count() > 0, "match")
+    past = time.monotonic() + 0.8                 # four times duration_s of audio
+    graph.until(lambda: pub.publish(AudioFrame()) or time.monotonic() > past,
+                "audio past duration_s", timeout=5)
+    assert not rec.done and rec.counts[topics.TF_STATIC] == 0
+    static.publish(TFMessage())
+
+    def send():
+        pub.publish(AudioFrame())
+        return rec.done
+    graph.until(send, "the end of the timed recording")
+    rec.before_shutdown()
+    with BagReader(tmp_path / "bag") as reader:
+        assert dict(reader.info.counts).get(topics.TF_STATIC) == 1
+    graph.close()
