@@ -37,12 +37,12 @@ from launch.event_handlers import OnProcessExit, OnProcessIO
 from launch_ros.actions import Node
 
 from aslip_ros.cell import CellError
-from aslip_ros.topics import AUDIO
+from aslip_ros.topics import AUDIO, METADATA, TF_STATIC
 from aslip_ros.nodes.bag_recorder import record_topics
 from aslip_ros.nodes.topic_audio import driver_topics
 from aslip_ros.launch_support.common import (arg, arm_params, bridge_params,
                                              capture_params, cell_arguments, fail, flag,
-                                             load_checked_cell, mocap_topics,
+                                             load_checked_cell, mocap_topics, node_param,
                                              rigid_bodies_source,
                                              recording_metadata, required, share_dir)
 
@@ -73,9 +73,10 @@ def _recorder_choice(context) -> str:
 
 
 def _recorder(context, topics: list, poses: list, duration_s: float,
-              rigid: tuple = ()) -> list:
+              rigid: tuple = (), latched: tuple = ()) -> list:
     """The recorder; with ``duration_s`` > 0 (hardware, aslip recorder) it ends the
-    collection once the audio spans that long."""
+    collection once the audio spans that long, and the ``latched`` topics that the cell's
+    nodes publish are in (however late their publisher is discovered)."""
     choice = arg(context, "recorder")
     bag = arg(context, "bag")
     if choice not in RECORDERS:
@@ -94,7 +95,8 @@ def _recorder(context, topics: list, poses: list, duration_s: float,
                                                  "pose_topics": pose_topics,
                                                  "rigid_bodies_topics": list(rigid) or [""],
                                                  "duration_s": duration_s,
-                                                 "duration_topics": [AUDIO] + list(poses)}])
+                                                 "duration_topics": [AUDIO] + list(poses),
+                                                 "latched_due": list(latched) or [""]}])
 
     def stopped(event, ctx):
         if ctx.is_shutdown:
@@ -135,15 +137,17 @@ def _stream_lost(stream: str, who: str, why: str):
     return lost
 
 
-def _stream_watch(cell, poses, duration_s: float) -> list:
+def _stream_watch(cell, poses, duration_s: float, latched: tuple = ()) -> list:
     """stream_watch over the audio and both pose streams of a hardware trial; its exit
     (code 1: a stream never arrived or stopped, its ERROR line names it) fails the launch,
     whichever the recorder. With ``duration_s`` > 0 (``ros2 bag record``, which has no
-    duration) it ends the trial: exit 0 that long after every stream is in. Its thresholds
+    duration) it ends the trial: exit 0 that long after every stream is in and the
+    ``latched`` topics have reached it. Its thresholds
     are its parameters' defaults (data/stream_watch.py) or the cell's ``stream_watch``
     section's (a lab whose motion capture drops a body for longer)."""
     streams = list(dict.fromkeys([AUDIO, *poses]))    # one topic may carry both bodies
-    params = dict(cell.params("stream_watch"), topics=streams, duration_s=duration_s)
+    params = dict(cell.params("stream_watch"), topics=streams, duration_s=duration_s,
+                  latched_due=list(latched) if duration_s > 0 and latched else [""])
     watch = Node(package="aslip_ros", executable="stream_watch", name="stream_watch",
                  parameters=[params], output="screen")
     done = _ended("stream_watch", f"every stream recorded {duration_s:g} s",
@@ -260,15 +264,19 @@ def _nodes(context) -> list:
             LogInfo(msg=why), Shutdown(reason=why)]))
     if flag(context, "record"):
         poses = mocap_topics(context, cell)
+        # On hardware audio_capture latches the metadata and mocap_bridge, unless told
+        # not to, the calibration on /tf_static: a timed trial does not end without them.
+        latched = () if sim else (METADATA,) + (
+            (TF_STATIC,) if node_param(cell, "mocap_bridge", "publish_tf") else ())
         if not sim:
-            watch = _stream_watch(cell, poses, duration if watched else 0.0)
+            watch = _stream_watch(cell, poses, duration if watched else 0.0, latched)
             actions += _once_ready(capture, watch)
         # audio_common's own pair too, where the cell bridges it (aslip export reads it).
         driver = [] if sim else driver_topics(cell.params("audio_capture"))
         source = rigid_bodies_source(context, cell)     # mocap4r2: both on one topic
         actions += _recorder(context, record_topics(*poses) + driver, list(poses),
                              duration if recorded else 0.0,
-                             (source["topic"],) if source else ())
+                             (source["topic"],) if source else (), latched)
     return actions
 
 

@@ -358,6 +358,25 @@ def test_the_data_collection_records_the_pose_topics_the_graph_uses(cell):
 
 
 @needs_launch
+def test_a_hardware_recording_waits_for_the_latched_topics_the_cells_nodes_publish(
+        cell, tmp_path):
+    """audio_capture latches the metadata and mocap_bridge the calibration on /tf_static:
+    the timed recording does not end without them (a CI run's 3 s trial lost /tf_static).
+    A cell whose bridge publishes no TF owes none; the scene's recording is not timed."""
+    rec = _by_exe(evaluate("data_collection.launch.py",
+                           {"sim": "false", "cell": cell, "recorder": "aslip"}))["bag_recorder"]
+    assert set(rec["latched_due"]) == {"/aslip/metadata", "/tf_static"}
+    quiet = tmp_path / "no_tf_cell.yaml"
+    quiet.write_text(CELL.replace("mocap_bridge:\n", "mocap_bridge:\n  publish_tf: false\n"))
+    ev = evaluate("data_collection.launch.py",
+                  {"sim": "false", "cell": str(quiet), "recorder": "aslip"})
+    assert list(_by_exe(ev)["bag_recorder"]["latched_due"]) == ["/aslip/metadata"]
+    check_parameters(ev)
+    sim = _by_exe(evaluate("data_collection.launch.py", {"recorder": "aslip"}))
+    assert list(sim["bag_recorder"]["latched_due"]) == [""]
+
+
+@needs_launch
 def test_the_metadata_of_a_hardware_recording_carries_the_cells_calibration(cell):
     nodes = _by_exe(evaluate("data_collection.launch.py",
                              {"sim": "false", "record": "false", "cell": cell}))
@@ -490,6 +509,9 @@ def test_a_hardware_trial_is_watched_with_the_cells_thresholds(
                                       "/natnet/object/pose"]
     assert params["stall_timeout_s"] == 2.0
     assert params["duration_s"] == (20.0 if recorder == "ros2bag" else 0.0)
+    # Ending a ros2 bag trial, it waits for the latched topics the cell's nodes publish.
+    assert set(params["latched_due"]) == ({"/aslip/metadata", "/tf_static"}
+                                          if recorder == "ros2bag" else {""})
     assert any(isinstance(a, RegisterEventHandler) for a in started)
     assert _by_exe(ev)["audio_capture"]["exit_on_error"] is True
     path.write_text(Path(cell).read_text() + "stream_watch:\n  stall_timeout_s: 100\n")

@@ -268,3 +268,97 @@ def test_a_timed_recording_waits_for_a_published_latched_message_still_on_its_wa
     with BagReader(tmp_path / "bag") as reader:
         assert dict(reader.info.counts).get(topics.TF_STATIC) == 1
     graph.close()
+
+
+def test_a_timed_recording_waits_for_a_due_latched_topic_whose_publisher_is_not_seen_yet(
+        rclpy_context, tmp_path):
+    """Fresh-clone CI closed a 3 s hardware trial's bag without /tf_static a second time,
+    with the wait for a *seen* transient-local publisher in place: under load the recorder
+    had not discovered mocap_bridge's publisher when the duration ran out. The launch names
+    the latched topics the cell's nodes publish (``latched_due``): the recording waits for
+    them with no publisher in sight, and ends once the transforms are in the bag."""
+    from rclpy.parameter import Parameter
+    from tf2_msgs.msg import TFMessage
+
+    from aslip_ros.data.bags import BagReader
+    from aslip_ros.msg import AudioFrame
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.bag_recorder import Recorder
+    from aslip_ros.runtime.qos import LATCHED_QOS, SENSOR_QOS
+    from aslip_ros import topics
+    graph = Graph(rclpy_context)
+    rec = graph.add(Recorder(context=graph.context, parameter_overrides=[
+        Parameter("output", value=str(tmp_path / "bag")),
+        Parameter("topics", value=[c.AUDIO_TOPIC, topics.TF_STATIC]),
+        Parameter("duration_topics", value=[c.AUDIO_TOPIC]),
+        Parameter("latched_due", value=[topics.TF_STATIC]),
+        Parameter("duration_s", value=0.2)]))
+    pub = graph.node("audio_source").create_publisher(AudioFrame, c.AUDIO_TOPIC,
+                                                      SENSOR_QOS)
+    graph.until(lambda: pub.get_subscription_count() > 0, "match")
+    past = time.monotonic() + 0.8                 # four times duration_s of audio
+    graph.until(lambda: pub.publish(AudioFrame()) or time.monotonic() > past,
+                "audio past duration_s", timeout=5)
+    assert not rec.done and rec.counts[topics.TF_STATIC] == 0
+    static = graph.node("frames").create_publisher(TFMessage, topics.TF_STATIC, LATCHED_QOS)
+    static.publish(TFMessage())
+
+    def send():
+        pub.publish(AudioFrame())
+        return rec.done
+    graph.until(send, "the end of the timed recording")
+    rec.before_shutdown()
+    with BagReader(tmp_path / "bag") as reader:
+        assert dict(reader.info.counts).get(topics.TF_STATIC) == 1
+    graph.close()
+
+
+@pytest.mark.parametrize("due", ["/aslip/audio", "/rosout"])
+def test_latched_due_names_only_latched_topics_that_are_recorded(rclpy_context, tmp_path,
+                                                                 due):
+    from rclpy.parameter import Parameter
+
+    from aslip_ros.nodes.bag_recorder import Recorder
+    from aslip_ros.runtime.process import ConfigError
+    with pytest.raises(ConfigError, match="latched_due"):
+        Recorder(context=rclpy_context, parameter_overrides=[
+            Parameter("output", value=str(tmp_path / "bag")),
+            Parameter("topics", value=["/aslip/audio", "/tf_static"]),
+            Parameter("latched_due", value=[due])])
+    assert not (tmp_path / "bag").exists()
+
+
+def test_the_stream_watch_ends_a_ros2_bag_trial_only_with_its_latched_topics_in(
+        rclpy_context):
+    """On the ros2 bag route stream_watch ends the trial: it too waits past duration_s for
+    the latched topics the cell's nodes publish (``latched_due``), or ros2 bag's recording
+    would lose a /tf_static discovered late the way bag_recorder's did."""
+    from rclpy.parameter import Parameter
+    from tf2_msgs.msg import TFMessage
+
+    from aslip_ros.msg import AudioFrame
+    from aslip_ros.nodes import common as c
+    from aslip_ros.nodes.stream_watch import StreamWatchNode
+    from aslip_ros.runtime.qos import LATCHED_QOS, SENSOR_QOS
+    from aslip_ros import topics
+    graph = Graph(rclpy_context)
+    watch = graph.add(StreamWatchNode(context=graph.context, parameter_overrides=[
+        Parameter("topics", value=[c.AUDIO_TOPIC]),
+        Parameter("latched_due", value=[topics.TF_STATIC]),
+        Parameter("duration_s", value=0.2)]))
+    pub = graph.node("audio_source").create_publisher(AudioFrame, c.AUDIO_TOPIC,
+                                                      SENSOR_QOS)
+    graph.until(lambda: pub.get_subscription_count() > 0, "match")
+    past = time.monotonic() + 1.0                 # five times duration_s of audio
+    graph.until(lambda: pub.publish(AudioFrame()) or time.monotonic() > past,
+                "audio past duration_s", timeout=5)
+    assert watch.watch.complete(0.2) and not watch.done
+    static = graph.node("frames").create_publisher(TFMessage, topics.TF_STATIC, LATCHED_QOS)
+    static.publish(TFMessage())
+
+    def send():
+        pub.publish(AudioFrame())
+        return watch.done
+    graph.until(send, "the end of the trial")
+    assert watch.exit_code == 0
+    graph.close()

@@ -258,6 +258,17 @@ def mocap_topics(context, cell: Cell) -> tuple:
                  for k, d in (("finger", topics.FINGER), ("object", topics.OBJECT)))
 
 
+def node_param(cell: Cell, node: str, key: str):
+    """The value ``node`` runs with for ``key`` by the precedence above, without a launch
+    argument: the cell file's, else the node's config/*.yaml, else the declared default."""
+    given = cell.params(node)
+    if key in given:
+        return given[key]
+    with open(os.path.join(share_dir(), "config", f"{node}.yaml")) as f:
+        config = (yaml.safe_load(f) or {}).get(node, {}).get("ros__parameters", {})
+    return config[key] if key in config else declared_by_name(node)[key].default
+
+
 def bridge_params(context, cell: Cell, sim: bool) -> dict:
     """mocap_bridge's parameters: the scene's calibration from its metadata, the cell's
     ``grasp_plane_in_finger`` on hardware."""

@@ -8,7 +8,9 @@ message on a topic within ``start_timeout_s`` of the node's start, or none for
 ``stall_timeout_s`` after it had delivered. The first failed stream gets one ERROR line
 that names it, then the node exits 1. With ``duration_s`` > 0 it exits 0 that long after
 every stream is in (the end of a trial recorded by ``ros2 bag record``, which has no
-duration of its own).
+duration of its own), and not before the latched topics of ``latched_due`` (the metadata,
+mocap_bridge's /tf_static) have reached it, at most ``LATCHED_GRACE_S`` more: a latched
+publisher discovered late would otherwise miss the bag, as it did ``bag_recorder``'s.
 
 Each topic is subscribed once a publisher of it is seen, with the type the graph gives,
 best effort (which every publisher serves), as serialized bytes: nothing is decoded, so any
@@ -27,8 +29,9 @@ from rclpy.node import Node
 from aslip_ros.data.stream_watch import (START_TIMEOUT_RANGE_S, STALL_TIMEOUT_RANGE_S,
                                          StreamWatch, WatchConfig)
 from aslip_ros.nodes import common as c
-from aslip_ros.runtime.process import ready, run_node
-from aslip_ros.runtime.qos import WATCH_QOS
+from aslip_ros.nodes.bag_recorder import LATCHED, LATCHED_GRACE_S
+from aslip_ros.runtime.process import ConfigError, ready, run_node
+from aslip_ros.runtime.qos import WATCH_QOS, reader_qos
 
 #: How often the verdict is taken, and the graph searched for the watched topics [s]: the
 #: verdict comes at most this late after a threshold passed.
@@ -67,6 +70,8 @@ def watch_params() -> list:
                       read_only=True),
         c.Param("duration_s", 0.0, "exit 0 this long after every topic is in [s]; 0 = run "
                 "until stopped", c.in_range(0.0, 86400.0), read_only=True),
+        c.Param("latched_due", [""], "latched topics duration_s also waits for, at most "
+                f"{LATCHED_GRACE_S:g} s more ('' = none)", read_only=True),
     ]
 
 
@@ -84,6 +89,17 @@ class StreamWatchNode(Node):
         self._subs: dict = {}
         self.refused: dict = {}
         self._last_check = time.monotonic()
+        self.due = [t for t in self.p["latched_due"] if t]
+        if any(t not in LATCHED for t in self.due):
+            raise ConfigError(f"latched_due: {self.due} names a topic that is not latched "
+                              f"(latched: {', '.join(LATCHED)})")
+        self._latched_in: set = set()
+        self._complete_at: Optional[float] = None
+        for topic in self.due:
+            self._subs[topic] = self.create_subscription(
+                _message_class(LATCHED[topic]), topic,
+                lambda _data, t=topic: self._latched_in.add(t), reader_qos(True, True),
+                raw=True)
         self.diag = c.Diagnostics(self, "aslip: stream_watch", ", ".join(self.watch.streams))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(CHECK_PERIOD_S, self._check, clock=steady)
@@ -120,14 +136,28 @@ class StreamWatchNode(Node):
         if fault is None:
             duration = self.p["duration_s"]
             if duration > 0 and self.watch.complete(duration):
-                self.get_logger().info(f"every stream has been in for {duration:g} s: done")
-                self.done = True
+                self._end(now)
             return
         why = self.refused.get(fault.stream)
         self.get_logger().error(fault.message() + (f" ({why})" if why else ""))
         self.exit_code = 1
         self.done = True
         self._diagnose()
+
+    def _end(self, now: float) -> None:
+        """The duration is complete: done, once the due latched topics are in too."""
+        if self._complete_at is None:
+            self._complete_at = now
+        owed = [t for t in self.due if t not in self._latched_in]
+        if owed and now - self._complete_at < LATCHED_GRACE_S:
+            return
+        if owed:
+            self.get_logger().warning(
+                f"{', '.join(owed)} never arrived within {LATCHED_GRACE_S:g} s past the "
+                "duration: the bag may lack it")
+        self.get_logger().info(f"every stream has been in for {self.p['duration_s']:g} s: "
+                               "done")
+        self.done = True
 
     def _diagnose(self) -> None:
         waiting = self.watch.waiting()
