@@ -298,19 +298,20 @@ def offsets_at(frames: np.ndarray, ends: np.ndarray, k: CalibrationConstants) ->
     Equal to feeding the frames to a fresh :class:`CalibrationState` in order and reading
     ``offsets`` after frame ``end - 1`` (tested), computed with cumulative sums.
     """
-    dev, p, active = frame_stats(frames, k)
-    w = frame_weights(p, active, k)
-    ref = np.asarray(k.ref_offset, dtype=np.float64)
-    cw = np.concatenate([[0.0], np.cumsum(w)])
-    cs = np.concatenate([np.zeros((1, dev.shape[0])),
-                         np.cumsum(((dev - ref[:, None]) * w).T, axis=0)])
-    ends = np.asarray(ends, dtype=np.int64)
-    if np.any(ends < 0) or np.any(ends > dev.shape[1]):
-        raise ValueError("window ends must lie within the grasp's frames")
+    cw, cs, _ = _cumulative(frames, k)
+    ends = _checked_ends(ends, cw.size)
     wt = cw[ends]
     out = cs[ends] / (wt + k.prior_frames)[:, None]
     out[wt <= 0] = 0.0
     return out
+
+
+def _checked_ends(ends, n: int) -> np.ndarray:
+    """``ends`` as indices into a cumulative sum of ``n`` entries (frames + 1)."""
+    ends = np.asarray(ends, dtype=np.int64)
+    if np.any(ends < 0) or np.any(ends >= n):
+        raise ValueError("window ends must lie within the grasp's frames")
+    return ends
 
 
 def _spread_db(s1: np.ndarray, s2: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -326,9 +327,7 @@ def spread_at(frames: np.ndarray, ends: np.ndarray, k: CalibrationConstants) -> 
     """Offline, for a whole grasp: ``spread_db`` after frames ``[0, end)`` for each ``end``
     (equal to a :class:`CalibrationState` fed the frames in order; tested)."""
     cw, cs, cs2 = _cumulative(frames, k)
-    ends = np.asarray(ends, dtype=np.int64)
-    if np.any(ends < 0) or np.any(ends >= cw.size):
-        raise ValueError("window ends must lie within the grasp's frames")
+    ends = _checked_ends(ends, cw.size)
     return _spread_db(cs[ends], cs2[ends], cw[ends])
 
 
@@ -336,7 +335,14 @@ def _cumulative(frames: np.ndarray, k: CalibrationConstants
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Accepted weight ``(T+1,)`` and sums of deviations and of their squares ``(T+1, C)``
     after each number of frames."""
-    dev, p, active = frame_stats(frames, k)
+    return _cumulative_of(frame_stats(frames, k), k)
+
+
+def _cumulative_of(stats: tuple, k: CalibrationConstants
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``_cumulative`` from a grasp's ``frame_stats`` (which do not depend on the
+    reference offset)."""
+    dev, p, active = stats
     w = frame_weights(p, active, k)
     d = dev - np.asarray(k.ref_offset, dtype=np.float64)[:, None]
     zero = np.zeros((1, d.shape[0]))
@@ -396,9 +402,8 @@ def fit_constants(frames: Sequence[np.ndarray], frame_slip: Sequence[np.ndarray]
         gate_bias=float(clf.intercept_[0]), floor_level=floor,
         ref_offset=(0.0,) * len(channel_names), method=method, **options)
     # Reference: the mean deviation of accepted frames once the coupling is taken out.
-    ests = []
-    for i, f in enumerate(frames):
-        dev, p, active = frame_stats(f, k)
+    ests, stats = [], [frame_stats(f, k) for f in frames]
+    for i, (dev, p, active) in enumerate(stats):
         w = frame_weights(p, active, k)
         if w.sum() == 0:
             continue
@@ -408,7 +413,7 @@ def fit_constants(frames: Sequence[np.ndarray], frame_slip: Sequence[np.ndarray]
         ests.append(est)
     ref = np.mean(ests, axis=0) if ests else np.zeros(len(channel_names))
     k = k.with_(ref_offset=tuple(float(v) for v in ref))
-    return k.with_(trust_spread_db=trust_threshold(frames, k, trust_percentile, trust_margin))
+    return k.with_(trust_spread_db=_trust_of(stats, k, trust_percentile, trust_margin))
 
 
 def trust_threshold(frames: Sequence[np.ndarray], k: CalibrationConstants,
@@ -417,11 +422,17 @@ def trust_threshold(frames: Sequence[np.ndarray], k: CalibrationConstants,
     """``trust_spread_db`` from training grasps (log-mel ``(C, M, T)`` each) under ``k``:
     ``margin`` times the ``percentile`` over grasps of the largest ``spread_db`` each reaches
     once converged; None when none converges."""
+    return _trust_of([frame_stats(f, k) for f in frames], k, percentile, margin)
+
+
+def _trust_of(stats: Sequence[tuple], k: CalibrationConstants, percentile: float,
+              margin: float) -> float | None:
+    """``trust_threshold`` from each grasp's ``frame_stats``."""
     if not 0.0 < percentile <= 100.0 or not margin >= 1.0:
         raise ValueError("trust percentile must lie in (0, 100] and the margin be >= 1")
     peaks = []
-    for f in frames:
-        cw, cs, cs2 = _cumulative(f, k)
+    for st in stats:
+        cw, cs, cs2 = _cumulative_of(st, k)
         on = cw >= k.converge_frames
         if np.any(on):
             peaks.append(float(np.max(_spread_db(cs[on], cs2[on], cw[on]))))

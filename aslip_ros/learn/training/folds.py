@@ -69,6 +69,11 @@ def fold_windows(ds: WindowSet, cfg: TrainConfig, folds: list[tuple[int, ...]]
     return np.sort(np.concatenate(vas)), vas
 
 
+def fold_trial_names(ds: WindowSet, folds: list[tuple[int, ...]]) -> list[list[str]]:
+    """Each fold's trials by their ids."""
+    return [[str(ds.trials[t].get("id", t)) for t in f] for f in folds]
+
+
 def _pool(preds: list[dict[str, Any]], vas: list[np.ndarray]) -> dict[str, Any]:
     """Per-fold predictions (each in its fold's window order) in pooled window order."""
     order = np.argsort(np.concatenate(vas), kind="stable")
@@ -96,12 +101,14 @@ def _apply_pooled(meta: dict[str, Any], ds: WindowSet, va: np.ndarray,
 class FoldJob:
     """One candidate trained once per fold: a ``Job`` whose slices go to the folds' jobs in
     equal shares and whose validation figures are the pooled out-of-fold ones.
-    ``start(cfg)``: the candidate's job for a config (its ``val_trials``: the fold)."""
+    ``start(cfg)``: the candidate's job for a config (its ``val_trials``: the fold);
+    ``windows``: ``fold_windows(ds, cfg, folds)`` where the caller has it already."""
 
     def __init__(self, ds: WindowSet, cfg: TrainConfig, folds: list[tuple[int, ...]],
-                 start: Callable[[TrainConfig], Job]) -> None:
+                 start: Callable[[TrainConfig], Job],
+                 windows: tuple[np.ndarray, list[np.ndarray]] | None = None) -> None:
         self.ds, self.folds = ds, folds
-        self.va, self.vas = fold_windows(ds, cfg, folds)
+        self.va, self.vas = windows if windows is not None else fold_windows(ds, cfg, folds)
         self.jobs = [start(dataclasses.replace(cfg, val_trials=f)) for f in folds]
 
     @property
@@ -134,7 +141,7 @@ class FoldJob:
         epochs = [r.meta["provenance"].get("training", {}).get("best_epoch")
                   for r in results]
         prov["folds"] = {
-            "trials": [[str(self.ds.trials[t].get("id", t)) for t in f] for f in self.folds],
+            "trials": fold_trial_names(self.ds, self.folds),
             "best_epochs": epochs, "epochs": cv_epochs(epochs),
             "val": [r.meta["provenance"]["metrics"]["val"] for r in results]}
         training = prov.setdefault("training", {})

@@ -68,7 +68,8 @@ from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, OneShot,
 from aslip_ros.learn.training.config import TrainConfig, TrainResult, resolve_device
 from aslip_ros.learn.training.data import split_windows
 from aslip_ros.learn.training.folds import (K_FOLD_BELOW, REFIT_FRACTION, FoldJob,
-                                            fold_windows, refit, trial_folds)
+                                            fold_trial_names, fold_windows, refit,
+                                            trial_folds)
 from aslip_ros.learn.models.per_output import PerOutputBackend
 from aslip_ros.learn.training.selection import (CRITERION, METRICS, choose_outputs,
                                                 combination_cost, compose,
@@ -249,6 +250,8 @@ class _Jobs:
                  budget_s: float, cnn_kw: dict[str, Any], svm_config: SvmConfig,
                  folds: list[tuple[int, ...]] | None = None) -> None:
         self.ds, self.cfg, self.pretrain_ds, self.folds = ds, cfg, pretrain_ds, folds
+        # The folds' windows, the same for every candidate (split once).
+        self.fold_split = fold_windows(ds, cfg, folds) if folds else None
         self.budget_s, self.cnn_kw, self.svm_config = budget_s, cnn_kw, svm_config
         self.log: Callable[[str], None] = cnn_kw["log"]
         self.t0 = time.perf_counter()
@@ -340,7 +343,8 @@ class _Jobs:
         self.log(f"recipe {cand.name}: starting"
                  + (f" ({len(self.folds)} folds by trial)" if self.folds else ""))
         if self.folds:
-            return FoldJob(self.ds, c, self.folds, lambda fc: self.job(cand, fc))
+            return FoldJob(self.ds, c, self.folds, lambda fc: self.job(cand, fc),
+                           windows=self.fold_split)
         return self.job(cand, c)
 
     def final(self, cands: dict[str, Candidate], names: Iterable[str], va: np.ndarray
@@ -352,14 +356,16 @@ class _Jobs:
             return
         names = [n for n in names if n in self.results]
         cnn = [n for n in names if not cands[n].is_svm]
-        for n in sorted(names, key=lambda n: n in cnn):       # the SVMs first
-            each = max(1.0, self.left() / max(1, len(cnn)))
-            if n in cnn:
-                cnn.remove(n)
-            cand = cands[n]
-            c = _job_config(self.cfg, cand, each)
-            self.results[n] = refit(self.ds, c, self.results[n], va,
-                                    lambda fc, cand=cand: self.job(cand, fc), each, self.log)
+        for n in names:                     # the SVMs first: their budget is a cap only
+            if n not in cnn:
+                self._refit(cands[n], max(1.0, self.left() / max(1, len(cnn))), va)
+        for i, n in enumerate(cnn):         # the CNNs share the time left
+            self._refit(cands[n], max(1.0, self.left() / (len(cnn) - i)), va)
+
+    def _refit(self, cand: Candidate, budget_s: float, va: np.ndarray) -> None:
+        c = _job_config(self.cfg, cand, budget_s)
+        self.results[cand.name] = refit(self.ds, c, self.results[cand.name], va,
+                                        lambda fc: self.job(cand, fc), budget_s, self.log)
 
     def svm(self, cand: Candidate) -> None:
         t = time.perf_counter()
@@ -426,9 +432,8 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
                              cost=combination_cost(ds, va, run.results, winner))
     selection["outputs"] = outputs
     if folds:
-        selection["folds"] = {"n": len(folds), "trials": [_trial_names(
-            ds, fold_windows(ds, cfg, [f])[0]) for f in folds], "below": K_FOLD_BELOW,
-            "refit_fraction": REFIT_FRACTION}
+        selection["folds"] = {"n": len(folds), "trials": fold_trial_names(ds, folds),
+                              "below": K_FOLD_BELOW, "refit_fraction": REFIT_FRACTION}
         run.final({c.name: c for c in cands},
                   {row["from"] for row in outputs.values()} | {winner}, va)
     best = compose(ds, va, run.results, winner, outputs) or run.results[winner]
