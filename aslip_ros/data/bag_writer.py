@@ -76,10 +76,7 @@ class BagWriter:
         stack, self._stack = self._stack, None
         try:
             if exc_type is None:
-                self._writer.close()
-                from aslip_ros.data.mcap_crc import seal
-                for f in self._tmp.glob("*.mcap"):
-                    seal(f)
+                self._writer.close()        # CrcMcapWriter seals the file as it closes
             else:
                 with contextlib.suppress(Exception):
                     self._writer.abort()

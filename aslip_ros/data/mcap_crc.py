@@ -6,9 +6,13 @@ records), one for the data section (in the DataEnd record) and one for the summa
 offers no option to compute them, so a bag with flipped bits would export silently. This
 module fills them in:
 
-- :class:`CrcMcapWriter` is rosbags' MCAP storage writer with the chunk CRC filled in after
-  each chunk is written (the CRC field sits at a fixed offset of the chunk record);
-- :func:`seal` fills in the data-section and summary CRCs of a finished file.
+- :class:`CrcMcapWriter` is rosbags' MCAP storage writer with all three filled in as the
+  file is written: each chunk's CRC before its bytes reach the file, and the data
+  section's CRC kept up to date with every byte written (``_CrcFile``), so that closing a
+  recording reads back only its summary section (about 100 bytes per 1 MB chunk), never
+  the data: an hour-long bag closes inside a node's shutdown grace (#38);
+- :func:`seal` fills in the data-section and summary CRCs of a finished file from another
+  writer (a pass over the whole file).
 
 Reading side: ``rosbags`` already verifies a non-zero chunk CRC when it decodes a chunk;
 :func:`check` verifies the other two, and recognises a file cut short (no end magic).
@@ -19,6 +23,7 @@ from __future__ import annotations
 import os
 import struct
 import zlib
+from io import BytesIO
 from pathlib import Path
 
 from rosbags.rosbag2.storage_mcap import McapWriter
@@ -31,17 +36,63 @@ _OP_FOOTER, _OP_DATA_END = 0x02, 0x0F
 _BLOCK = 8 * 2**20
 
 
+class _CrcFile:
+    """The MCAP file as the writer writes it, front to back, with the CRC-32 of every byte
+    so far (``crc``). While ``held`` is a buffer (a chunk being closed), writes wait there
+    so that the chunk's own CRC can be put in before its bytes count; ``crc_at``, where it
+    is a dict, records the CRC of the bytes before each write's offset."""
+
+    def __init__(self, f, crc: int, pos: int) -> None:
+        self._f, self.crc, self.pos = f, crc, pos
+        self.held: BytesIO | None = None
+        self.crc_at: dict[int, int] | None = None
+
+    def write(self, data) -> int:
+        if self.held is not None:
+            return self.held.write(data)
+        return self.commit(data)
+
+    def commit(self, data) -> int:
+        """Write ``data`` to the file, counting it in the CRC."""
+        if self.crc_at is not None:
+            self.crc_at[self.pos] = self.crc
+        n = self._f.write(data)
+        self.crc = zlib.crc32(data, self.crc)
+        self.pos += memoryview(data).nbytes
+        return n
+
+    def tell(self) -> int:
+        return self.pos + (self.held.tell() if self.held is not None else 0)
+
+    def close(self) -> None:
+        self._f.close()
+
+
 class CrcMcapWriter(McapWriter):
-    """rosbags' MCAP writer, with each chunk's CRC filled in."""
+    """rosbags' MCAP writer, with the chunk, data-section and summary CRCs filled in, at a
+    cost at close that does not grow with the recording's length."""
+
+    def __init__(self, path: Path, compression) -> None:
+        super().__init__(path, compression)
+        self.bio.flush()            # the header rosbags has written: counted from the file
+        head = self.path.read_bytes()
+        self.bio = _CrcFile(self.bio, zlib.crc32(head), len(head))
 
     def close_chunk(self) -> None:
         crc = zlib.crc32(self.chunk.bio.getbuffer())
-        start = self.bio.tell()
-        super().close_chunk()
-        end = self.bio.tell()
-        self.bio.seek(start + _CHUNK_CRC_AT)
-        self.bio.write(struct.pack("<I", crc))
-        self.bio.seek(end)
+        self.bio.held = BytesIO()
+        try:
+            super().close_chunk()
+        finally:
+            held, self.bio.held = self.bio.held, None
+        record = bytearray(held.getbuffer())
+        record[_CHUNK_CRC_AT:_CHUNK_CRC_AT + 4] = struct.pack("<I", crc)
+        self.bio.commit(record)
+
+    def close(self, version: int, metadata: str) -> None:
+        self.bio.crc_at = {}
+        super().close(version, metadata)
+        seal(self.path, data_crc_at=self.bio.crc_at)
 
 
 def _crc_of(f, start: int, stop: int) -> int:
@@ -71,14 +122,19 @@ def _layout(f, size: int) -> tuple[int, int, int, int]:
     return footer, summary_start, data_end, summary_crc
 
 
-def seal(path: str | os.PathLike) -> None:
-    """Write the data-section and summary CRCs of the finished MCAP file at ``path``."""
+def seal(path: str | os.PathLike, data_crc_at: dict[int, int] | None = None) -> None:
+    """Write the data-section and summary CRCs of the finished MCAP file at ``path``.
+    ``data_crc_at``: the CRC of the bytes before each of some offsets, as its writer kept it
+    (``_CrcFile.crc_at``); where the data section's end is among them, the data is not
+    read again."""
     path = Path(path)
     with open(path, "r+b") as f:
         size = f.seek(0, os.SEEK_END)
         footer, summary_start, data_end, _ = _layout(f, size)
         if data_end > 0:
-            crc = _crc_of(f, 0, data_end)
+            crc = (data_crc_at or {}).get(data_end)
+            if crc is None:
+                crc = _crc_of(f, 0, data_end)
             f.seek(data_end + 9)
             f.write(struct.pack("<I", crc))
         if summary_start:
