@@ -141,6 +141,21 @@ class AudioFileWriter:
             self.path.unlink(missing_ok=True)
 
 
+class _WrittenAudio:
+    """An audio file that another process wrote and closed (``DatasetWriter.adopt_trial``):
+    what ``end_trial`` and ``abort_trial`` need of an ``AudioFileWriter``."""
+
+    def __init__(self, path: Path, n_frames: int) -> None:
+        self.path, self.n_frames = path, n_frames
+
+    def close(self) -> None:
+        pass
+
+    def discard(self) -> None:
+        with contextlib.suppress(OSError):
+            self.path.unlink(missing_ok=True)
+
+
 class DatasetWriter:
     """Build a dataset atomically. Use as a context manager.
 
@@ -192,6 +207,13 @@ class DatasetWriter:
         self._pending = AudioFileWriter(self.root / "audio" / f".{k}.npy.part", n_channels,
                                         target=self.path)
         return self._pending
+
+    def adopt_trial(self, audio_path: str | os.PathLike, n_frames: int) -> None:
+        """Open the next trial on an audio ``.npy`` already written (``n_frames`` frames),
+        in this dataset's directory, by a process of a parallel export."""
+        if self._pending is not None:
+            raise RuntimeError("adopt_trial while another trial is open")
+        self._pending = _WrittenAudio(Path(audio_path), int(n_frames))
 
     def abort_trial(self) -> None:
         """Drop the open trial (its audio is deleted; no index is used up)."""

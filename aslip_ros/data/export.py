@@ -32,6 +32,7 @@ Any error leaves no dataset behind (it is built in a temporary directory and ren
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -82,6 +83,7 @@ class ExportConfig:
     skip_bad: bool = False
     recover: bool = False
     progress: bool = True
+    jobs: int = 1               # bags read in this many processes (the dataset is the same)
 
     def validate(self) -> None:
         """Raise ValueError on parameters that cannot produce a dataset."""
@@ -91,6 +93,8 @@ class ExportConfig:
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
         if not (math.isfinite(self.epsilon_m_s) and self.epsilon_m_s >= 0):
             raise ValueError(f"epsilon_m_s must be >= 0 m/s, got {self.epsilon_m_s!r}")
+        if not (isinstance(self.jobs, int) and self.jobs >= 1):
+            raise ValueError(f"jobs must be a whole number >= 1, got {self.jobs!r}")
         if self.label_source not in LABEL_SOURCES:
             raise ValueError(f"label_source must be one of {LABEL_SOURCES}, "
                              f"got {self.label_source!r}")
@@ -329,6 +333,84 @@ def _bag_warnings(path: Path, res: BagResult) -> list:
     return out + res.body_notes
 
 
+class _Shard:
+    """What a worker process writes one bag's audio into: a file of the dataset being
+    built (``root``), adopted by the parent's ``DatasetWriter`` in bag order."""
+
+    def __init__(self, root: Path, i: int) -> None:
+        self.path = root / "audio" / f".bag{i}.npy.part"
+        self.audio = None
+
+    def begin_trial(self, n_channels: int):
+        from aslip_ros.data.dataset import AudioFileWriter
+        self.audio = AudioFileWriter(self.path, n_channels)
+        return self.audio
+
+    def abort_trial(self) -> None:
+        if self.audio is not None:
+            self.audio.discard()
+            self.audio = None
+
+
+def _read_in_worker(i: int, path: Path, cfg: ExportConfig, root: Path) -> dict:
+    """One bag read in a worker process of ``export(jobs=N)``: its audio written to the
+    dataset's temporary directory, the rest returned (a BagError too)."""
+    from tqdm import tqdm
+    shard, stream, warnings = _Shard(root, i), StreamFormat(), []
+    try:
+        with tqdm(disable=True) as bar:
+            meta, res, trial = _export_or_recover(path, cfg, shard, stream, bar, warnings)
+    except BagError as exc:
+        shard.abort_trial()
+        return {"error": exc}
+    shard.audio.close()
+    return {"got": (meta, res, trial), "warnings": warnings, "audio": str(shard.path),
+            "n_frames": shard.audio.n_frames,
+            "format": (stream.sample_rate, stream.channel_names)}
+
+
+def _bags_read(paths: list, cfg: ExportConfig, writer, stream: StreamFormat, bar,
+               warnings: list):
+    """``(path, read)`` per bag in order: ``read()`` gives ``_export_or_recover``'s
+    ``(meta, result, trial)`` with the trial's audio open in ``writer``, or raises its
+    BagError. With ``cfg.jobs`` > 1 the bags are read ahead in that many processes, at most
+    two per process at a time (memory stays bounded), and taken up here in order, so the
+    dataset is the one a single job writes."""
+    if cfg.jobs == 1 or len(paths) == 1:
+        for p in paths:
+            yield p, lambda p=p: _export_or_recover(p, cfg, writer, stream, bar, warnings)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    def taken(p: Path, out: dict):
+        if "error" in out:
+            raise out["error"]
+        try:
+            stream.check(*out["format"], p)    # the first bag read fixes the format
+        except BagError:
+            Path(out["audio"]).unlink(missing_ok=True)
+            raise
+        writer.adopt_trial(out["audio"], out["n_frames"])
+        warnings.extend(out["warnings"])
+        return out["got"]
+
+    wcfg = replace(cfg, progress=False)
+    pool = ProcessPoolExecutor(min(cfg.jobs, len(paths)),
+                               mp_context=multiprocessing.get_context("spawn"))
+    try:
+        ahead: list = []
+        for i, p in enumerate(paths):
+            ahead.append((p, pool.submit(_read_in_worker, i, p, wcfg, writer.root)))
+            while len(ahead) >= 2 * cfg.jobs or (ahead and i == len(paths) - 1):
+                q, fut = ahead.pop(0)
+                yield q, lambda q=q, out=fut.result(): taken(q, out)
+    finally:
+        # An error stops the export: the bags queued are dropped, the ones being read
+        # are waited for (their files are in the dataset's directory, discarded with it).
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
            config: ExportConfig | None = None, **overrides: Any) -> ExportSummary:
     """Export ``bags`` (bag files/directories, or directories holding bags) to ``out``.
@@ -353,38 +435,40 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
             tqdm(total=len(paths), desc="export", disable=not cfg.progress, leave=False,
                  bar_format="{l_bar}{bar}| {n:.1f}/{total} bags [{elapsed}<{remaining}"
                             "{postfix}]") as bar:
-        for p in paths:
-            done = bar.n
-            try:
-                meta, res, trial = _export_or_recover(p, cfg, writer, stream, bar,
-                                                      summary.warnings)
-                bar.update(done + 1 - bar.n)
-            except BagError as exc:
-                writer.abort_trial()
-                bar.update(done + 1 - bar.n)
-                if not cfg.skip_bad:
-                    raise
-                summary.bags.append(BagResult(bag=str(p), error=str(exc)))
-                continue
-            summary.warnings += _bag_warnings(p, res)
-            info = trial["info"]
-            if not meta:
-                summary.warnings.append(no_metadata_note(p, info, cfg))
-            tid = str(meta.get("trial_id") or _bag_name(p))
-            ids[tid] += 1
-            if ids[tid] > 1:
-                summary.warnings.append(f"trial id {tid!r} repeats ({p}); renamed "
-                                        f"{tid}~{ids[tid]}")
-                tid = f"{tid}~{ids[tid]}"
-            info["id"] = res.trial_id = tid
-            if info["layout"]:
-                layouts.setdefault(info["layout"], str(p))
-            if len(layouts) > 1:
-                writer.abort_trial()
-                raise BagError(f"bag {p}: layouts differ within one dataset: "
-                               + ", ".join(f"{k!r} ({v})" for k, v in layouts.items()))
-            write_track(writer.root, writer.end_trial(info, trial["rows"]), trial["track"])
-            summary.bags.append(res)
+        reads = contextlib.closing(_bags_read(paths, cfg, writer, stream, bar,
+                                              summary.warnings))
+        with reads as bags_read:
+            for p, read in bags_read:
+                done = bar.n
+                try:
+                    meta, res, trial = read()
+                    bar.update(done + 1 - bar.n)
+                except BagError as exc:
+                    writer.abort_trial()
+                    bar.update(done + 1 - bar.n)
+                    if not cfg.skip_bad:
+                        raise
+                    summary.bags.append(BagResult(bag=str(p), error=str(exc)))
+                    continue
+                summary.warnings += _bag_warnings(p, res)
+                info = trial["info"]
+                if not meta:
+                    summary.warnings.append(no_metadata_note(p, info, cfg))
+                tid = str(meta.get("trial_id") or _bag_name(p))
+                ids[tid] += 1
+                if ids[tid] > 1:
+                    summary.warnings.append(f"trial id {tid!r} repeats ({p}); renamed "
+                                            f"{tid}~{ids[tid]}")
+                    tid = f"{tid}~{ids[tid]}"
+                info["id"] = res.trial_id = tid
+                if info["layout"]:
+                    layouts.setdefault(info["layout"], str(p))
+                if len(layouts) > 1:
+                    writer.abort_trial()
+                    raise BagError(f"bag {p}: layouts differ within one dataset: "
+                                   + ", ".join(f"{k!r} ({v})" for k, v in layouts.items()))
+                write_track(writer.root, writer.end_trial(info, trial["rows"]), trial["track"])
+                summary.bags.append(res)
         if stream.sample_rate is None:
             raise ValueError("no bag could be exported")
         summary.sample_rate = stream.sample_rate
@@ -444,6 +528,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="export the readable part of a damaged bag (a recording cut "
                              "short by a crash, a chunk failing its CRC) instead of refusing "
                              "it; a warning says what was lost")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="read the bags in N processes (the dataset is the same as "
+                             "with one; default %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--summary-json", type=Path, help="also write the summary as JSON")
     parser.add_argument("--bench", type=float, metavar="SECONDS", nargs="?", const=60.0,
@@ -467,7 +554,7 @@ def run(args: argparse.Namespace) -> int:
         topics_given=tuple(k for k in POSE_TOPICS if getattr(args, f"{k}_topic")),
         finger_body=args.finger_body, object_body=args.object_body,
         overwrite=args.overwrite, skip_bad=args.skip_bad, recover=args.recover,
-        progress=not args.no_progress)
+        progress=not args.no_progress, jobs=args.jobs)
     try:
         summary = export(args.bags, args.out, cfg)
         print(summary)
