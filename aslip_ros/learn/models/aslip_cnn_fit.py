@@ -52,6 +52,7 @@ from aslip_ros.learn.models.registry import CNN
 from aslip_ros.learn.training.config import (TrainConfig, TrainResult, provenance,
                                              resolve_device, seed_everything)
 from aslip_ros.learn.training.data import Batches, feature_cache, rotation_args, split_windows
+from aslip_ros.learn.training.resume import RESUME_FREE, JobState
 
 
 _DB_TO_LOG_POWER = math.log(10.0) / 10.0  # +1 dB amplitude-power gain in natural-log power
@@ -193,6 +194,8 @@ class EpochRun:
         self.history: list[dict[str, float]] = []
         self.train_time_s = 0.0
         self.stop_reason = ""           # set once no epoch is left: max_epochs | early_stopping
+        # Called with ``state_dict()`` after each epoch (``aslip train --resume``).
+        self.on_epoch: Callable[[dict[str, Any]], None] | None = None
 
     @property
     def done(self) -> bool:
@@ -226,6 +229,25 @@ class EpochRun:
         if not self.stop_reason and epoch + 1 >= self.cfg.epochs:
             self.stop_reason = "max_epochs"
 
+    def state_dict(self) -> dict[str, Any]:
+        """Everything the next epoch depends on: weights, optimiser, best epoch, history,
+        time trained, stop reason and both random streams (learn/training/resume.py)."""
+        return {"model": self.model.state_dict(), "opt": self.opt.state_dict(),
+                "best": self.best, "history": self.history,
+                "train_time_s": self.train_time_s, "stop_reason": self.stop_reason,
+                "rng": self.rng.bit_generator.state, "torch_rng": torch.get_rng_state()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Go on from ``state_dict()``'s epoch."""
+        self.model.load_state_dict(state["model"])
+        self.opt.load_state_dict(state["opt"])
+        self.best = tuple(state["best"])
+        self.history = list(state["history"])
+        self.train_time_s = float(state["train_time_s"])
+        self.stop_reason = str(state["stop_reason"])
+        self.rng.bit_generator.state = state["rng"]
+        torch.set_rng_state(state["torch_rng"])
+
     def advance(self, seconds: float) -> None:
         """Train whole epochs until ``seconds`` of this slice have passed (at least one)."""
         t0 = time.perf_counter()
@@ -233,6 +255,8 @@ class EpochRun:
             self._epoch()
             elapsed = time.perf_counter() - t0
             self.history[-1]["time_s"] = self.train_time_s + elapsed
+            if self.on_epoch is not None:
+                self.on_epoch(dict(self.state_dict(), train_time_s=self.train_time_s + elapsed))
             if elapsed > seconds:
                 break
         self.train_time_s += time.perf_counter() - t0
@@ -336,6 +360,7 @@ class CnnJob:
                  init: str | os.PathLike | Checkpoint | None = None,
                  weights: LossWeights = LossWeights(),
                  cache_dir: str | os.PathLike | None = None,
+                 state: JobState | None = None,
                  log: Callable[[str], None] = print) -> None:
         torch.set_num_threads(max(1, cfg.threads))
         self.device = resolve_device(cfg.device)
@@ -364,6 +389,23 @@ class CnnJob:
             self.model.freeze_encoder(trainable)
         self.model.to(self.device)
         self.run = EpochRun(self.model, self.data, self.tr, self.va, cfg, weights, rng, log)
+        if state is not None:
+            self._resume(state, model_options, log)
+
+    def _resume(self, state: JobState, model_options: dict[str, Any] | None,
+                log: Callable[[str], None]) -> None:
+        """Go on from ``state``'s last epoch where it has one; save it after each epoch."""
+        built_from = {"config": {k: v for k, v in dataclasses.asdict(self.cfg).items()
+                                 if k not in RESUME_FREE},
+                      "dataset": self.ds.fingerprint(), "channels": self.channels,
+                      "features": self.fcfg.to_dict(), "model": dict(model_options or {}),
+                      "init": _init_name(self.init)}
+        saved = state.load(built_from)
+        if saved is not None:
+            self.run.load_state_dict(saved)
+            log(f"resumed from {state.path} after epoch {self.run.epochs_run - 1} "
+                f"({self.run.train_time_s:.0f} s trained)")
+        self.run.on_epoch = state.save
 
     @property
     def done(self) -> bool:
@@ -464,7 +506,9 @@ def train_cnn(ds: WindowSet, cfg: TrainConfig, **kw: Any) -> TrainResult:
     ``cfg.time_budget_s``. Keywords: the job's (``CnnJob``: ``feature_config``,
     ``model_options``, ``channels``, ``init``, ``weights``, ``cache_dir``, ``log``)."""
     job = STAGES[cfg.stage](ds, cfg, **kw)
-    job.advance(cfg.time_budget_s)
+    left = cfg.time_budget_s - job.train_time_s      # a resumed job has trained already
+    if left > 0 or not job.run.epochs_run:
+        job.advance(left)
     return job.result()
 
 

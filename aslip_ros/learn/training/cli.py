@@ -26,6 +26,7 @@ from aslip_ros.learn.models.svm import FEATURES, SvmConfig
 from aslip_ros.learn.training.config import CALIBRATIONS, DEVICES, STAGES, TrainConfig, fit_stage
 from aslip_ros.learn.training.recipes import (DEFAULT_BUDGET_S, DEFAULT_RECIPES, RECIPES,
                                               run_selected)
+from aslip_ros.learn.training.resume import RunStates
 from aslip_ros.learn.training.stream import run_from_args
 from aslip_ros.learn.training.train import train_backend, train_svm
 
@@ -80,6 +81,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="where the network trains: auto (default: a CUDA GPU where torch "
                         "sees one, else the CPU), cuda, or cpu (the CPU's exact numbers)")
     p.add_argument("--out", required=True, help="checkpoint file to write")
+    p.add_argument("--resume", action="store_true",
+                   help="go on with an interrupted run of the same command from each CNN "
+                        "job's last completed epoch (its state: <out>.resume/)")
     p.add_argument("--seed", type=int, default=d.seed, help="training seed")
     p.add_argument("--split-seed", type=int, default=d.split_seed,
                    help="seed of the by-trial split (keep fixed across training seeds)")
@@ -165,11 +169,18 @@ def run(args: argparse.Namespace) -> int:
                              temporal_channels=args.temporal_channels,
                              temporal_layers=args.temporal_layers,
                              head_hidden=args.head_hidden, dropout=args.dropout, gate=args.gate)
+        cnn = args.stage == "auto" or (backend is not None and backend.model_type == CNN)
+        if args.resume and not cnn:
+            raise ValueError(f"--resume: --stage {args.stage} trains in one go; run it again")
+        states = RunStates(args.out, args.resume) if cnn else None
         if args.stage == "auto":
-            return run_selected(args, ds, cfg, fcfg, model_options, svm_config)
+            code = run_selected(args, ds, cfg, fcfg, model_options, svm_config, states)
+            states.finished()
+            return code
         if backend is not None:        # the CNN's stages and a plug-in's, through its fit
             options = dict(model_options=model_options, init=args.init,
-                           cache_dir=args.cache_dir) if backend.model_type == CNN else {}
+                           cache_dir=args.cache_dir, state=states.job(args.stage)) \
+                if states is not None else {}
             res = train_backend(backend, ds, cfg, feature_config=fcfg,
                                 channels=_csv(args.channels), **options)
         else:
@@ -179,6 +190,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"aslip train: error: {exc}", file=sys.stderr)
         return 1
     res.save(args.out)
+    if states is not None:
+        states.finished()
     val = res.meta["provenance"]["metrics"]["val"]
     print(f"wrote {args.out}: val detection {val.get('detection_accuracy', float('nan')):.3f}, "
           f"direction MAE {val.get('direction_mae_deg', float('nan')):.1f} deg, "

@@ -67,6 +67,7 @@ from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, OneShot,
                                                  successive_halving)
 from aslip_ros.learn.training.config import TrainConfig, TrainResult, resolve_device
 from aslip_ros.learn.training.data import split_windows
+from aslip_ros.learn.training.resume import RunStates
 from aslip_ros.learn.training.folds import (K_FOLD_BELOW, REFIT_FRACTION, FoldJob,
                                             fold_trial_names, fold_windows, refit,
                                             trial_folds)
@@ -248,13 +249,16 @@ class _Jobs:
 
     def __init__(self, ds: WindowSet, cfg: TrainConfig, pretrain_ds: WindowSet | None,
                  budget_s: float, cnn_kw: dict[str, Any], svm_config: SvmConfig,
-                 folds: list[tuple[int, ...]] | None = None) -> None:
+                 folds: list[tuple[int, ...]] | None = None,
+                 states: RunStates | None = None) -> None:
         self.ds, self.cfg, self.pretrain_ds, self.folds = ds, cfg, pretrain_ds, folds
+        self.states = states
         # The folds' windows, the same for every candidate (split once).
         self.fold_split = fold_windows(ds, cfg, folds) if folds else None
         self.budget_s, self.cnn_kw, self.svm_config = budget_s, cnn_kw, svm_config
         self.log: Callable[[str], None] = cnn_kw["log"]
-        self.t0 = time.perf_counter()
+        # A resumed call's budget counts the interrupted calls' time.
+        self.t0 = time.perf_counter() - (states.spent_s() if states else 0.0)
         self.pretrained: Any = None
         self.pre_info: dict[str, Any] = {}
         self.rows: list[dict[str, Any]] = []
@@ -312,7 +316,8 @@ class _Jobs:
                                    induced=None, objects=None, conditions=None)
         self.pre_info = {"dataset": str(self.pretrain_ds.root), "budget_s": round(share, 1)}
         try:
-            self.pretrained = train_cnn(self.pretrain_ds, pcfg, **self.cnn_kw).checkpoint()
+            self.pretrained = train_cnn(self.pretrain_ds, pcfg, **self.cnn_kw,
+                                        **self._state("pretrain")).checkpoint()
         except ValueError as exc:
             self.pre_info["error"] = str(exc)
             self.log(f"pretraining failed: {exc}")
@@ -332,10 +337,17 @@ class _Jobs:
                 svm_config=dataclasses.replace(self.svm_config,
                                                features=SVM_FEATURES[cand.base]),
                 channels=kw["channels"], log=self.log), c)
+        state = self._state(cand.name + ("" if c.val_trials is None else "-final"
+                                         if not c.val_trials else
+                                         f"-fold{self.folds.index(tuple(c.val_trials))}"))
         if cand.needs_pretrain:
             return finetune(self.ds, c, init=self.pretrained, cache_dir=kw["cache_dir"],
-                            log=self.log)
-        return scratch(self.ds, c, **kw)
+                            log=self.log, **state)
+        return scratch(self.ds, c, **kw, **state)
+
+    def _state(self, name: str) -> dict[str, Any]:
+        """The ``state`` keyword of the CNN job called ``name`` (none without states)."""
+        return {} if self.states is None else {"state": self.states.job(name)}
 
     def start(self, cand: Candidate) -> Job:
         """The candidate's job (on the folds: one per fold, ``FoldJob``), not trained."""
@@ -390,11 +402,14 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
                    channels: Sequence[str] | None = None,
                    svm_config: SvmConfig = SvmConfig(),
                    cache_dir: str | os.PathLike | None = None,
+                   states: RunStates | None = None,
                    log: Callable[[str], None] = print) -> TrainResult:
     """Train the candidates within ``budget_s`` and return the one best on the validation
     trials; its ``meta["provenance"]["selection"]`` holds the comparison, the rounds of the
     allocator and the reason. ``cfg`` carries the shared settings (split seed, filters,
     calibration, device...); its stage, seed and time budget are set per candidate.
+    ``states``: where the CNN jobs keep their state, to go on with an interrupted call
+    (``learn.training.resume``; the budget counts the interrupted calls' time).
     ValueError when the validation trials are too few or no candidate finished."""
     tr, va, folds = validation_split(ds, cfg)
     cands, skipped = plan(recipes, seeds, pretrain_ds is not None, log, cfg.calibration)
@@ -403,7 +418,8 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
             f"{K_FOLD_BELOW} validation trials (learn/training/folds.py)")
     run = _Jobs(ds, cfg, pretrain_ds, budget_s,
                 dict(feature_config=feature_config, model_options=model_options,
-                     channels=channels, cache_dir=cache_dir, log=log), svm_config, folds)
+                     channels=channels, cache_dir=cache_dir, log=log), svm_config, folds,
+                states)
     run.run(cands)
     winner, scores, why = select({n: r.meta["provenance"]["metrics"]["val"]
                                   for n, r in run.results.items()})
@@ -517,7 +533,7 @@ def write_comparison(out: str | os.PathLike, sel: dict[str, Any]) -> tuple[Path,
 
 def run_selected(args: argparse.Namespace, ds: WindowSet, cfg: TrainConfig,
                  fcfg: FeatureConfig, model_options: dict[str, Any],
-                 svm_config: SvmConfig) -> int:
+                 svm_config: SvmConfig, states: RunStates | None = None) -> int:
     """``aslip train --stage auto``: train, choose, write the checkpoint and comparison."""
     try:
         seeds = [int(s) for s in (args.seeds or "").split(",") if s.strip()] or [0]
@@ -529,7 +545,7 @@ def run_selected(args: argparse.Namespace, ds: WindowSet, cfg: TrainConfig,
     res = train_selected(ds, cfg, pretrain_ds=pre, recipes=recipes, seeds=seeds,
                          budget_s=args.time_budget or DEFAULT_BUDGET_S, feature_config=fcfg,
                          model_options=model_options, channels=chans, svm_config=svm_config,
-                         cache_dir=args.cache_dir)
+                         cache_dir=args.cache_dir, states=states)
     sel = res.meta["provenance"]["selection"]
     res.save(args.out)
     js, md = write_comparison(args.out, sel)
