@@ -18,7 +18,7 @@ PYTEST := $(ROS) ASLIP_REQUIRE_ROS=1 timeout -k 30 $(TEST_TIMEOUT) $(VENV)/bin/p
 BENCHMARK := $(ROS) PYTHONPATH="$$PYTHONPATH:$(CURDIR)" $(VENV)/bin/python -P -m
 
 .PHONY: help setup build test test-install test-fast demo demo-variants datasets ablation bench stability transfer lint clean
-.PHONY: ablation-baselines magnitude flake-hunt soak-recording latency recipe-budget rotation
+.PHONY: ablation-baselines magnitude flake-hunt soak-recording latency recipe-budget rotation scale
 
 help:
 	@echo "make demo       closed-loop slip-stop and slip-track in the simulated scene (main job)"
@@ -37,6 +37,7 @@ help:
 	@echo "make stability  accuracy under stressors (results/stability/)"
 	@echo "make transfer   train on the default scene, test on held-out variants (results/transfer/)"
 	@echo "make recipe-budget  the default aslip train at 4, 8, 16 and 32 min (results/recipes/)"
+	@echo "make scale     export and training against 1, 4 and 16 hours of recordings (results/scale/)"
 	@echo "make rotation   rotational slip per microphone layout, planar kept (results/rotation/)"
 	@echo "                (the benchmark targets run benchmarks/ from this checkout; ARGS=\"...\" adds options)"
 
@@ -113,6 +114,10 @@ transfer: setup
 
 recipe-budget: setup
 	$(BENCHMARK) benchmarks.recipe_budget --out results/recipes $(ARGS)
+
+# Export and training against hours of recordings (#38). ARGS: --hours, --rate, --work.
+scale: setup
+	$(BENCHMARK) benchmarks.scale --out results/scale $(ARGS)
 
 rotation: setup
 	$(BENCHMARK) benchmarks.rotation --out results/rotation $(ARGS)

@@ -37,3 +37,15 @@ def test_simulate_knows_every_scene_variant():
 def test_new_variants_reach_the_bags(tmp_path, variant):
     assert cli.main(ARGS + ["--variant", variant, "-o", str(tmp_path / variant)]) == 0
     assert _meta(tmp_path / variant / TRIAL)["variant"] == variant
+
+
+def test_the_audio_interfaces_rate_reaches_the_bags_and_a_bad_one_is_refused(tmp_path,
+                                                                             capsys):
+    """``--sample-rate``: a lab's interface rate (make scale records 16 kHz to fit hours
+    on a disk); export takes the rate from the bag."""
+    from aslip_ros.data.export import export
+    assert cli.main(ARGS + ["--sample-rate", "16000", "-o", str(tmp_path / "b")]) == 0
+    assert _meta(tmp_path / "b" / TRIAL)["sample_rate"] == 16000.0
+    assert export([tmp_path / "b"], tmp_path / "ds", progress=False).sample_rate == 16000.0
+    assert cli.main(ARGS + ["--sample-rate", "100", "-o", str(tmp_path / "c")]) == 1
+    assert "sample_rate must be at least 8000 Hz" in capsys.readouterr().err

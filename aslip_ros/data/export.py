@@ -129,6 +129,7 @@ class ExportSummary:
     audio_s: float = 0.0
     elapsed_s: float = 0.0
     warnings: list = field(default_factory=list)
+    worker_peak_rss_mib: float | None = None    # --jobs > 1: the largest worker's peak
 
     @property
     def realtime_factor(self) -> float:
@@ -364,18 +365,21 @@ def _read_in_worker(i: int, path: Path, cfg: ExportConfig, root: Path) -> dict:
         shard.abort_trial()
         return {"error": exc}
     shard.audio.close()
+    from aslip_ros.util import peak_rss_mib
     return {"got": (meta, res, trial), "warnings": warnings, "audio": str(shard.path),
+            "peak_rss_mib": peak_rss_mib(),
             "n_frames": shard.audio.n_frames,
             "format": (stream.sample_rate, stream.channel_names)}
 
 
 def _bags_read(paths: list, cfg: ExportConfig, writer, stream: StreamFormat, bar,
-               warnings: list):
+               warnings: list, worker_peaks: list):
     """``(path, read)`` per bag in order: ``read()`` gives ``_export_or_recover``'s
     ``(meta, result, trial)`` with the trial's audio open in ``writer``, or raises its
     BagError. With ``cfg.jobs`` > 1 the bags are read ahead in that many processes, at most
     two per process at a time (memory stays bounded), and taken up here in order, so the
-    dataset is the one a single job writes."""
+    dataset is the one a single job writes; ``worker_peaks`` gets each bag's worker's peak
+    resident memory [MiB]."""
     if cfg.jobs == 1 or len(paths) == 1:
         for p in paths:
             yield p, lambda p=p: _export_or_recover(p, cfg, writer, stream, bar, warnings)
@@ -393,6 +397,7 @@ def _bags_read(paths: list, cfg: ExportConfig, writer, stream: StreamFormat, bar
             raise
         writer.adopt_trial(out["audio"], out["n_frames"])
         warnings.extend(out["warnings"])
+        worker_peaks.append(out["peak_rss_mib"])
         return out["got"]
 
     wcfg = replace(cfg, progress=False)
@@ -435,8 +440,9 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
             tqdm(total=len(paths), desc="export", disable=not cfg.progress, leave=False,
                  bar_format="{l_bar}{bar}| {n:.1f}/{total} bags [{elapsed}<{remaining}"
                             "{postfix}]") as bar:
+        peaks: list = []
         reads = contextlib.closing(_bags_read(paths, cfg, writer, stream, bar,
-                                              summary.warnings))
+                                              summary.warnings, peaks))
         with reads as bags_read:
             for p, read in bags_read:
                 done = bar.n
@@ -478,6 +484,7 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
         summary.kept = sum(b.kept for b in ok)
         summary.dropped = {k: sum(b.dropped.get(k, 0) for b in ok) for k in DROP_REASONS}
         summary.audio_s = sum(b.audio_s for b in ok)
+        summary.worker_peak_rss_mib = max((p for p in peaks if p is not None), default=None)
         n_win = int(round(cfg.window_s * stream.sample_rate))
         writer.finish(
             sample_rate=stream.sample_rate, channel_names=list(stream.channel_names),

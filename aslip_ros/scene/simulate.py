@@ -15,7 +15,9 @@ paired.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 import sys
 import time
 import zlib
@@ -132,12 +134,15 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
              duration_s: float = 30.0, seed: int = 0, layout: str | None = None,
              pad: str | None = None, block_frames: int = DEFAULT_BLOCK_FRAMES,
              overwrite: bool = False, progress: bool = True,
-             variant: str | None = None, twist_fraction: float = 0.0) -> dict:
+             variant: str | None = None, twist_fraction: float = 0.0,
+             sample_rate: float | None = None) -> dict:
     """Simulate ``trials`` bags per (object, condition) into ``out_dir``.
 
     ``None`` for object/condition/layout/pad means the scenario's own default.
     ``twist_fraction`` (external only): share of the agent's slipping pushes that twist the
-    object (``Scenario.twist_fraction``; recorded in the metadata when not 0). Existing bags
+    object (``Scenario.twist_fraction``; recorded in the metadata when not 0).
+    ``sample_rate``: the audio interface's rate [Hz] (None: the scenario's, 48 kHz).
+    Existing bags
     of the same trials are kept (so an interrupted run resumes) unless ``overwrite``; an
     existing bag recorded with other parameters (duration, layout, pad, seed, scene
     version...) is refused with a ValueError before anything is recorded, since keeping it
@@ -154,8 +159,13 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
         raise ValueError("twist_fraction applies to --kind external only")
     twist = {"twist_fraction": float(twist_fraction)} if twist_fraction else {}
 
+    if sample_rate is not None and not (math.isfinite(sample_rate) and sample_rate >= 8000):
+        raise ValueError(f"sample_rate must be at least 8000 Hz, got {sample_rate!r}")
+
     def scene(kw):
         scn = make(**kw, **twist)
+        if sample_rate is not None:
+            scn = dataclasses.replace(scn, sample_rate=float(sample_rate))
         return scn if variant is None else scenarios.VARIANTS[variant](scn)
     worlds = [World(scene(kw)) for kw in plan]
     extra = {"duration_s": float(duration_s), **twist}
@@ -228,6 +238,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="external only: share of the agent's slipping pushes that twist "
                              "the object about the pad normal, half pure twists and half with "
                              "the push (default %(default)s: none)")
+    parser.add_argument("--sample-rate", type=float, default=None,
+                        help="the audio interface's rate in Hz (default: the scene's, 48000)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -240,7 +252,8 @@ def run(args: argparse.Namespace) -> int:
                            duration_s=args.duration, seed=args.seed, layout=args.layout,
                            pad=args.pad, block_frames=args.block_frames,
                            overwrite=args.overwrite, progress=not args.no_progress,
-                           variant=args.variant, twist_fraction=args.twist_fraction)
+                           variant=args.variant, twist_fraction=args.twist_fraction,
+                           sample_rate=args.sample_rate)
     except (ValueError, OSError) as exc:
         print(f"aslip simulate: error: {exc}", file=sys.stderr)
         return 1
