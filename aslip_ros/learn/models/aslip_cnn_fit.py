@@ -52,6 +52,7 @@ from aslip_ros.learn.models.registry import CNN
 from aslip_ros.learn.training.config import (TrainConfig, TrainResult, provenance,
                                              resolve_device, seed_everything)
 from aslip_ros.learn.training.data import Batches, feature_cache, rotation_args, split_windows
+from aslip_ros.learn.training import distributed
 from aslip_ros.learn.training.resume import RESUME_FREE, JobState
 
 
@@ -152,8 +153,11 @@ class Fit:
 
 def _train_epoch(model: SlipNet, data: Batches, order: np.ndarray, opt: torch.optim.Optimizer,
                  feat_mean: np.ndarray, rng: np.random.Generator, cfg: TrainConfig,
-                 weights: LossWeights, label: str) -> float:
-    """One pass over ``order``; the mean training loss."""
+                 weights: LossWeights, label: str, net: torch.nn.Module | None = None
+                 ) -> float:
+    """One pass over ``order``; the mean training loss. ``net``: what the forward pass runs
+    (the model under DistributedDataParallel, each rank on its share of every batch)."""
+    net = model if net is None else net
     model.train()
     n_batches = max(1, order.size // cfg.batch_size)  # drop the ragged tail (BN stability)
     batches: Any = range(n_batches)
@@ -163,9 +167,9 @@ def _train_epoch(model: SlipNet, data: Batches, order: np.ndarray, opt: torch.op
     run_loss = 0.0
     dev = _device_of(model)
     for i in batches:
-        b = order[i * cfg.batch_size:(i + 1) * cfg.batch_size]
+        b = distributed.share(order[i * cfg.batch_size:(i + 1) * cfg.batch_size])
         x = torch.from_numpy(augment(data.x(b), feat_mean, rng, cfg)).to(dev)
-        out = model(x)
+        out = net(x)
         loss, _ = slip_loss(out, speed_scale=model.cfg.speed_scale, weights=weights,
                             **data.labels(b, dev))
         opt.zero_grad(set_to_none=True)
@@ -187,6 +191,11 @@ class EpochRun:
                  log: Callable[[str], None]) -> None:
         self.model, self.data, self.tr, self.va = model, data, tr, va
         self.cfg, self.weights, self.rng, self.log = cfg, weights, rng, log
+        # Under torchrun: DDP, and each rank's own augmentation stream (the epoch's order
+        # comes from the shared one, the same on every rank).
+        self.net = distributed.wrap(model)
+        self.aug_rng = (np.random.default_rng([cfg.seed, distributed.rank()])
+                        if distributed.active() else rng)
         self.opt = torch.optim.Adam(param_groups(model, cfg.lr, cfg.encoder_lr_scale),
                                     lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.feat_mean = model.feat_mean.detach().cpu().numpy().copy()
@@ -209,7 +218,8 @@ class EpochRun:
         epoch = len(self.history)
         order = epoch_indices(self.tr, self.data.moving, self.cfg.noslip_ratio, self.rng)
         train_loss = _train_epoch(self.model, self.data, order, self.opt, self.feat_mean,
-                                  self.rng, self.cfg, self.weights, f"epoch {epoch}")
+                                  self.aug_rng, self.cfg, self.weights, f"epoch {epoch}",
+                                  self.net)
         val_loss = (evaluate_loss(self.model, self.data, self.va, self.weights)[0]
                     if self.va.size else None)
         self.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss,
@@ -250,16 +260,16 @@ class EpochRun:
 
     def advance(self, seconds: float) -> None:
         """Train whole epochs until ``seconds`` of this slice have passed (at least one)."""
-        t0 = time.perf_counter()
+        t0 = distributed.now()          # rank 0's clock: every rank stops at one epoch
         while not self.done:
             self._epoch()
-            elapsed = time.perf_counter() - t0
+            elapsed = distributed.now() - t0
             self.history[-1]["time_s"] = self.train_time_s + elapsed
             if self.on_epoch is not None:
                 self.on_epoch(dict(self.state_dict(), train_time_s=self.train_time_s + elapsed))
             if elapsed > seconds:
                 break
-        self.train_time_s += time.perf_counter() - t0
+        self.train_time_s += distributed.now() - t0
 
     def best_state(self) -> dict[str, Any]:
         return self.best[2]
@@ -376,7 +386,9 @@ class CnnJob:
         self.init_ckpt = init_ckpt
 
         t0 = time.perf_counter()
-        feats = feature_cache(ds, self.fcfg, self.channels, cache_dir, progress=cfg.progress)
+        with distributed.rank0_first():         # one rank writes the cache, the others read
+            feats = feature_cache(ds, self.fcfg, self.channels, cache_dir,
+                                  progress=cfg.progress)
         self.tr, self.va = split_windows(ds, cfg)
         reuse = None if init_ckpt is None else init_ckpt.meta.get("calibration")
         self.cal, offsets = training_calibration(ds, cfg.calibration, self.channels, self.fcfg,
@@ -405,7 +417,7 @@ class CnnJob:
             self.run.load_state_dict(saved)
             log(f"resumed from {state.path} after epoch {self.run.epochs_run - 1} "
                 f"({self.run.train_time_s:.0f} s trained)")
-        self.run.on_epoch = state.save
+        self.run.on_epoch = state.save if distributed.is_main() else None
 
     @property
     def done(self) -> bool:

@@ -19,6 +19,7 @@ import math
 import time
 from typing import Any, Callable, Protocol
 
+from aslip_ros.learn.training import distributed
 from aslip_ros.learn.training.config import TrainConfig, TrainResult
 from aslip_ros.learn.training.selection import METRICS, score
 
@@ -89,7 +90,7 @@ def halving_rounds(n: int) -> int:
 
 def successive_halving(jobs: dict[str, Job], budget_s: float, *,
                        others: dict[str, dict[str, Any]] | None = None,
-                       clock: Callable[[], float] = time.perf_counter,
+                       clock: Callable[[], float] = distributed.now,
                        log: Callable[[str], None] = print
                        ) -> tuple[str, list[dict[str, Any]], list[dict[str, Any]]]:
     """Spend ``budget_s`` of wall time on ``jobs`` (in order) and return the survivor's name,

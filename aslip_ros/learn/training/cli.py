@@ -16,6 +16,8 @@ Stages:
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
 
 from aslip_ros.learn.data_io import open_dataset
@@ -23,7 +25,9 @@ from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ModelConfig
 from aslip_ros.learn.models.registry import CNN
 from aslip_ros.learn.models.svm import FEATURES, SvmConfig
-from aslip_ros.learn.training.config import CALIBRATIONS, DEVICES, STAGES, TrainConfig, fit_stage
+from aslip_ros.learn.training import distributed
+from aslip_ros.learn.training.config import (CALIBRATIONS, DEVICES, STAGES, TrainConfig,
+                                             fit_stage, resolve_device)
 from aslip_ros.learn.training.recipes import (DEFAULT_BUDGET_S, DEFAULT_RECIPES, RECIPES,
                                               run_selected)
 from aslip_ros.learn.training.resume import RunStates
@@ -137,8 +141,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """``aslip train``; under ``torchrun`` every rank runs it (learn/training/distributed.py)
+    and rank 0 alone prints and writes."""
+    try:
+        distributed.setup(resolve_device(args.device))
+    except (ValueError, RuntimeError) as exc:
+        print(f"aslip train: error: {exc}", file=sys.stderr)
+        return 1
+    try:
+        if distributed.is_main():
+            return _run(args)
+        with open(os.devnull, "w") as quiet, contextlib.redirect_stdout(quiet):
+            return _run(args)
+    finally:
+        distributed.teardown()
+
+
+def _run(args: argparse.Namespace) -> int:
     if args.time_budget is None and args.stage != "auto":
         args.time_budget = TrainConfig.time_budget_s
+    if args.stage == "stream" and distributed.active():
+        print("aslip train: error: --stage stream trains in one process: run it without "
+              "torchrun", file=sys.stderr)
+        return 1
     if args.stage == "stream":     # the causal streaming estimator (learn/training/stream.py)
         return run_from_args(args)
     try:
@@ -170,6 +195,10 @@ def run(args: argparse.Namespace) -> int:
                              temporal_layers=args.temporal_layers,
                              head_hidden=args.head_hidden, dropout=args.dropout, gate=args.gate)
         cnn = args.stage == "auto" or (backend is not None and backend.model_type == CNN)
+        if distributed.active() and not cnn:
+            raise ValueError(f"--stage {args.stage} trains in one process: run it without "
+                             "torchrun (the CNN's stages and --stage auto train across "
+                             "processes)")
         if args.resume and not cnn:
             raise ValueError(f"--resume: --stage {args.stage} trains in one go; run it again")
         states = RunStates(args.out, args.resume) if cnn else None
@@ -189,6 +218,8 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"aslip train: error: {exc}", file=sys.stderr)
         return 1
+    if not distributed.is_main():
+        return 0
     res.save(args.out)
     if states is not None:
         states.finished()

@@ -67,6 +67,7 @@ from aslip_ros.learn.training.allocation import (EARLY_FRACTION, Job, OneShot,
                                                  successive_halving)
 from aslip_ros.learn.training.config import TrainConfig, TrainResult, resolve_device
 from aslip_ros.learn.training.data import split_windows
+from aslip_ros.learn.training import distributed
 from aslip_ros.learn.training.resume import RunStates
 from aslip_ros.learn.training.folds import (K_FOLD_BELOW, REFIT_FRACTION, FoldJob,
                                             fold_trial_names, fold_windows, refit,
@@ -258,7 +259,7 @@ class _Jobs:
         self.budget_s, self.cnn_kw, self.svm_config = budget_s, cnn_kw, svm_config
         self.log: Callable[[str], None] = cnn_kw["log"]
         # A resumed call's budget counts the interrupted calls' time.
-        self.t0 = time.perf_counter() - (states.spent_s() if states else 0.0)
+        self.t0 = distributed.now() - (states.spent_s() if states else 0.0)
         self.pretrained: Any = None
         self.pre_info: dict[str, Any] = {}
         self.rows: list[dict[str, Any]] = []
@@ -267,7 +268,7 @@ class _Jobs:
         self.rest: list[dict[str, Any]] = []
 
     def left(self) -> float:
-        return self.budget_s - (time.perf_counter() - self.t0)
+        return self.budget_s - (distributed.now() - self.t0)   # rank 0's, under torchrun
 
     def run(self, cands: list[Candidate]) -> None:
         for cand in (c for c in cands if c.is_svm):
@@ -444,8 +445,9 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
         "train_trials": _trial_names(ds, tr), "val_trials": _trial_names(ds, va),
         "test_trials_untouched": _trial_names(
             ds, ds.dataset.select("test", seed=cfg.split_seed))}
-    outputs = choose_outputs(ds, va, run.results, winner,
-                             cost=combination_cost(ds, va, run.results, winner))
+    # Rank 0's choice under torchrun: the latencies it weighs are measured per process.
+    outputs = distributed.agree(choose_outputs(
+        ds, va, run.results, winner, cost=combination_cost(ds, va, run.results, winner)))
     selection["outputs"] = outputs
     if folds:
         selection["folds"] = {"n": len(folds), "trials": fold_trial_names(ds, folds),
@@ -547,6 +549,8 @@ def run_selected(args: argparse.Namespace, ds: WindowSet, cfg: TrainConfig,
                          model_options=model_options, channels=chans, svm_config=svm_config,
                          cache_dir=args.cache_dir, states=states)
     sel = res.meta["provenance"]["selection"]
+    if not distributed.is_main():
+        return 0
     res.save(args.out)
     js, md = write_comparison(args.out, sel)
     if getattr(args, "keep_candidates", False):

@@ -25,6 +25,7 @@ from typing import Any
 
 import torch
 
+from aslip_ros.learn.training import distributed
 from aslip_ros.util import atomic_path, read_json, write_json
 
 SUFFIX = ".resume"
@@ -48,9 +49,12 @@ class RunStates:
         if resume and not (self.dir / RUN_FILE).is_file():
             raise ValueError(f"--resume: {self.dir} holds no interrupted run of {out} "
                              "(run the same command without --resume)")
-        if not resume and self.dir.exists():
+        # Under torchrun rank 0 alone writes; every rank reads (learn/training/distributed).
+        self.writes = distributed.is_main()
+        if self.writes and not resume and self.dir.exists():
             shutil.rmtree(self.dir)         # a new run starts afresh
-        self.dir.mkdir(parents=True, exist_ok=True)
+        if self.writes:
+            self.dir.mkdir(parents=True, exist_ok=True)
         self.spent_before_s = float(read_json(self.dir / RUN_FILE)["spent_s"]) \
             if resume else 0.0
         self._t0 = time.perf_counter()
@@ -61,7 +65,8 @@ class RunStates:
         return self.spent_before_s + time.perf_counter() - self._t0
 
     def _note(self) -> None:
-        write_json(self.dir / RUN_FILE, {"spent_s": self.spent_s()})
+        if self.writes:
+            write_json(self.dir / RUN_FILE, {"spent_s": self.spent_s()})
 
     def job(self, name: str) -> "JobState":
         """The state of the job called ``name`` (unique within the call)."""
@@ -69,7 +74,8 @@ class RunStates:
 
     def finished(self) -> None:
         """The call wrote its results: nothing is left to resume."""
-        shutil.rmtree(self.dir, ignore_errors=True)
+        if self.writes:
+            shutil.rmtree(self.dir, ignore_errors=True)
 
 
 class JobState:

@@ -1,0 +1,84 @@
+"""``aslip train`` under ``torchrun --nproc_per_node 2`` (#38), gloo on the CPU: the same
+recipe chosen as in one process, and validation figures within the seed spread.
+
+Each case runs the real ``torch.distributed.run`` launcher; rank 0 alone writes.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from aslip_ros.learn.checkpoint import load_checkpoint
+from aslip_ros.learn.synthetic import make_synthetic_dataset
+
+pytestmark = pytest.mark.slow
+
+ARGS = ["--width", "8", "--depth", "2", "--temporal-channels", "32", "--head-hidden", "16",
+        "--n-mels", "32", "--threads", "1", "--no-progress", "--calibration", "off",
+        "--epochs", "6", "--patience", "10"]
+#: Every launch ends well within this (a hung rendezvous fails the test, not the suite).
+TIMEOUT_S = 300
+
+
+def _aslip(tmp_path, procs: int, *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    head = [sys.executable, "-m", "aslip_ros.cli"] if procs == 1 else [
+        sys.executable, "-m", "torch.distributed.run", "--standalone",
+        "--nproc_per_node", str(procs), "-m", "aslip_ros.cli"]
+    return subprocess.run(head + ["train", *args, *ARGS], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=TIMEOUT_S)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    return make_synthetic_dataset(tmp_path_factory.mktemp("ddp") / "ds", n_trials=12,
+                                  induced="robot", seed=4)
+
+
+def _val(path) -> dict:
+    return load_checkpoint(path).meta["provenance"]["metrics"]["val"]
+
+
+def test_two_processes_train_within_the_seed_spread_of_one(dataset, tmp_path):
+    one = []
+    for seed in (0, 1, 2):
+        out = tmp_path / f"one{seed}.pt"
+        got = _aslip(tmp_path, 1, "--dataset", str(dataset), "--stage", "scratch",
+                     "--seed", str(seed), "--out", str(out))
+        assert got.returncode == 0, got.stderr[-2000:]
+        one.append(_val(out))
+    two = tmp_path / "two.pt"
+    got = _aslip(tmp_path, 2, "--dataset", str(dataset), "--stage", "scratch", "--out",
+                 str(two))
+    assert got.returncode == 0, got.stdout[-2000:] + got.stderr[-2000:]
+    assert got.stdout.count("wrote ") == 1           # rank 0 alone writes and prints
+    meta = load_checkpoint(two).meta
+    assert meta["provenance"]["training"]["epochs_run"] == 6
+    for key in ("direction_mae_deg", "magnitude_rmse_mm", "detection_accuracy"):
+        seeds = [m[key] for m in one]
+        spread = max(seeds) - min(seeds)
+        assert min(seeds) - spread <= _val(two)[key] <= max(seeds) + spread, (key, seeds)
+
+
+def test_two_processes_choose_the_recipe_one_chooses(dataset, tmp_path):
+    picks = []
+    for procs in (1, 2):
+        out = tmp_path / f"auto{procs}.pt"
+        got = _aslip(tmp_path, procs, "--dataset", str(dataset), "--recipes", "scratch,svm",
+                     "--time-budget", "600", "--out", str(out))
+        assert got.returncode == 0, got.stdout[-2000:] + got.stderr[-2000:]
+        picks.append(load_checkpoint(out).meta["provenance"]["selection"]["winner"])
+        assert (tmp_path / f"auto{procs}.pt.selection.md").is_file()
+    assert picks[0] == picks[1]
+
+
+def test_a_stage_that_trains_in_one_process_is_refused_under_torchrun(dataset, tmp_path):
+    got = _aslip(tmp_path, 2, "--dataset", str(dataset), "--stage", "svm", "--out",
+                 str(tmp_path / "svm.pt"))
+    assert got.returncode != 0
+    assert "trains in one process" in got.stderr
+    assert not (tmp_path / "svm.pt").exists()
