@@ -41,13 +41,32 @@ TRIAL_S = 600.0
 BYTES_PER_SAMPLE = 4.7
 
 
-#: An ``aslip`` command that writes its own peak resident memory (``VmHWM``) on exit:
-#: ``ru_maxrss`` from ``wait4`` keeps the peak of the process it was started from.
-_CHILD = ("import sys\nfrom aslip_ros.cli import main\n"
-          "from aslip_ros.util import peak_rss_mib, write_json\n"
-          "code = main(sys.argv[2:])\n"
-          "write_json(sys.argv[1], {'peak_rss_mib': peak_rss_mib()})\n"
-          "sys.exit(code)\n")
+#: An ``aslip`` command that writes its own peak resident memory on exit: ``VmHWM`` (every
+#: resident page, the memory-mapped files' included) and the peak of ``RssAnon`` sampled
+#: every 50 ms (the process's own memory; mapped file pages are the page cache's, which the
+#: kernel reclaims). ``ru_maxrss`` from ``wait4`` keeps the peak of the process it was
+#: started from.
+_CHILD = """
+import sys, threading, time
+from aslip_ros.cli import main
+from aslip_ros.util import peak_rss_mib, write_json
+peak = [0]
+def anon():
+    with open('/proc/self/status') as f:
+        for line in f:
+            if line.startswith('RssAnon:'):
+                return int(line.split()[1])
+    return 0
+def watch():
+    while True:
+        peak[0] = max(peak[0], anon())
+        time.sleep(0.05)
+threading.Thread(target=watch, daemon=True).start()
+code = main(sys.argv[2:])
+peak[0] = max(peak[0], anon())
+write_json(sys.argv[1], {'peak_rss_mib': peak_rss_mib(), 'peak_anon_mib': peak[0] / 1024})
+sys.exit(code)
+"""
 
 
 def _aslip(args: list[str], log: Path) -> dict[str, Any]:
@@ -60,8 +79,10 @@ def _aslip(args: list[str], log: Path) -> dict[str, Any]:
                                stdout=out, stderr=subprocess.STDOUT)
     if code:
         raise RuntimeError(f"aslip {' '.join(args[:2])} ... failed ({code}): see {log}")
+    got = read_json(peak)
     return {"wall_s": round(time.perf_counter() - t, 2),
-            "peak_rss_mib": round(read_json(peak)["peak_rss_mib"], 1)}
+            "peak_rss_mib": round(got["peak_rss_mib"], 1),
+            "peak_anon_mib": round(got["peak_anon_mib"], 1)}
 
 
 def _simulate_part(out: str, trials: int, seed: int, rate: float, trial_s: float) -> float:
@@ -100,7 +121,7 @@ def export_run(bags: list[Path], ds: Path, jobs: int, work: Path) -> dict[str, A
     s = read_json(summary)
     return {"jobs": jobs, "wall_s": got["wall_s"], "audio_s": s["audio_s"],
             "x_real_time": round(s["audio_s"] / got["wall_s"], 1),
-            "peak_rss_mib": got["peak_rss_mib"],
+            "peak_rss_mib": got["peak_rss_mib"], "peak_anon_mib": got["peak_anon_mib"],
             "worker_peak_rss_mib": s.get("worker_peak_rss_mib"), "windows": s["kept"]}
 
 
@@ -114,7 +135,7 @@ def train_run(ds: Path, epochs: int, work: Path) -> dict[str, Any]:
     tr = load_checkpoint(ckpt).meta["provenance"]["training"]
     cache = sum(f.stat().st_size for f in (ds / ".feature_cache").rglob("*") if f.is_file())
     return {"wall_s": got["wall_s"], "peak_rss_mib": got["peak_rss_mib"],
-            "epochs": tr["epochs_run"],
+            "peak_anon_mib": got["peak_anon_mib"], "epochs": tr["epochs_run"],
             "s_per_epoch": round(tr["train_time_s"] / max(1, tr["epochs_run"]), 2),
             "feature_time_s": round(tr["feature_time_s"], 1),
             "n_train_windows": tr["n_train_windows"],

@@ -349,6 +349,12 @@ class Dataset:
             self._audio[trial] = arr
         return arr
 
+    def release_audio(self) -> None:
+        """Drop the trials' audio maps opened so far (the next read opens them again): the
+        pages a long pass has read leave this process's resident memory, whatever the
+        hours of audio (they stay in the kernel's page cache while it has room)."""
+        self._audio.clear()
+
     def window_audio(self, trial: int, start: int) -> np.ndarray:
         """(n_window_samples, C) float32 read-only view of one window."""
         a = self.audio(int(trial))

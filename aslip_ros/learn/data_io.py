@@ -114,6 +114,10 @@ class WindowSet:
                              f"{len(self.channel_names)} channels")
         return arr
 
+    def release_audio(self) -> None:
+        """Drop the audio maps read so far (``Dataset.release_audio``)."""
+        self.dataset.release_audio()
+
     def window_audio(self, idx: Sequence[int] | np.ndarray,
                      channels: Sequence[int] | None = None) -> np.ndarray:
         """(n, window_samples, C) float32 audio of the given windows (optionally some channels)."""

@@ -172,6 +172,7 @@ def fit_on_dataset(ds, train_idx: np.ndarray, channels: Sequence[str],
     for trial in np.unique(ds.windows["trial"][train_idx]):
         rows = _trial_rows(ds, int(trial))
         f = cutter.frames(np.asarray(ds.audio(int(trial)))[:, cols])
+        ds.release_audio()          # the trial's pages leave resident memory
         if f.shape[2] == 0:
             continue
         frames.append(f)
@@ -194,6 +195,7 @@ def dataset_offsets(ds, channels: Sequence[str], feature_config: FeatureConfig,
     for trial in trials:
         rows = _trial_rows(ds, int(trial))
         f = cutter.frames(np.asarray(ds.audio(int(trial)))[:, cols])
+        ds.release_audio()
         ends = ds.windows["start"][rows].astype(np.int64) + ds.window_samples
         out[rows] = window_offsets(f, ends, cutter, k)
     return out

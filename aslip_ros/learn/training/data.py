@@ -60,6 +60,7 @@ def feature_cache(ds: WindowSet, fcfg: FeatureConfig, channels: Sequence[str],
         for s in starts:
             out[s:s + chunk] = logmel(ds.window_audio(np.arange(s, min(s + chunk, len(ds))),
                                                       cols))
+            ds.release_audio()      # resident memory flat in the hours read
         out.flush()
         del out
     return np.load(path, mmap_mode="r")
@@ -114,9 +115,15 @@ class Batches:
     angular labels it is the planar ``slip``.
     """
 
+    #: Batches read between two openings of a memory-mapped feature cache: the mapping's
+    #: resident pages are dropped that often (``x``), so that training's resident memory
+    #: does not grow with the hours in the cache.
+    REMAP_BATCHES = 64
+
     def __init__(self, feats: np.ndarray, ds: WindowSet,
                  offsets: np.ndarray | None = None) -> None:
         self.feats = feats
+        self._reads = 0
         self.offsets = offsets          # (n_windows, C) per-grasp calibration, or None
         all_idx = np.arange(len(ds))
         self.v = ds.velocity(all_idx)
@@ -138,6 +145,10 @@ class Batches:
                 "w_true": torch.from_numpy(self.w[b]).to(device)}
 
     def x(self, b: np.ndarray) -> np.ndarray:
+        self._reads += 1
+        path = getattr(self.feats, "filename", None)
+        if path and self._reads % self.REMAP_BATCHES == 0:
+            self.feats = np.load(path, mmap_mode="r")
         # Sorted reads are much faster on a memory map; restore the batch order after.
         order = np.argsort(b)
         out = np.empty((b.size,) + self.feats.shape[1:], dtype=np.float32)
