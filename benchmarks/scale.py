@@ -154,7 +154,8 @@ def needed_gib(hours: float, rate: float, channels: int = 4) -> float:
 def report(rows: list[dict[str, Any]], out: Path) -> None:
     rows = sorted(rows, key=lambda r: (r["rate"], r["hours"]))
     lines = ["| rate | hours | export 1 job | export 2 jobs | 2 jobs / 1 | export peak "
-             "(parent / worker) | train s/epoch | train peak | feature cache |",
+             "(parent / worker) | train s/epoch | train peak resident (own memory) | "
+             "feature cache |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         e1, e2, t = r["export"].get("1"), r["export"].get("2"), r.get("train") or {}
@@ -167,7 +168,9 @@ def report(rows: list[dict[str, Any]], out: Path) -> None:
             + (f"{e2['peak_rss_mib']:.0f} / {e2.get('worker_peak_rss_mib') or 0:.0f} MiB"
                if e2 else "-") + " | "
             + (f"{t['s_per_epoch']:.1f} s ({t['n_train_windows']} windows)" if t else "-")
-            + " | " + (f"{t['peak_rss_mib'] / 1024:.2f} GiB" if t else "-") + " | "
+            + " | " + (f"{t['peak_rss_mib'] / 1024:.2f} GiB" if t else "-")
+            + (f" ({t['peak_anon_mib'] / 1024:.2f} GiB)" if t.get("peak_anon_mib") else "")
+            + " | "
             + (f"{t['feature_cache_gib']:.2f} GiB, built in {t['feature_time_s']:.0f} s"
                if t else "-") + " |")
     write_text(out / "scale.md", "\n".join(lines) + "\n")
@@ -183,11 +186,11 @@ def report(rows: list[dict[str, Any]], out: Path) -> None:
                    if jobs in r["export"]]
             if pts:
                 ax[0].plot(*zip(*pts), mark, label=f"{rate / 1000:g} kHz, {jobs} job(s)")
-        tr = [(r["hours"], r["train"]["peak_rss_mib"] / 1024, r["train"]["s_per_epoch"])
-              for r in rs if r.get("train")]
+        tr = [(r["hours"], r["train"].get("peak_anon_mib", r["train"]["peak_rss_mib"])
+               / 1024, r["train"]["s_per_epoch"]) for r in rs if r.get("train")]
         if tr:
             ax[1].plot([x[0] for x in tr], [x[1] for x in tr], "o-",
-                       label=f"{rate / 1000:g} kHz: peak memory [GiB]")
+                       label=f"{rate / 1000:g} kHz: peak own memory [GiB]")
             ax[1].plot([x[0] for x in tr], [x[2] / 60 for x in tr], "s--",
                        label=f"{rate / 1000:g} kHz: minutes per epoch")
         del h
@@ -214,7 +217,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--epochs", type=int, default=2)
     p.add_argument("--trial-s", type=float, default=TRIAL_S, help="seconds per trial")
     p.add_argument("--keep", action="store_true", help="keep the bags and datasets")
+    p.add_argument("--report-only", action="store_true",
+                   help="rewrite scale.md and scale.png from scale.json")
     args = p.parse_args(argv)
+    if args.report_only:
+        report(read_json(args.out / "scale.json")["rows"], args.out)
+        return 0
     hours = sorted(float(h) for h in args.hours.split(",") if h)
     args.out.mkdir(parents=True, exist_ok=True)
     args.work.mkdir(parents=True, exist_ok=True)
