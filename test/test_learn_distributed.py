@@ -82,3 +82,23 @@ def test_a_stage_that_trains_in_one_process_is_refused_under_torchrun(dataset, t
     assert got.returncode != 0
     assert "trains in one process" in got.stderr
     assert not (tmp_path / "svm.pt").exists()
+
+
+def test_on_gpus_the_group_carries_cpu_tensors_too(monkeypatch):
+    """On an H200, torchrun with NCCL failed at the first epoch: rank 0's clock (``now``)
+    is a CPU tensor, which NCCL cannot carry ("No backend type associated with device type
+    cpu"). The group on GPUs is NCCL for CUDA tensors and gloo for CPU ones."""
+    import torch
+    import torch.distributed as dist
+
+    from aslip_ros.learn.training import distributed
+    got = []
+    monkeypatch.setattr(dist, "is_initialized", lambda: False)
+    monkeypatch.setattr(dist, "init_process_group", lambda backend: got.append(backend))
+    monkeypatch.setattr(torch.cuda, "set_device", lambda i: None)
+    for k, v in {"RANK": "0", "WORLD_SIZE": "1", "LOCAL_RANK": "0", "MASTER_ADDR": "x",
+                 "MASTER_PORT": "1"}.items():
+        monkeypatch.setenv(k, v)
+    distributed.setup(torch.device("cuda"))
+    distributed.setup(torch.device("cpu"))
+    assert got == ["cuda:nccl,cpu:gloo", "gloo"]

@@ -15,7 +15,8 @@ DistributedDataParallel, gloo on the CPU and NCCL on GPUs, one machine or severa
 - rank 0 alone writes the checkpoint, the comparison and the resume states (``is_main``);
 - the feature cache is built by rank 0 while the others wait (``rank0_first``).
 
-Without ``torchrun`` (no ``WORLD_SIZE`` above 1) every function is the one-process one.
+Without ``torchrun`` every function is the one-process one; under ``torchrun`` with one
+rank (one GPU) the group, DDP and NCCL are up all the same.
 """
 
 from __future__ import annotations
@@ -29,28 +30,31 @@ import numpy as np
 import torch
 
 
-def _env_world() -> int:
-    try:
-        return int(os.environ.get("WORLD_SIZE", "1"))
-    except ValueError:
-        return 1
+def _launched() -> bool:
+    """Whether ``torchrun`` started this process (it sets these for every rank)."""
+    return all(k in os.environ for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK",
+                                         "MASTER_ADDR", "MASTER_PORT"))
 
 
 def active() -> bool:
-    """Whether this process is one rank of several (a process group is up)."""
+    """Whether this process is a rank of a process group (``torchrun``, even of one rank:
+    one GPU's NCCL)."""
     import torch.distributed as dist
-    return dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1
+    return dist.is_available() and dist.is_initialized()
 
 
 def setup(device: torch.device) -> None:
     """Join ``torchrun``'s process group where it started this process (gloo on the CPU,
     NCCL on CUDA; each rank on GPU ``LOCAL_RANK``); nothing otherwise."""
     import torch.distributed as dist
-    if _env_world() <= 1 or dist.is_initialized():
+    if not _launched() or dist.is_initialized():
         return
     if device.type == "cuda":
         torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))
-    dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    # On GPUs NCCL carries the gradients and gloo the small CPU tensors of ``now`` and
+    # ``agree`` (NCCL has no CPU tensors: "No backend type associated with device type
+    # cpu", seen on an H200).
+    dist.init_process_group("cuda:nccl,cpu:gloo" if device.type == "cuda" else "gloo")
 
 
 def teardown() -> None:
