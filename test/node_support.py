@@ -52,6 +52,24 @@ def deep(qos, depth: int = 1000):
                       reliability=qos.reliability, durability=qos.durability)
 
 
+def wait_until(predicate, timeout: float, poll_s: float = 0.02) -> bool:
+    """Poll ``predicate()`` every ``poll_s`` until true or ``timeout`` seconds have passed."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll_s)
+    return bool(predicate())
+
+
+def received_block(bus, topic: str, first_sample_index: int, timeout: float = 30.0) -> bool:
+    """Whether the audio block starting at ``first_sample_index`` reaches ``bus`` on
+    ``topic`` in time. A source's "end of replay" line can come before its last blocks have
+    crossed the transport (a loaded run closed the bus 4320 samples short)."""
+    return bus.wait(lambda: any(int(m.first_sample_index) == first_sample_index
+                                for m in bus.messages(topic)), timeout)
+
+
 class Bus:
     """An in-process node on the test's context: subscriptions that record, publishers."""
 
@@ -101,12 +119,7 @@ class Bus:
 
     def wait(self, predicate, timeout: float = 20.0) -> bool:
         """Poll ``predicate()`` until true or timeout."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if predicate():
-                return True
-            time.sleep(0.02)
-        return bool(predicate())
+        return wait_until(predicate, timeout)
 
     def diagnostics(self, name_part: str) -> list:
         """Decoded ``/aslip/diagnostics`` JSON documents whose name contains ``name_part``."""

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from test_nodes_capture import start_when_discovered
-from node_support import Bus, NodeProcess
+from node_support import Bus, NodeProcess, received_block
 
 pytestmark = pytest.mark.ros
 
@@ -37,6 +37,7 @@ def test_a_source_from_test_code_streams_through_audio_capture(rclpy_context, ro
         start_when_discovered(bus, node)
         assert bus.wait(lambda: bus.messages("/aslip/metadata"), 5)
         assert node.wait_for("end of replay", 20), node.output
+        assert received_block(bus, AUDIO, 29 * 80), node.output
     bus.close()
     frames = [convert.audio_from_msg(m) for m in bus.messages(AUDIO)]
     meta = json.loads(bus.messages("/aslip/metadata")[-1].data)

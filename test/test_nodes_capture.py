@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from node_support import Bus, NodeProcess, refusal
+from node_support import Bus, NodeProcess, received_block, refusal
 
 pytestmark = pytest.mark.ros
 
@@ -170,6 +170,7 @@ def test_bag_replay_publishes_the_bags_audio_in_order(rclpy_context, ros_env, tm
         start_when_discovered(bus, node)
         assert node.wait_for("end of replay", 60), node.output
         assert bus.wait(lambda: bus.messages(c_meta()), 30)
+        assert received_block(bus, AUDIO, 96000 - 960), node.output
     bus.close()
     assert "Traceback" not in node.output
     meta = json.loads(bus.messages(c_meta())[-1].data)
@@ -207,6 +208,7 @@ def test_bag_replay_keeps_the_bags_audio_gaps(rclpy_context, ros_env, tmp_path):
         start_when_discovered(bus, n)
         assert n.wait_for("end of replay", 15), n.output
         assert n.wait_for(f"{lost} frames lost before sample {after}", 1), n.output
+        assert received_block(bus, AUDIO, idx[-1]), n.output
     bus.close()
     frames = _decoded(bus)
     assert len(frames) >= 40, n.output
