@@ -49,12 +49,13 @@ build: setup
 # CI passes TEST_ARGS="-ra -v" so its log names every test file and test with its outcome.
 TEST_ARGS ?= -q -ra
 # The suite in one run on TEST_WORKERS pytest-xdist workers, a file to a worker: the in-process
-# tests use the cores while the process tests wait on their nodes (two runs, the second one
-# test at a time, took 900 s idle here; one run on 2 workers about 500 s). Every verdict waits
-# on events, and the process tier holds beside two busy loops (make flake-hunt HOGS=2),
-# more load than a neighbouring test makes. The `install` tier (make setup's own test, the
-# hardware rehearsal) is `make test-install`, a CI step of its own.
-TEST_WORKERS ?= 2
+# tests use the cores while the process tests wait on their nodes. On 2 cores, 2 workers kept
+# 1.6 cores busy (469 s) and 3 workers 1.85 (392 s); a CI machine took 699 s on 2 workers
+# for a suite that took 513 s here. Every verdict waits on events, and the process tier
+# holds beside two busy loops (make flake-hunt HOGS=2), the load of the two neighbouring
+# tests. The `install` tier (make setup's own test, the hardware rehearsal) is
+# `make test-install`, a CI step of its own.
+TEST_WORKERS ?= 3
 test: setup
 	$(PYTEST) test -m "not install" -n $(TEST_WORKERS) --dist loadfile $(TEST_ARGS)
 

@@ -20,21 +20,21 @@ def test_a_tiny_scale_run_writes_its_rows_table_and_chart(tmp_path):
     earlier = {"rate": 48000.0, "hours": 1.0, "trials": 6, "export": {}, "train": None}
     (out / "scale.json").write_text(json.dumps({"rows": [earlier]}))
     assert scale.main(["--out", str(out), "--work", str(work), "--rate", "16000",
-                       "--trial-s", "20", "--epochs", "1", "--keep", "--hours", "0.03"]) == 0
+                       "--trial-s", "10", "--epochs", "1", "--keep", "--hours", "0.015"]) == 0
     rows = json.loads((out / "scale.json").read_text())["rows"]
     assert rows[0] == earlier and len(rows) == 2
     r = rows[1]
-    assert (r["rate"], r["hours"], r["trials"]) == (16000.0, 0.03, 6)
+    assert (r["rate"], r["hours"], r["trials"]) == (16000.0, 0.015, 6)
     e1, e2 = r["export"]["1"], r["export"]["2"]
     assert e1["windows"] == e2["windows"] > 0
-    assert e1["audio_s"] == pytest.approx(r["trials"] * 20.0, rel=0.01)
+    assert e1["audio_s"] == pytest.approx(r["trials"] * 10.0, rel=0.01)
     assert 0 < e1["peak_anon_mib"] <= e1["peak_rss_mib"]
     assert e2["worker_peak_rss_mib"] > 0
     assert r["train"]["epochs"] == 1 and r["train"]["feature_cache_gib"] >= 0
     # A smaller set is the first trials of a larger one: recorded once.
-    bags = scale.record(work / "bags_16000_20", 0.04, 16000.0, 2, lambda m: None, 20.0)
+    bags = scale.record(work / "bags_16000_10", 0.02, 16000.0, 2, lambda m: None, 10.0)
     assert len(bags) == 8 and bags[:6] == scale.record(
-        work / "bags_16000_20", 0.03, 16000.0, 2, lambda m: None, 20.0)
+        work / "bags_16000_10", 0.015, 16000.0, 2, lambda m: None, 10.0)
     md = (out / "scale.md").read_text()
     assert md.count("| 16 kHz |") == 1 and md.count("| 48 kHz |") == 1
     assert (out / "scale.png").stat().st_size > 0

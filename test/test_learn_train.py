@@ -113,6 +113,12 @@ def test_svm_baseline_and_single_channel(work, tmp_path):
     assert res["channel_names"] == ["left_front"]
 
 
+#: One candidate of each training path: the CNN (with the grasp calibration), the SVM on
+#: band features (calibrated) and on log-mel features (uncalibrated). The default set's
+#: other candidates repeat these paths.
+DETERMINISM_RECIPES = "scratch,svm,svm_logmel_uncalibrated"
+
+
 def test_training_is_deterministic(work, tmp_path):
     """Every candidate of two ``aslip train`` runs (seed 5) is trained to the same tensors.
     The per-output composition is left out: between parts whose validation predictions the
@@ -123,11 +129,12 @@ def test_training_is_deterministic(work, tmp_path):
     _, robot, _ = work
     for name in ("a", "b"):
         assert cli(train_cli, ["--dataset", str(robot), "--out", str(tmp_path / f"{name}.pt"),
-                               "--epochs", "1", "--seed", "5", "--keep-candidates"]
+                               "--epochs", "1", "--seed", "5", "--keep-candidates",
+                               "--recipes", DETERMINISM_RECIPES]
                    + SMALL) == 0
     kept = sorted(p.name for p in (tmp_path / "a.pt.candidates").iterdir())
     assert kept == sorted(p.name for p in (tmp_path / "b.pt.candidates").iterdir())
-    assert any(k.startswith("scratch") for k in kept) and any(k.startswith("svm") for k in kept)
+    assert len(kept) == 3 and any(k.startswith("scratch") for k in kept), kept
     for name in kept:
         a = load_checkpoint(tmp_path / "a.pt.candidates" / name)
         b = load_checkpoint(tmp_path / "b.pt.candidates" / name)
