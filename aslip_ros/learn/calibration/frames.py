@@ -22,6 +22,8 @@ label of the window whose centre is nearest to its centre.
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -165,22 +167,62 @@ def _trial_rows(ds, trial: int) -> np.ndarray:
 
 def fit_on_dataset(ds, train_idx: np.ndarray, channels: Sequence[str],
                    feature_config: FeatureConfig, **options: Any) -> CalibrationConstants:
-    """Constants from the trials (grasps) of the training windows ``train_idx``."""
+    """Constants from the trials (grasps) of the training windows ``train_idx``. Each
+    grasp's frames are cut once and spilled to a temporary file (``SpilledFrames``, in the
+    system's temporary directory: ``TMPDIR``), which the fit reads grasp by grasp."""
     cutter = FrameCutter(feature_config, ds.sample_rate)
     cols = ds.channel_indices(channels)
-    frames, labels = [], []
-    for trial in np.unique(ds.windows["trial"][train_idx]):
-        rows = _trial_rows(ds, int(trial))
-        f = cutter.frames(np.asarray(ds.audio(int(trial)))[:, cols])
-        ds.release_audio()          # the trial's pages leave resident memory
-        if f.shape[2] == 0:
-            continue
-        frames.append(f)
-        labels.append(frame_slip_from_windows(f.shape[2], cutter, ds.windows["start"][rows],
-                                              ds.window_samples, ds.slip(rows)))
-    if not frames:
-        raise ValueError("no training trial is long enough for a calibration frame")
-    return fit_constants(frames, labels, list(channels), cutter.hop_s, **options)
+    labels = []
+    with SpilledFrames() as frames:
+        for trial in np.unique(ds.windows["trial"][train_idx]):
+            rows = _trial_rows(ds, int(trial))
+            f = cutter.frames(np.asarray(ds.audio(int(trial)))[:, cols])
+            ds.release_audio()          # the trial's pages leave resident memory
+            if f.shape[2] == 0:
+                continue
+            frames.append(f)
+            labels.append(frame_slip_from_windows(f.shape[2], cutter,
+                                                  ds.windows["start"][rows],
+                                                  ds.window_samples, ds.slip(rows)))
+            del f
+        if not labels:
+            raise ValueError("no training trial is long enough for a calibration frame")
+        return fit_constants(frames, labels, list(channels), cutter.hop_s, **options)
+
+
+class SpilledFrames:
+    """Grasps' calibration frames written once to an unnamed temporary file in
+    ``directory`` and read back as maps, one grasp at a time: a fit that reads them several
+    times holds none of them in its own memory (hours of audio are gigabytes of frames)."""
+
+    def __init__(self, directory: str | os.PathLike | None = None) -> None:
+        self._file = tempfile.TemporaryFile(dir=directory)
+        self._parts: list[tuple[int, tuple[int, ...]]] = []
+
+    def append(self, frames: np.ndarray) -> None:
+        a = np.ascontiguousarray(frames, dtype=np.float32)
+        offset = self._file.seek(0, os.SEEK_END)
+        self._file.write(a.tobytes())
+        self._parts.append((offset, a.shape))
+
+    def __len__(self) -> int:
+        return len(self._parts)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        offset, shape = self._parts[i]
+        self._file.flush()
+        if 0 in shape:
+            return np.zeros(shape, np.float32)
+        return np.memmap(self._file, dtype=np.float32, mode="r", offset=offset, shape=shape)
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "SpilledFrames":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 def dataset_offsets(ds, channels: Sequence[str], feature_config: FeatureConfig,

@@ -377,33 +377,48 @@ def fit_constants(frames: Sequence[np.ndarray], frame_slip: Sequence[np.ndarray]
     ``trust_percentile`` percentile over training grasps of each grasp's largest
     ``spread_db`` once converged (what the node would have seen at any time of the grasp);
     None when no training grasp converges.
+
+    The grasps are read one at a time, in four passes (the gate's standardisation and the
+    floor, the gate's sample, the reference, the trust), so ``frames`` may be a sequence
+    that reads each grasp from disk: the fit then holds one grasp's frames, the labels and
+    the gate's sample of at most ``max_frames`` rows, whatever the hours of audio.
     """
     from sklearn.linear_model import LogisticRegression
 
     if len(frames) == 0 or len(frames) != len(frame_slip):
         raise ValueError("need one slip label array per grasp, and at least one grasp")
-    common = np.concatenate([np.asarray(f, dtype=np.float64).mean(axis=0).T for f in frames])
     labels = np.concatenate([np.asarray(s, dtype=bool) for s in frame_slip])
-    if labels.shape[0] != common.shape[0]:
+    # Pass 1: the moments of the common-mode rows (the gate's inputs), the levels.
+    moments, levels, counts = _Moments(), [], []
+    for i in range(len(frames)):
+        common = _common_rows(frames[i])
+        moments.add(common)
+        counts.append(common.shape[0])
+        levels.append(_mean_level(frames[i]))
+    if labels.shape[0] != sum(counts):
         raise ValueError("frame_slip lengths must equal the grasps' frame counts")
     if labels.all() or not labels.any():
         raise ValueError("the gate needs both slip and no-slip frames in the training grasps")
-    n_mels = common.shape[1]
+    # Pass 2: the gate's sample, the rows in the order drawn.
     rng = np.random.default_rng(seed)
-    pick = rng.choice(common.shape[0], min(max_frames, common.shape[0]), replace=False)
-    mean, std = common.mean(axis=0), np.maximum(common.std(axis=0), 1e-3)
+    pick = rng.choice(labels.shape[0], min(max_frames, labels.shape[0]), replace=False)
+    sample = _rows_at(frames, counts, pick)
+    n_mels = sample.shape[1]
+    mean, std = moments.mean, np.maximum(moments.std, 1e-3)
     clf = LogisticRegression(C=1.0, max_iter=500)
-    clf.fit((common[pick] - mean) / std, labels[pick])
-    levels = np.concatenate([_mean_level(f) for f in frames])
-    floor = float(np.percentile(levels, 5.0)) + floor_margin_db / _DB_PER_NEPER_POWER
+    clf.fit((sample - mean) / std, labels[pick])
+    floor = float(np.percentile(np.concatenate(levels), 5.0)) + \
+        floor_margin_db / _DB_PER_NEPER_POWER
     k = CalibrationConstants(
         channel_names=tuple(channel_names), n_mels=n_mels, hop_s=float(hop_s),
         gate_mean=tuple(mean), gate_std=tuple(std), gate_coef=tuple(clf.coef_[0]),
         gate_bias=float(clf.intercept_[0]), floor_level=floor,
         ref_offset=(0.0,) * len(channel_names), method=method, **options)
-    # Reference: the mean deviation of accepted frames once the coupling is taken out.
-    ests, stats = [], [frame_stats(f, k) for f in frames]
-    for i, (dev, p, active) in enumerate(stats):
+    # Pass 3: the reference, the mean deviation of accepted frames once the coupling is
+    # taken out.
+    ests = []
+    for i in range(len(frames)):
+        dev, p, active = frame_stats(frames[i], k)
         w = frame_weights(p, active, k)
         if w.sum() == 0:
             continue
@@ -413,7 +428,8 @@ def fit_constants(frames: Sequence[np.ndarray], frame_slip: Sequence[np.ndarray]
         ests.append(est)
     ref = np.mean(ests, axis=0) if ests else np.zeros(len(channel_names))
     k = k.with_(ref_offset=tuple(float(v) for v in ref))
-    return k.with_(trust_spread_db=_trust_of(stats, k, trust_percentile, trust_margin))
+    # Pass 4: the trust threshold under that reference.
+    return k.with_(trust_spread_db=trust_threshold(frames, k, trust_percentile, trust_margin))
 
 
 def trust_threshold(frames: Sequence[np.ndarray], k: CalibrationConstants,
@@ -422,23 +438,60 @@ def trust_threshold(frames: Sequence[np.ndarray], k: CalibrationConstants,
     """``trust_spread_db`` from training grasps (log-mel ``(C, M, T)`` each) under ``k``:
     ``margin`` times the ``percentile`` over grasps of the largest ``spread_db`` each reaches
     once converged; None when none converges."""
-    return _trust_of([frame_stats(f, k) for f in frames], k, percentile, margin)
-
-
-def _trust_of(stats: Sequence[tuple], k: CalibrationConstants, percentile: float,
-              margin: float) -> float | None:
-    """``trust_threshold`` from each grasp's ``frame_stats``."""
     if not 0.0 < percentile <= 100.0 or not margin >= 1.0:
         raise ValueError("trust percentile must lie in (0, 100] and the margin be >= 1")
     peaks = []
-    for st in stats:
-        cw, cs, cs2 = _cumulative_of(st, k)
+    for i in range(len(frames)):
+        cw, cs, cs2 = _cumulative_of(frame_stats(frames[i], k), k)
         on = cw >= k.converge_frames
         if np.any(on):
             peaks.append(float(np.max(_spread_db(cs[on], cs2[on], cw[on]))))
     if not peaks:
         return None
     return float(max(margin * np.percentile(peaks, percentile), 1e-3))
+
+
+def _common_rows(frames: np.ndarray) -> np.ndarray:
+    """The gate's inputs of one grasp: the mean over channels, ``(T, M)`` float64."""
+    return np.asarray(frames, dtype=np.float64).mean(axis=0).T
+
+
+class _Moments:
+    """Running mean and standard deviation of rows, merged grasp by grasp (Chan et al.'s
+    pairwise update: no sum of squares to lose precision in)."""
+
+    def __init__(self) -> None:
+        self.n, self.mean, self._m2 = 0, 0.0, 0.0
+
+    def add(self, rows: np.ndarray) -> None:
+        if rows.shape[0] == 0:
+            return
+        n, mean = rows.shape[0], rows.mean(axis=0)
+        m2 = ((rows - mean) ** 2).sum(axis=0)
+        total = self.n + n
+        delta = mean - self.mean
+        self.mean = self.mean + delta * (n / total)
+        self._m2 = self._m2 + m2 + delta ** 2 * (self.n * n / total)
+        self.n = total
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.sqrt(self._m2 / self.n)
+
+
+def _rows_at(frames: Sequence[np.ndarray], counts: Sequence[int], pick: np.ndarray
+             ) -> np.ndarray:
+    """The common-mode rows at the global frame indices ``pick``, in ``pick``'s order."""
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    grasp = np.searchsorted(starts, pick, side="right") - 1
+    out = None
+    for i in np.unique(grasp):
+        at = np.flatnonzero(grasp == i)
+        rows = _common_rows(frames[int(i)])[pick[at] - starts[i]]
+        if out is None:
+            out = np.empty((pick.size, rows.shape[1]))
+        out[at] = rows
+    return out
 
 
 def _mean_level(frames: np.ndarray) -> np.ndarray:
