@@ -2,6 +2,8 @@
 
     ros2 launch aslip_ros export.launch.py bag:=aslip_bag out:=data/datasets/mine window:=0.2
 
+``jobs:=N`` reads a folder of bags in N processes (``aslip export --jobs``; the same dataset).
+
 The launch ends when the export does; a failed export shuts it down with the reason.
 """
 
@@ -27,13 +29,15 @@ def generate_launch_description():
     export = ExecuteProcess(cmd=[sys.executable, "-m", "aslip_ros.cli", "export", LC("bag"),
                                  "-o", LC("out"),
                                  "--window", LC("window"), "--hop", LC("hop"),
-                                 "--no-progress"],
+                                 "--jobs", LC("jobs"), "--no-progress"],
                             name="aslip_export", output="screen")
     return LaunchDescription([
         DeclareLaunchArgument("bag", description="bag directory (or a folder of bags)"),
         DeclareLaunchArgument("out", description="dataset directory to create"),
         DeclareLaunchArgument("window", default_value="0.2", description="window [s]"),
         DeclareLaunchArgument("hop", default_value="0.1", description="hop [s]"),
+        DeclareLaunchArgument("jobs", default_value="1",
+                              description="processes reading the bags (aslip export --jobs)"),
         export,
         RegisterEventHandler(OnProcessExit(target_action=export, on_exit=_finished)),
     ])

@@ -546,7 +546,10 @@ def test_export_runs_the_cli_of_the_launching_interpreter():
     ev = evaluate("export.launch.py", {"bag": "in", "out": "ds", "window": "0.1"})
     (cmd, _), = ev.processes
     assert cmd[:4] == [sys.executable, "-m", "aslip_ros.cli", "export"]
-    assert cmd[4:] == ["in", "-o", "ds", "--window", "0.1", "--hop", "0.1", "--no-progress"]
+    assert cmd[4:] == ["in", "-o", "ds", "--window", "0.1", "--hop", "0.1", "--jobs", "1",
+                       "--no-progress"]
+    (cmd, _), = evaluate("export.launch.py", {"bag": "in", "out": "ds", "jobs": "2"}).processes
+    assert cmd[cmd.index("--jobs") + 1] == "2"
 
 
 @needs_launch
