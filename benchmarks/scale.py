@@ -180,7 +180,6 @@ def report(rows: list[dict[str, Any]], out: Path) -> None:
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
     for rate in sorted({r["rate"] for r in rows}):
         rs = [r for r in rows if r["rate"] == rate]
-        h = [r["hours"] for r in rs]
         for jobs, mark in (("1", "o-"), ("2", "s--")):
             pts = [(r["hours"], r["export"][jobs]["x_real_time"]) for r in rs
                    if jobs in r["export"]]
@@ -193,7 +192,6 @@ def report(rows: list[dict[str, Any]], out: Path) -> None:
                        label=f"{rate / 1000:g} kHz: peak own memory [GiB]")
             ax[1].plot([x[0] for x in tr], [x[2] / 60 for x in tr], "s--",
                        label=f"{rate / 1000:g} kHz: minutes per epoch")
-        del h
     ax[0].set(xscale="log", xlabel="hours of audio", ylabel="export speed [x real time]",
               title="aslip export")
     ax[1].set(xscale="log", xlabel="hours of audio", title="aslip train --stage scratch")
