@@ -37,7 +37,7 @@ def generate_launch_description():
         DeclareLaunchArgument("window", default_value="0.2", description="window [s]"),
         DeclareLaunchArgument("hop", default_value="0.1", description="hop [s]"),
         DeclareLaunchArgument("jobs", default_value="1",
-                              description="processes reading the bags (aslip export --jobs)"),
+                              description="processes reading the bags (--jobs of aslip export)"),
         export,
         RegisterEventHandler(OnProcessExit(target_action=export, on_exit=_finished)),
     ])
