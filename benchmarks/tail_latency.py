@@ -120,10 +120,18 @@ def summary_line(name: str, r: dict) -> str:
 def per_output_model(main: Path, speed: Path, out: Path) -> Path:
     """A ``per_output`` checkpoint (learn/models/per_output.py) with p(slip), direction and,
     where it has one, the rotation of ``main`` and the speed of ``speed``: what ``aslip
-    train``'s per-output choice writes when a speed regressor beats the CNN's speed."""
+    train``'s per-output choice writes when a speed regressor beats the CNN's speed.
+
+    Parts trained in separate calls carry their own per-grasp calibration constants, and a
+    ``per_output`` checkpoint has one: where both parts are calibrated, the speed part is
+    given ``main``'s. Its estimates are then not the ones it was trained for, but its cost
+    is the same, and the cost is all this checkpoint is for."""
     from aslip_ros.learn.checkpoint import estimates_rotation, load_checkpoint, save_checkpoint
     from aslip_ros.learn.models.per_output import assemble
     parts = {"main": load_checkpoint(main), "speed": load_checkpoint(speed)}
+    calibration = [p.meta.get("calibration") for p in parts.values()]
+    if None not in calibration and calibration[0] != calibration[1]:
+        parts["speed"].meta["calibration"] = calibration[0]
     roles = {"detection": "main", "speed": "speed", "direction": "main"}
     if estimates_rotation(parts["main"].meta):
         roles["rotation"] = "main"

@@ -1,9 +1,11 @@
 """SlipNet: shapes for 1/2/4 channels, frozen encoder, inference fusion."""
 
+import numpy as np
 import pytest
 import torch
 
-from aslip_ros.learn.models.aslip_cnn import ModelConfig, SlipNet, fuse_for_inference
+from aslip_ros.learn.models.aslip_cnn import (ModelConfig, SlipNet, TracedSlipNet,
+                                              fuse_for_inference, output_arrays)
 
 
 @pytest.mark.parametrize("n_channels", [1, 2, 4])
@@ -64,6 +66,50 @@ def test_fused_inference_model_matches():
     x = torch.randn(3, 4, 40, 17)
     for a, b in zip(net(x), fused(x)):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("angular", [False, True])
+def test_traced_inference_model_gives_the_eager_estimates(angular):
+    torch.manual_seed(3)
+    net = SlipNet(ModelConfig(angular=angular))
+    net.train()
+    for _ in range(3):
+        net(torch.randn(16, 4, 40, 17))            # move BN running stats off identity
+    net.eval()
+    traced = TracedSlipNet(net, 17)
+    assert traced.traced
+    for batch in (1, 5):                            # traced on one window; any batch runs
+        x = torch.randn(batch, 4, 40, 17)
+        with torch.no_grad():
+            out = net(x)
+            prob, v, rate = traced(x)
+        want_p, want_v = output_arrays(out)
+        np.testing.assert_allclose(prob.numpy(), want_p, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(v.numpy(), want_v, rtol=1e-4, atol=1e-7)
+        if angular:
+            np.testing.assert_allclose(rate.numpy(), out.angular.numpy(), rtol=1e-4, atol=1e-6)
+        else:
+            assert rate is None
+    with pytest.raises(ValueError, match="features"):
+        traced(torch.randn(1, 4, 40, 16))           # a window of another length
+    with pytest.raises(ValueError, match="features"):
+        traced(torch.randn(4, 40, 17))
+
+
+def test_untraceable_inference_model_runs_eagerly(monkeypatch):
+    def gone(*args, **kwargs):
+        raise RuntimeError("TorchScript is not available")
+
+    monkeypatch.setattr(torch.jit, "trace", gone)
+    net = SlipNet(ModelConfig()).eval()
+    model = TracedSlipNet(net, 17)
+    x = torch.randn(2, 4, 40, 17)
+    with torch.no_grad():
+        prob, v, rate = model(x)
+        want_p, want_v = output_arrays(net(x))
+    assert not model.traced and rate is None
+    np.testing.assert_allclose(prob.numpy(), want_p, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(v.numpy(), want_v, rtol=1e-4, atol=1e-7)
 
 
 def test_normalization_buffers():

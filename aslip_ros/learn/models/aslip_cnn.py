@@ -284,6 +284,63 @@ def fuse_for_inference(model: SlipNet) -> SlipNet:
     return fused
 
 
+class _Estimates(nn.Module):
+    """A ``SlipNet`` whose output is the estimates as a plain tuple of tensors (what
+    TorchScript's tracer takes): p(slip), the ungated velocity and, for a model with the
+    rotational head, the rate (``estimates``)."""
+
+    def __init__(self, net: SlipNet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        out = self.net(x)
+        return (*estimates(out), *(() if out.angular is None else (out.angular,)))
+
+
+class TracedSlipNet:
+    """``fuse_for_inference``'s model with ``estimates`` after it, traced and frozen by
+    TorchScript: the same operators on the same weights (equal to the eager model's, checked
+    in test/test_learn_network.py) without Python's per-module dispatch, which at batch one
+    on one thread is a third of the forward's time (docs/model.md, "Live cost"). Traced on
+    one window of ``n_frames``; other batch sizes run the same graph. The input's shape is
+    checked here: the traced graph holds the network's own check as a constant.
+
+    TorchScript is deprecated in the pinned torch (2.13), and ``torch.export`` ran this network
+    slower than the eager model (1.5 against 1.2 ms). Where tracing is missing or fails, the
+    eager module runs instead (``traced`` False): the same estimates, more slowly."""
+
+    def __init__(self, model: SlipNet, n_frames: int) -> None:
+        import warnings
+
+        self.cfg = model.cfg
+        self.n_frames = int(n_frames)
+        eager = _Estimates(fuse_for_inference(model)).eval()
+        example = torch.zeros(1, self.cfg.n_channels, self.cfg.n_mels, self.n_frames)
+        try:
+            with warnings.catch_warnings(), torch.no_grad():
+                # The tracer warns that the network's shape check is now a constant, and
+                # that TorchScript is deprecated.
+                warnings.simplefilter("ignore", torch.jit.TracerWarning)
+                warnings.simplefilter("ignore", DeprecationWarning)
+                module = torch.jit.freeze(torch.jit.trace(eager, example, check_trace=False))
+            self.traced = True
+        except (AttributeError, RuntimeError):
+            module, self.traced = eager, False
+        self.module = module
+
+    def __call__(self, x: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """p(slip) ``(B,)``, the ungated velocity ``(B, 2)`` [m/s] and the rate ``(B,)``
+        [rad/s] (None without the rotational head) of log-mel features ``(B, C, M, T)``."""
+        want = (self.cfg.n_channels, self.cfg.n_mels, self.n_frames)
+        if x.ndim != 4 or tuple(x.shape[1:]) != want:
+            raise ValueError(f"expected (B, {want[0]}, {want[1]}, {want[2]}) features, "
+                             f"got {tuple(x.shape)}")
+        out = self.module(x)
+        return out[0], out[1], out[2] if len(out) > 2 else None
+
+
 def _mel_problems(meta: dict[str, Any], mcfg: Any, fcfg: FeatureConfig | None) -> list[str]:
     problems = []
     if mcfg.n_channels != len(meta["channel_names"]):
@@ -310,7 +367,7 @@ class CnnBackend:
     #: give it the sliding log-mel instead (learn/inference/live.py).
     reads_logmel: ClassVar[bool] = True
 
-    def __init__(self, cfg: ModelConfig, model: SlipNet, logmel: LogMel) -> None:
+    def __init__(self, cfg: ModelConfig, model: TracedSlipNet, logmel: LogMel) -> None:
         self.cfg = cfg
         self.model = model
         self.logmel = logmel
@@ -327,7 +384,8 @@ class CnnBackend:
             raise ValueError("checkpoint model channel count disagrees with channel_names")
         model = load_weights(SlipNet(cfg), ckpt.tensors)
         logmel = LogMel(FeatureConfig.from_dict(ckpt.meta["feature_config"]), ckpt.sample_rate)
-        return cls(cfg, fuse_for_inference(model), logmel)
+        n_frames = logmel.n_frames(int(ckpt.meta["window_samples"]))
+        return cls(cfg, TracedSlipNet(model, n_frames), logmel)
 
     def predict(self, windows: np.ndarray, offsets: np.ndarray | None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -341,13 +399,19 @@ class CnnBackend:
         """The model alone on log-mel features ``(B, C, M, T)`` (e.g. a training cache):
         p(slip), the ungated velocity and the rate ``wy`` (None without that head)."""
         with torch.inference_mode():
-            out = self.model(torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)))
-            prob, v = output_arrays(out)
-        return prob, v, None if out.angular is None else out.angular.numpy()
+            prob, v, rate = self.model(
+                torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)))
+        return prob.numpy(), v.numpy(), None if rate is None else rate.numpy()
+
+
+def estimates(out: SlipOutput) -> tuple[torch.Tensor, torch.Tensor]:
+    """p(slip) ``(B,)`` and the ungated velocity ``(B, 2)`` [m/s] of a network output: the
+    speed along the unit direction."""
+    d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
+    return torch.sigmoid(out.logit), d * out.magnitude[:, None]
 
 
 def output_arrays(out: SlipOutput) -> tuple[np.ndarray, np.ndarray]:
-    """p(slip) ``(B,)`` and the ungated velocity ``(B, 2)`` [m/s] of a network output."""
-    prob = torch.sigmoid(out.logit)
-    d = out.direction / out.direction.norm(dim=1, keepdim=True).clamp(min=1e-8)
-    return prob.cpu().numpy(), (d * out.magnitude[:, None]).cpu().numpy()
+    """``estimates`` as numpy arrays."""
+    prob, v = estimates(out)
+    return prob.cpu().numpy(), v.cpu().numpy()
