@@ -166,9 +166,14 @@ def test_the_choice_takes_each_output_from_the_candidate_better_at_it():
         "cnn": _candidate(ds, va, 1.6, 5.0, 0.97, seed=1),
         # A regressor of the speed itself, blind to direction, worse at detection.
         "svm": _candidate(ds, va, 1.0, 60.0, 0.85, seed=2),
-        # A hair better in direction than the winner: noise, not evidence.
-        "twin": _candidate(ds, va, 1.6, 4.9, 0.97, seed=3),
     }
+    # A twin of the winner, its own answer on a tenth of the windows, there a hair better:
+    # noise, not evidence, and nothing to gain from the mean of the two.
+    own = _candidate(ds, va, 1.6, 4.9, 0.97, seed=3).val_pred
+    other = np.random.default_rng(4).random(va.size) < 0.1
+    results["twin"] = TrainResult(meta={}, tensors={}, history=[], val_pred={
+        k: np.where(other if np.ndim(v) == 1 else other[:, None], own[k], v) if v is not None
+        else None for k, v in results["cnn"].val_pred.items()})
     out = selection.choose_outputs(ds, va, results, "cnn")
     assert {r: row["from"] for r, row in out.items()} == {
         "detection": "cnn", "speed": "svm", "direction": "cnn"}
@@ -179,6 +184,53 @@ def test_the_choice_takes_each_output_from_the_candidate_better_at_it():
         "speed"]["from"] == "svm"
     alone = selection.choose_outputs(ds, va, {"cnn": results["cnn"]}, "cnn")
     assert {row["from"] for row in alone.values()} == {"cnn"}
+
+
+def test_two_candidates_that_err_apart_give_the_direction_together():
+    """Two candidates whose direction errors are independent (20 deg each): their blend
+    errs about 1/sqrt(2) as much and gives the direction; the speed, where one is exact and
+    the other 60 % high, stays the exact one's, not the blend's."""
+    ds = _ValSet()
+    va = np.arange(len(ds.windows["trial"]))
+    results = {"cnn": _candidate(ds, va, 1.6, 20.0, 0.97, seed=1),
+               "svm": _candidate(ds, va, 1.0, 20.0, 0.97, seed=2)}
+    out = selection.choose_outputs(ds, va, results, "cnn")
+    assert out["direction"]["from"] in ("cnn+svm", "svm+cnn"), out["direction"]
+    from aslip_ros.learn.metrics import compute_metrics
+    single = [compute_metrics(r.val_pred["prob"], r.val_pred["v"], ds.velocity(va),
+                              ds.slip(va), ds.window_s)["direction_mae_deg"]
+              for r in results.values()]
+    assert out["direction"]["value"] < 0.85 * min(single)
+    assert out["speed"]["from"] == "svm"
+    # The blend's predictions are the per_output model's mean of its parts'.
+    mixed = selection.blend_prediction({n: r.val_pred for n, r in results.items()},
+                                       "cnn+svm")
+    units = [r.val_pred["v"] / np.linalg.norm(r.val_pred["v"], axis=1, keepdims=True)
+             for r in results.values()]
+    want = units[0] + units[1]
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    speed = np.mean([np.linalg.norm(r.val_pred["v"], axis=1) for r in results.values()],
+                    axis=0)
+    assert mixed["v"] == pytest.approx(want * speed[:, None], abs=1e-6)
+    assert mixed["prob"] == pytest.approx(
+        (results["cnn"].val_pred["prob"] + results["svm"].val_pred["prob"]) / 2, abs=1e-6)
+
+
+def test_a_blend_of_parts_gives_their_mean_and_round_trips(parts, tmp_path):
+    ck = assemble(parts, {"detection": "a+b", "speed": "a+b", "direction": "a+b"})
+    loaded = load_checkpoint(save_checkpoint(tmp_path / "blend.pt", ck.meta, ck.tensors))
+    assert sorted(loaded.meta["parts"]) == ["a", "b"]
+    out = Predictor(loaded).predict_batch(_windows())
+    # p (0.9 + 0.2) / 2; speed (0.02 + 0.05) / 2 along the mean of +x and +z.
+    assert out.probability == pytest.approx(np.full(3, 0.55), abs=1e-5)
+    assert out.raw_velocity == pytest.approx(
+        np.tile([0.035 / np.sqrt(2), 0.035 / np.sqrt(2)], (3, 1)), abs=1e-5)
+    # A blend naming a part the checkpoint lacks, or a blend of nothing, is refused.
+    bad = assemble(parts, {"detection": "a", "speed": "a+b", "direction": "a"})
+    bad.meta["model_config"]["speed"] = "a+z"
+    assert any("'z', which is not among parts" in p for p in validate_meta(bad.meta))
+    with pytest.raises(ValueError, match="non-empty"):
+        selection.blend(["a", ""])
 
 
 def test_of_two_parts_the_trials_cannot_tell_apart_the_cheaper_one_gives_the_output():
@@ -195,7 +247,7 @@ def test_of_two_parts_the_trials_cannot_tell_apart_the_cheaper_one_gives_the_out
 
     def cost(role, name):
         asked.append((role, name))
-        return costs[name]
+        return sum(costs[m] for m in name.split("+"))     # a blend runs both
     out = selection.choose_outputs(ds, va, results, "cnn", cost=cost)
     assert out["speed"]["from"] == "svm_logmel", out["speed"]
     assert "cannot be told apart from svm" in out["speed"]["why"]

@@ -11,6 +11,12 @@ part gives each output:
              part's own direction)
   rotation   the rotational rate ``wy``, exactly where ``outputs`` names it
 
+A role may name a blend of parts, joined by ``BLEND`` (``svm+unfrozen``): its output is
+the parts' mean (``combine``): the mean p(slip), the mean speed, the unit vector of the sum
+of the parts' unit directions (a part whose velocity is 0 has no say), the mean rate.
+Candidate models of different kinds err apart, and their mean errs less than either where
+neither is much better (docs/model.md, "Each output from its best candidate").
+
 Each part reads the same windows; the per-grasp offsets the stream computes go to the parts
 trained with the calibration (their ``calibration`` must equal the checkpoint's) and not to
 those trained without. A part is a window model (no streaming one, no ``per_output``) of the
@@ -39,6 +45,20 @@ ROLES = ("detection", "speed", "direction", "rotation")
 #: The stream every part must share with the checkpoint.
 SHARED = ("sample_rate", "channel_names", "window_samples")
 SEP = "/"
+#: Joins the parts of a blend in a role's name (candidate names hold no "+").
+BLEND = "+"
+
+
+def members(name: str) -> list[str]:
+    """The parts a role's name stands for: one, or a blend's (``BLEND``)."""
+    return name.split(BLEND)
+
+
+def blend(names: list[str]) -> str:
+    """The role name of the blend of ``names`` (in that order)."""
+    if any(BLEND in n or not n for n in names):
+        raise ValueError(f"part names must be non-empty and hold no {BLEND!r}: {names}")
+    return BLEND.join(names)
 
 
 @dataclass(frozen=True)
@@ -54,8 +74,12 @@ class PerOutputConfig:
         return dataclasses.asdict(self)
 
     def roles(self) -> dict[str, str]:
-        """role -> part name, the roles this model fills."""
+        """role -> part name (or blend, ``members``), the roles this model fills."""
         return {r: n for r, n in self.to_dict().items() if n is not None}
+
+    def parts(self) -> list[str]:
+        """Every part some role reads, sorted."""
+        return sorted({m for n in self.roles().values() for m in members(n)})
 
 
 def part_tensors(tensors: dict[str, torch.Tensor], name: str) -> dict[str, torch.Tensor]:
@@ -71,8 +95,9 @@ def assemble(parts: dict[str, Checkpoint], roles: dict[str, str]) -> Checkpoint:
     set of offsets). The direction sigma of a combination is not any part's: the trainer
     fits ``output_calibration`` again on the combination's validation predictions
     (``learn.training.selection.compose``); without one the model reports no sigma."""
-    used = sorted(set(roles.values()))
-    meta = copy.deepcopy(parts[roles["detection"]].meta)
+    cfg = PerOutputConfig(**roles)
+    used = cfg.parts()
+    meta = copy.deepcopy(parts[members(roles["detection"])[0]].meta)
     for key in ("calibration", "output_calibration", "normalization"):
         meta.pop(key, None)
     docs = {name: copy.deepcopy(parts[name].meta) for name in used}
@@ -80,7 +105,7 @@ def assemble(parts: dict[str, Checkpoint], roles: dict[str, str]) -> Checkpoint:
     if calibrations:
         meta["calibration"] = calibrations[0]
     meta.update(model_type=PerOutputBackend.model_type, parts=docs,
-                model_config=PerOutputConfig(**roles).to_dict(),
+                model_config=cfg.to_dict(),
                 outputs=list(KNOWN_OUTPUTS if roles.get("rotation") else PLANAR_OUTPUTS))
     tensors = {f"{name}{SEP}{k}": v for name in used for k, v in parts[name].tensors.items()}
     return Checkpoint(meta=meta, tensors=tensors)
@@ -141,9 +166,9 @@ class PerOutputBackend:
         if not isinstance(parts, dict) or not parts:
             return ["parts must map part names to checkpoint documents"]
         roles = model_config.roles()
-        problems = [f"model_config.{r} names {n!r}, which is not among parts {sorted(parts)}"
-                    for r, n in roles.items() if n not in parts]
-        unused = sorted(set(parts) - set(roles.values()))
+        problems = [f"model_config.{r} names {m!r}, which is not among parts {sorted(parts)}"
+                    for r, n in roles.items() for m in members(n) if m not in parts]
+        unused = sorted(set(parts) - set(model_config.parts()))
         if unused:
             problems.append(f"parts {unused} give no output")
         if estimates_rotation(meta) != ("rotation" in roles):
@@ -151,8 +176,9 @@ class PerOutputBackend:
         for name, part in parts.items():
             problems += _part_problems(name, part, meta)
         rot = roles.get("rotation")
-        if not problems and rot is not None and not estimates_rotation(parts[rot]):
-            problems.append(f"the rotation part {rot!r} estimates no rotation")
+        for m in [] if problems or rot is None else members(rot):
+            if not estimates_rotation(parts[m]):
+                problems.append(f"the rotation part {m!r} estimates no rotation")
         if not problems and "calibration" in meta and \
                 not any("calibration" in p for p in parts.values()):
             problems.append("the checkpoint has a calibration but no part was trained with it")
@@ -161,7 +187,7 @@ class PerOutputBackend:
     @classmethod
     def from_checkpoint(cls, ckpt: Checkpoint) -> "PerOutputBackend":
         cfg = PerOutputConfig(**ckpt.meta["model_config"])
-        names = sorted(set(cfg.roles().values()))
+        names = cfg.parts()
         backends, calibrated = {}, {}
         for name in names:
             part = Checkpoint(meta=ckpt.meta["parts"][name],
@@ -177,7 +203,7 @@ class PerOutputBackend:
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         outs = {name: b.predict(windows, offsets if self.calibrated[name] else None)
                 for name, b in self.backends.items()}
-        return combine({role: outs[name] for role, name in self.roles.items()})
+        return combine(role_outputs(self.roles, outs))
 
     def predict_with_features(self, windows: np.ndarray, feats: np.ndarray,
                               offsets: np.ndarray | None
@@ -193,23 +219,38 @@ class PerOutputBackend:
                 outs[name] = b.infer_features(f)
             else:
                 outs[name] = b.predict(windows, off)
-        return combine({role: outs[name] for role, name in self.roles.items()})
+        return combine(role_outputs(self.roles, outs))
 
 
 def _same_features(a: LogMel, b: LogMel) -> bool:
     return a.cfg.to_dict() == b.cfg.to_dict() and a.input_rate == b.input_rate
 
 
-def combine(outs: dict[str, tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """p(slip), the velocity and the rate from each role's ``(p, v[, w])``."""
-    prob = np.asarray(outs["detection"][0])
-    v_speed = np.asarray(outs["speed"][1], np.float64)
-    v_dir = np.asarray(outs["direction"][1], np.float64)
-    speed = np.linalg.norm(v_speed, axis=1)
-    norm = np.linalg.norm(v_dir, axis=1)
-    unit = np.where(norm[:, None] > 0, v_dir / np.maximum(norm, 1e-30)[:, None],
-                    v_speed / np.maximum(speed, 1e-30)[:, None])
+def role_outputs(roles: dict[str, str], outs: dict[str, tuple]) -> dict[str, list[tuple]]:
+    """role -> the ``(p, v[, w])`` of each of its parts (``members``), from each part's."""
+    return {role: [outs[m] for m in members(name)] for role, name in roles.items()}
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    norm = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.divide(v, norm, out=np.zeros_like(v), where=norm > 0)
+
+
+def combine(outs: dict[str, list[tuple]]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """p(slip), the velocity and the rate from each role's parts' ``(p, v[, w])`` (a list:
+    one part, or a blend's, averaged as the module docstring says)."""
+    def velocities(role: str) -> list[np.ndarray]:
+        return [np.asarray(o[1], np.float64) for o in outs[role]]
+
+    prob = np.mean([np.asarray(o[0], np.float64) for o in outs["detection"]], axis=0)
+    speed = np.mean([np.linalg.norm(v, axis=1) for v in velocities("speed")], axis=0)
+    unit = _unit(sum(_unit(v) for v in velocities("direction")))
+    # Where the direction parts have none, the speed parts' own.
+    fallback = _unit(sum(_unit(v) for v in velocities("speed")))
+    unit = np.where(np.linalg.norm(unit, axis=1, keepdims=True) > 0, unit, fallback)
     v = (unit * speed[:, None]).astype(np.float32)
     rot = outs.get("rotation")
-    w = None if rot is None or len(rot) < 3 or rot[2] is None else np.asarray(rot[2])
-    return prob, v, w
+    rates = [] if rot is None else [o[2] for o in rot if len(o) > 2 and o[2] is not None]
+    w = None if not rates or len(rates) < len(rot) else \
+        np.mean([np.asarray(r, np.float64) for r in rates], axis=0).astype(np.float32)
+    return prob.astype(np.float32), v, w

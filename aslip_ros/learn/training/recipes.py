@@ -74,7 +74,7 @@ from aslip_ros.learn.training.folds import (K_FOLD_BELOW, REFIT_FRACTION, FoldJo
                                             trial_folds)
 from aslip_ros.learn.models.per_output import PerOutputBackend
 from aslip_ros.learn.training.selection import (CRITERION, METRICS, choose_outputs,
-                                                combination_cost, compose,
+                                                chosen_parts, combination_cost, compose,
                                                 score_difference, select, worth, worth_line)
 from aslip_ros.learn.training.train import train_svm
 
@@ -453,7 +453,7 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
         selection["folds"] = {"n": len(folds), "trials": fold_trial_names(ds, folds),
                               "below": K_FOLD_BELOW, "refit_fraction": REFIT_FRACTION}
         run.final({c.name: c for c in cands},
-                  {row["from"] for row in outputs.values()} | {winner}, va)
+                  chosen_parts(outputs) | {winner}, va)
     best = compose(ds, va, run.results, winner, outputs) or run.results[winner]
     if best.meta["model_type"] == PerOutputBackend.model_type:
         roles = best.meta["model_config"]

@@ -18,9 +18,11 @@ Each output from the candidate that gives it best (``choose_outputs``, ``compose
 detection, speed, direction and, where the validation windows rotate, rotation, the
 candidate best on that output's metric replaces the winner's output where it is better on
 the same trial resamples (the paired interval of the difference excludes 0); an output the
-trials cannot tell apart stays the winner's. Where any output changes hands, the model is
-a ``per_output`` checkpoint (learn/models/per_output.py) of the candidates that give them,
-with its threshold and sigma models fitted again on its own validation predictions.
+trials cannot tell apart stays the winner's. Beside the candidates, each output weighs one
+blend (``per_output.BLEND``): the mean of the two candidates best at it, on the same rule.
+Where any output changes hands, the model is a ``per_output`` checkpoint
+(learn/models/per_output.py) of the candidates that give them, with its threshold and
+sigma models fitted again on its own validation predictions.
 Among the candidates better than the winner at an output, one that the trials cannot tell
 apart from the best of them but that costs the combination clearly less time per window
 (``combination_cost``: typically a part that reads the winner's log-mel rather than
@@ -39,7 +41,7 @@ from aslip_ros.learn.checkpoint import estimates_rotation
 from aslip_ros.learn.data_io import WindowSet
 from aslip_ros.learn.inference.predictor import Predictor
 from aslip_ros.learn.metrics import compute_metrics
-from aslip_ros.learn.models.per_output import assemble, combine
+from aslip_ros.learn.models.per_output import assemble, blend, combine, members, role_outputs
 from aslip_ros.learn.stats import KEYS, bootstrap_metrics, paired_difference
 from aslip_ros.learn.training.config import TrainResult
 from aslip_ros.learn.training.data import rotation_args
@@ -236,6 +238,13 @@ def choose_outputs(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult
         if winner not in vals:
             continue
         sign = -1.0 if higher else 1.0           # lower sign * value is better
+        pair = sorted(vals, key=lambda n: (sign * vals[n], n != winner))[:2]
+        if len(pair) == 2:
+            mixed = blend(pair)
+            fns[mixed] = _candidate_metric(ds, va, blend_prediction(preds, mixed), key)
+            v = fns[mixed](everything)
+            if np.isfinite(v):
+                vals[mixed] = v
         best = min(vals, key=lambda n: (sign * vals[n], n != winner))
         row = {"from": winner, "metric": key, "value": vals[winner],
                "winner_value": vals[winner]}
@@ -259,6 +268,15 @@ def choose_outputs(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult
                               f"(difference {d[0]:+.3g} [{d[1]:+.3g}, {d[2]:+.3g}])")
         out[role] = row
     return out
+
+
+def blend_prediction(preds: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:
+    """The validation predictions of the blend ``name`` (``per_output.members``) from its
+    parts', every output averaged as a ``per_output`` model averages it."""
+    outs = {n: (preds[n]["prob"], preds[n]["v"], preds[n].get("w")) for n in members(name)}
+    prob, v, w = combine(role_outputs(
+        {r: name for r in ("detection", "speed", "direction", "rotation")}, outs))
+    return {"prob": prob, "v": v, "w": w}
 
 
 def _cheaper_part(row: dict[str, Any], role: str, trial: np.ndarray, fns: dict, vals: dict,
@@ -304,6 +322,16 @@ def _roles(results: dict[str, TrainResult], winner: str,
     return roles
 
 
+def _parts(roles: dict[str, str]) -> list[str]:
+    """Every candidate some role reads (a blend's members too), sorted."""
+    return sorted({m for n in roles.values() for m in members(n)})
+
+
+def chosen_parts(outputs: dict[str, Any]) -> set[str]:
+    """The candidates ``choose_outputs``' rows read (a blend's members too)."""
+    return {m for row in outputs.values() for m in members(row["from"])}
+
+
 def combination_cost(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult],
                      winner: str) -> Callable[[str, str], float]:
     """``cost(role, name)``: the median milliseconds per window (``window_latency_ms``) of
@@ -313,12 +341,13 @@ def combination_cost(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResu
 
     def cost(role: str, name: str) -> float:
         if (role, name) not in cache:
-            if name not in parts:
-                parts[name] = results[name].checkpoint()
+            for m in members(name):
+                if m not in parts:
+                    parts[m] = results[m].checkpoint()
             roles = _roles(results, winner, {role: name})
             try:
                 ck = (parts[winner] if name == winner else
-                      assemble({n: parts[n] for n in set(roles.values())}, roles))
+                      assemble({n: parts[n] for n in _parts(roles)}, roles))
             except ValueError:                 # parts that cannot run together
                 cache[role, name] = float("inf")
             else:
@@ -336,11 +365,11 @@ def compose(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult], winn
     if all(n == winner for n in roles.values()):
         return None
     roles = _roles(results, winner, roles)
-    names = sorted(set(roles.values()))
+    names = _parts(roles)
     ck = assemble({n: results[n].checkpoint() for n in names}, roles)
     pred = {n: results[n].val_pred for n in names}
-    prob, v, w = combine({role: (pred[n]["prob"], pred[n]["v"], pred[n].get("w"))
-                          for role, n in roles.items()})
+    prob, v, w = combine(role_outputs(roles, {n: (pred[n]["prob"], pred[n]["v"],
+                                                  pred[n].get("w")) for n in names}))
     truth, slip = ds.velocity(va), ds.slip(va)
     rot = rotation_args(ds, va, w)
     val = compute_metrics(prob, v, truth, slip, ds.window_s, **rot)
