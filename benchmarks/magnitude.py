@@ -17,6 +17,11 @@ and latency), ``mocap:coupling`` trains on motion-capture labels and tests on pe
 coupling. Trained models and per-window predictions are cached under ``--out/cache``
 (git-ignored), so a run resumes and a variant is trained once.
 
+Each cell's report ends with *where the speed error is* (``benchmarks.magnitude_where``):
+every model's slip-speed RMSE and bias by object, by true-speed tercile and by trial-loudness
+tercile, its overall scale and the RMSE at an oracle (test-fitted) scale, so that one sees
+where the package CNN loses to the direct SVR.
+
     python -m benchmarks.magnitude --out results/magnitude        (make magnitude)
 """
 
@@ -32,8 +37,10 @@ from typing import Any, Callable
 
 import numpy as np
 
+from aslip_ros.learn.models.per_output import blend, combine, role_outputs
 from aslip_ros.util import write_json, write_text
 
+from .magnitude_where import cell_breakdown, where_markdown
 from .transfer import KEYS, format_ci, metrics_cell
 
 #: name -> (what changes, TrainConfig overrides, LossWeights overrides). ``recipe`` is the
@@ -56,6 +63,10 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
 #: Every variant's loss weights unless it changes them: the paper's (the package's at the time).
 REFERENCE_WEIGHTS = {"slip": 1.0, "mag": 0.5, "dir": 2.0, "smooth": 0.1}
 BASELINES = ("plain_cnn", "plain_svm")
+#: Models that are the mean of two of the above, as ``aslip train``'s per-output choice can
+#: write them (a ``per_output`` blend, learn/models/per_output.py): scored from the parts'
+#: predictions, nothing trained. A blend is reported where both its parts ran.
+BLENDS = (("recipe", "plain_svm"),)
 #: The by-trial split of the training scene (train / validation for early stopping); fixed
 #: so that training seeds change only the training run.
 SPLIT_SEED = 0
@@ -250,6 +261,19 @@ def paired(cfg: MagnitudeConfig, a: dict[str, np.ndarray], b: dict[str, np.ndarr
     return out
 
 
+def blended(preds: dict[str, dict[str, np.ndarray]], parts: tuple[str, ...]
+            ) -> dict[str, np.ndarray]:
+    """The predictions of the blend of ``parts`` (every output their mean, as a
+    ``per_output`` model averages it) on the windows they share."""
+    first = preds[parts[0]]
+    if any(not np.array_equal(preds[n]["trial"], first["trial"]) for n in parts):
+        raise ValueError(f"{parts}: predictions of different windows")
+    outs = {n: (preds[n]["prob"], preds[n]["raw_velocity"]) for n in parts}
+    prob, v, _ = combine(role_outputs(
+        {r: blend(list(parts)) for r in ("detection", "speed", "direction")}, outs))
+    return dict(first, prob=prob, raw_velocity=v)
+
+
 def run_cell(cfg: MagnitudeConfig, train: str, test: str, seed: int,
              log: Callable[[str], None]) -> dict[str, Any]:
     """Every variant and baseline trained on ``train`` with ``seed``, scored on ``test``."""
@@ -265,6 +289,11 @@ def run_cell(cfg: MagnitudeConfig, train: str, test: str, seed: int,
     for kind in cfg.baselines:
         preds[kind], info = predict_baseline(cfg, kind, seed, train_ds, test_ds, log)
         rows[kind] = {"what": "learn.baselines", "training": info}
+    for parts in BLENDS:
+        if all(n in preds for n in parts):
+            name = blend(list(parts))
+            preds[name] = blended(preds, parts)
+            rows[name] = {"what": "the mean of " + " and ".join(parts) + " (per_output blend)"}
     n_trials = int(np.unique(next(iter(preds.values()))["trial"]).size)
     if n_trials < cfg.min_test_trials:
         raise ValueError(f"{test}: {n_trials} held-out trials, fewer than "
@@ -274,7 +303,8 @@ def run_cell(cfg: MagnitudeConfig, train: str, test: str, seed: int,
         if name != "recipe" and "recipe" in preds:
             rows[name]["minus_recipe"] = paired(cfg, p, preds["recipe"])
         log(f"  {name}: {metrics_cell(rows[name]['metrics'])}")
-    return {"train": train, "test": test, "seed": seed, "n_trials": n_trials, "rows": rows}
+    return {"train": train, "test": test, "seed": seed, "n_trials": n_trials, "rows": rows,
+            "where": cell_breakdown(preds, test_ds, n_boot=cfg.n_boot)}
 
 
 def verdicts(cells: dict[str, Any]) -> dict[str, dict[str, dict[str, int]]]:
@@ -352,6 +382,8 @@ def markdown(result: dict[str, Any]) -> str:
                          + " | " + " | ".join(_diff(d.get(k), k) for k, _, _ in KEYS)
                          + f" | {ep} |")
         lines.append("")
+        if e.get("where"):
+            lines += where_markdown(e["where"])
     lines += ["## Variants against recipe over all cells", "",
               "Cells in which the paired interval excludes 0, better / worse (of cells "
               "measured).", "",

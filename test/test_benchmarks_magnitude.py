@@ -36,7 +36,7 @@ def test_every_variant_and_baseline_is_scored_on_all_held_out_trials(result):
     cell = saved["cells"]["a -> b, seed 0"]
     assert cell["n_trials"] == 6
     assert list(cell["rows"]) == ["recipe", "natural_prior", "mag_x4", "plain_cnn",
-                                  "plain_svm"]
+                                  "plain_svm", "recipe+plain_svm"]
     for name, r in cell["rows"].items():
         m = r["metrics"]
         assert m["n_trials"] == 6 and m["n_windows"] > 0
@@ -46,7 +46,30 @@ def test_every_variant_and_baseline_is_scored_on_all_held_out_trials(result):
         assert ("minus_recipe" in r) == (name != "recipe")
     md = (cfg.out / "magnitude.md").read_text()
     assert "a -> b, seed 0 (6 test trials)" in md and "| plain_svm |" in md
-    assert set(saved["verdicts"]) == {"natural_prior", "mag_x4", "plain_cnn", "plain_svm"}
+    assert set(saved["verdicts"]) == {"natural_prior", "mag_x4", "plain_cnn", "plain_svm",
+                                      "recipe+plain_svm"}
+
+
+def test_a_blend_is_the_mean_of_its_parts_outputs():
+    trial = np.array([0, 0, 1])
+    v_true = np.array([[0.01, 0.0], [0.0, 0.02], [0.01, 0.01]])
+    preds = {"recipe": {"prob": np.array([0.9, 0.2, 0.6]), "trial": trial,
+                        "raw_velocity": np.array([[0.02, 0.0], [0.0, 0.0], [0.0, 0.01]]),
+                        "true_velocity": v_true},
+             "plain_svm": {"prob": np.array([0.5, 0.4, 0.6]), "trial": trial,
+                           "raw_velocity": np.array([[0.0, 0.04], [0.0, 0.02], [0.0, 0.03]]),
+                           "true_velocity": v_true}}
+    got = magnitude.blended(preds, ("recipe", "plain_svm"))
+    assert got["prob"] == pytest.approx([0.7, 0.3, 0.6])
+    # Speed: the mean norm; direction: the unit vector of the sum of the parts' unit ones
+    # (a part with no velocity has no say).
+    r = np.sqrt(0.5)
+    assert got["raw_velocity"] == pytest.approx(
+        np.array([[0.03 * r, 0.03 * r], [0.0, 0.01], [0.0, 0.02]]), abs=1e-7)
+    assert got["true_velocity"] is v_true
+    preds["plain_svm"]["trial"] = np.array([0, 1, 1])
+    with pytest.raises(ValueError, match="different windows"):
+        magnitude.blended(preds, ("recipe", "plain_svm"))
 
 
 def test_each_variant_trains_with_its_one_change(result):
@@ -123,3 +146,129 @@ def test_cli():
         with pytest.raises(ValueError):
             magnitude.config_from_args(p.parse_args(bad))
     assert magnitude.main(["--cells", "x:x"]) == 2
+
+
+# --- where the speed error is ------------------------------------------------------------
+
+def _where_predictions():
+    """10 trials (manifest indices 2..11, objects alternating box / can) of 30 true-slip
+    windows each, 10 at each of 10, 50 and 100 mm/s, plus 5 no-slip windows per trial, in
+    shuffled order; 0.2 s windows. ``recipe`` is exact below 100 mm/s and twice too fast at
+    it; ``plain_svm`` is exact on box trials and 5 mm/s too slow on can trials; ``half``
+    halves every speed."""
+    rng = np.random.default_rng(0)
+    trial = np.repeat(np.arange(2, 12), 35)
+    s = np.tile(np.r_[np.repeat([0.01, 0.05, 0.1], 10), np.zeros(5)], 10)
+    slip = s > 0
+    order = rng.permutation(s.size)
+    trial, s, slip = trial[order], s[order], slip[order]
+    objects = ["box" if k % 2 == 0 else "can" for k in range(12)]
+    can = np.array([objects[k] == "can" for k in trial])
+    true = np.stack([s, np.zeros_like(s)], axis=1)
+
+    def model(speed):
+        return {"prob": slip.astype(float), "raw_velocity": np.stack(
+                    [speed, np.zeros_like(speed)], axis=1), "true_velocity": true,
+                "slip": slip, "trial": trial, "window_s": np.float64(0.2)}
+    preds = {"recipe": model(np.where(s >= 0.1, 2 * s, s)),
+             "plain_svm": model(np.where(can & slip, s - 0.005, s)),
+             "half": model(s / 2)}
+    loud = np.full(12, np.nan)
+    loud[2:] = -40.0 + 3.0 * np.arange(10)       # trials 2..4 quiet, 5..7 middle, 8..11 loud
+    return preds, objects, loud
+
+
+def test_the_breakdown_finds_a_model_wrong_only_on_fast_windows():
+    from benchmarks.magnitude_where import breakdown
+    preds, objects, loud = _where_predictions()
+    w = breakdown(preds, objects, loud, n_boot=50)
+    assert w["n_windows"] == 300 and w["n_trials"] == 10
+    lo, hi = w["speed_edges_mm_s"]
+    assert 10 < lo < 50 < hi < 100
+    speed = w["strata"]["speed"]
+    assert list(speed) == ["slow", "middle", "fast"]
+    for name in ("slow", "middle"):
+        r = speed[name]["models"]["recipe"]
+        assert r["rmse_mm"] == r["bias_mm"] == 0.0 and tuple(r["rmse_mm_ci"]) == (0.0, 0.0)
+    fast = speed["fast"]
+    assert (fast["n_trials"], fast["n_windows"]) == (10, 100)
+    assert fast["mean_true_mm_s"] == pytest.approx(100.0)
+    # 100 mm/s too fast over 0.2 s windows: 20 mm on every fast window.
+    assert fast["models"]["recipe"]["rmse_mm"] == pytest.approx(20.0)
+    assert fast["models"]["recipe"]["bias_mm"] == pytest.approx(20.0)
+    # recipe - plain_svm: 20 mm against sqrt(1/2) mm (1 mm on half the trials), paired.
+    est, lo, hi = fast["pair_rmse_diff_mm"]
+    assert est == pytest.approx(20.0 - np.sqrt(0.5)) and lo > 0
+    assert speed["slow"]["pair_rmse_diff_mm"][2] < 0
+
+
+def test_the_breakdown_maps_trials_to_objects_and_loudness():
+    from benchmarks.magnitude_where import breakdown
+    preds, objects, loud = _where_predictions()
+    w = breakdown(preds, objects, loud, n_boot=50)
+    obj = w["strata"]["object"]
+    assert list(obj) == ["box", "can"]
+    assert obj["box"]["n_trials"] == obj["can"]["n_trials"] == 5
+    svm = {k: obj[k]["models"]["plain_svm"] for k in obj}
+    assert svm["box"]["rmse_mm"] == 0.0 and svm["box"]["bias_mm"] == 0.0
+    # 5 mm/s too slow over 0.2 s: -1 mm on every window of a can trial.
+    assert svm["can"]["rmse_mm"] == pytest.approx(1.0)
+    assert svm["can"]["bias_mm"] == pytest.approx(-1.0)
+    assert svm["can"]["bias_mm_ci"] == pytest.approx((-1.0, -1.0))
+    assert w["loudness_edges_db"] == pytest.approx([-31.0, -22.0])
+    loudness = w["strata"]["loudness"]
+    assert [loudness[k]["n_trials"] for k in ("quiet", "middle", "loud")] == [3, 3, 4]
+    # Fewer than MIN_TRIALS_CI trials: no interval, no paired difference.
+    assert "rmse_mm_ci" not in loudness["loud"]["models"]["recipe"]
+    assert "pair_rmse_diff_mm" not in loudness["loud"]
+
+
+def test_the_overall_scale_and_the_oracle_scale():
+    from aslip_ros.learn.metrics import compute_metrics
+    from benchmarks.magnitude_where import breakdown
+    preds, objects, loud = _where_predictions()
+    w = breakdown(preds, objects, loud, n_boot=20)
+    half = w["overall"]["half"]
+    assert half["scale_ratio"] == pytest.approx(0.5)
+    assert half["oracle_scale"] == pytest.approx(2.0)
+    assert half["oracle_rmse_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert half["rank_corr"] == pytest.approx(1.0) and half["bias_mm"] < 0
+    for name, p in preds.items():   # the RMSE is the benchmark table's magnitude
+        m = compute_metrics(p["prob"], p["raw_velocity"], p["true_velocity"], p["slip"], 0.2)
+        assert w["overall"][name]["rmse_mm"] == pytest.approx(m["magnitude_rmse_mm"])
+    # A speed ranking that a scale cannot fix: the oracle does not save recipe.
+    assert w["overall"]["recipe"]["oracle_rmse_mm"] > 1.0
+    other = dict(preds["half"], trial=np.roll(preds["half"]["trial"], 1))
+    with pytest.raises(ValueError, match="same windows"):
+        breakdown(dict(preds, half=other), objects, loud, n_boot=0)
+
+
+def test_the_breakdown_section_of_the_report():
+    from benchmarks.magnitude_where import breakdown, where_markdown
+    preds, objects, loud = _where_predictions()
+    md = "\n".join(where_markdown(breakdown(preds, objects, loud, n_boot=20)))
+    assert "### Where the speed error is" in md and "DIAGNOSTIC ONLY" in md
+    assert "| fast (10, 100, 100.0) | 20.00 [20.00, 20.00] / +20.00 [+20.00, +20.00] |" in md
+    assert "| half | " in md and "recipe - plain_svm" in md
+    assert "| loud (4, 120, 53.3) | 11.55 / +6.67 |" in md
+
+
+def test_trial_facts_read_the_test_dataset(datasets):
+    from aslip_ros.learn.data_io import open_dataset
+    from benchmarks.magnitude_where import trial_facts
+    ds = open_dataset(datasets / "data" / "b")
+    objects, loud = trial_facts(ds.root, [1, 3])
+    assert list(objects) == [t["object"] for t in ds.trials]
+    assert np.array_equal(objects[ds.windows["trial"]], ds.trial_field("object"))
+    # dB re full scale, for the trials asked for only.
+    assert (loud[[1, 3]] < 0).all() and np.isnan(np.delete(loud, [1, 3])).all()
+
+
+def test_every_cell_reports_where_the_speed_error_is(result):
+    cfg, res = result
+    saved = json.loads((cfg.out / "magnitude.json").read_text())
+    where = saved["cells"]["a -> b, seed 0"]["where"]
+    assert list(where["overall"]) == list(saved["cells"]["a -> b, seed 0"]["rows"])
+    assert set(where["strata"]) == {"object", "speed", "loudness"}
+    md = (cfg.out / "magnitude.md").read_text()
+    assert md.count("### Where the speed error is") == 1 and "By object" in md
