@@ -244,6 +244,15 @@ def test_selection_on_data_picks_the_trained_candidate(data):
         assert lo <= w["winner"]["direction_mae_deg"] <= hi
         assert w["score_difference"]["ci"][1] < 0
         assert "validation trials (95 % intervals" in recipes.comparison_markdown(sel)
+        # Per output: why the winner keeps it, or which candidate gives it instead.
+        kept = {r: dict(row, **{"from": "live", "why": f"{r} reason"})
+                for r, row in sel["outputs"].items()}
+        assert set(kept) >= {"detection", "speed", "direction"}
+        md = recipes.comparison_markdown(dict(sel, outputs=kept))
+        assert "Each output stays the winner's: detection: detection reason;" in md
+        moved = dict(kept, speed=dict(kept["speed"], **{"from": "dead"}))
+        md = recipes.comparison_markdown(dict(sel, outputs=moved))
+        assert "speed from **dead** (speed reason)" in md and "stays the winner's" not in md
 
 
 class _ValSet:

@@ -506,10 +506,15 @@ def comparison_markdown(sel: dict[str, Any]) -> str:
             lines.append(f"- then {r['name']} trained on for {r['seconds']:.0f} s")
     worth_text = worth_line(sel.get("worth") or {})
     outputs = sel.get("outputs") or {}
-    per_output = "" if all(row["from"] == sel["winner"] for row in outputs.values()) else (
-        "Each output from the candidate that gives it best: " + "; ".join(
-            f"{role} from **{row['from']}** ({row['why']})" for role, row in outputs.items())
-        + "." + _latency_text(sel.get("latency_ms") or {}))
+    if not outputs:
+        per_output = ""
+    elif all(row["from"] == sel["winner"] for row in outputs.values()):
+        per_output = "Each output stays the winner's: " + "; ".join(
+            f"{role}: {row['why']}" for role, row in outputs.items()) + "."
+    else:
+        per_output = "Each output from the candidate that gives it best: " + "; ".join(
+            f"{role} from **{row['from']}** ({row['why']})" for role, row in outputs.items()
+        ) + "." + _latency_text(sel.get("latency_ms") or {})
     folds = sel.get("folds")
     trials_text = (
         f"Chosen on {folds['n']} folds by trial (the split has fewer than {folds['below']} "
