@@ -15,7 +15,7 @@ A role may name a blend of parts, joined by ``BLEND`` (``svm+unfrozen``): its ou
 the parts' mean (``combine``): the mean p(slip), the mean speed, the unit vector of the sum
 of the parts' unit directions (a part whose velocity is 0 has no say), the mean rate.
 Candidate models of different kinds err apart, and their mean errs less than either where
-neither is much better (docs/model.md, "Each output from its best candidate").
+neither is much better (docs/model.md, "Each output from the candidate that gives it best").
 
 Each part reads the same windows; the per-grasp offsets the stream computes go to the parts
 trained with the calibration (their ``calibration`` must equal the checkpoint's) and not to
