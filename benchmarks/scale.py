@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import multiprocessing
 import os
 import shutil
 import subprocess
@@ -98,7 +99,11 @@ def record(bags: Path, hours: float, rate: float, jobs: int, log,
     parts = [(k, n // jobs + (k < n % jobs)) for k in range(jobs)]
     parts = [(k, m) for k, m in parts if m]
     t = time.perf_counter()
-    with ProcessPoolExecutor(len(parts)) as pool:
+    # Spawned, not forked: a fork of a process that already runs threads (torch's, rclpy's)
+    # can crash the child (a segmentation fault in a worker's garbage collection, seen in a
+    # fresh-clone CI run of the tests); ``aslip export --jobs`` spawns its workers too.
+    with ProcessPoolExecutor(len(parts), mp_context=multiprocessing.get_context("spawn")) \
+            as pool:
         made = sum(pool.map(_simulate_part, [str(bags / f"part{k}") for k, _ in parts],
                             [m for _, m in parts], [1000 * k for k, _ in parts],
                             [rate] * len(parts), [trial_s] * len(parts)))

@@ -45,3 +45,29 @@ def test_a_run_that_does_not_fit_on_the_disk_is_refused_before_it_starts(tmp_pat
                        "--hours", "100000"]) == 1
     assert "pass --work on a larger disk" in capsys.readouterr().err
     assert not (tmp_path / "w" / "bags_48000_600").exists()
+
+
+def test_the_recording_workers_are_spawned_not_forked(tmp_path, monkeypatch):
+    """A fork of a process that already runs threads (torch's, rclpy's: a test worker, or
+    make scale after its imports) can crash the child: a fresh-clone CI run lost a worker to
+    a segmentation fault in its garbage collection. The workers are spawned, as
+    ``aslip export --jobs`` spawns its own."""
+    seen = []
+
+    class Pool:
+        def __init__(self, n, mp_context=None):
+            seen.append(None if mp_context is None else mp_context.get_start_method())
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def map(self, fn, *args):
+            return [0.0 for _ in args[0]]
+
+    monkeypatch.setattr(scale, "ProcessPoolExecutor", Pool)
+    scale.record(tmp_path / "bags", hours=0.01, rate=16000.0, jobs=2, log=lambda m: None,
+                 trial_s=10.0)
+    assert seen == ["spawn"]
