@@ -41,7 +41,8 @@ from aslip_ros.learn.checkpoint import estimates_rotation
 from aslip_ros.learn.data_io import WindowSet
 from aslip_ros.learn.inference.predictor import Predictor
 from aslip_ros.learn.metrics import compute_metrics
-from aslip_ros.learn.models.per_output import assemble, blend, combine, members, role_outputs
+from aslip_ros.learn.models.per_output import (PerOutputConfig, assemble, blend, combine,
+                                               members, role_outputs)
 from aslip_ros.learn.stats import KEYS, bootstrap_metrics, paired_difference
 from aslip_ros.learn.training.config import TrainResult
 from aslip_ros.learn.training.data import rotation_args
@@ -322,11 +323,6 @@ def _roles(results: dict[str, TrainResult], winner: str,
     return roles
 
 
-def _parts(roles: dict[str, str]) -> list[str]:
-    """Every candidate some role reads (a blend's members too), sorted."""
-    return sorted({m for n in roles.values() for m in members(n)})
-
-
 def chosen_parts(outputs: dict[str, Any]) -> set[str]:
     """The candidates ``choose_outputs``' rows read (a blend's members too)."""
     return {m for row in outputs.values() for m in members(row["from"])}
@@ -347,7 +343,7 @@ def combination_cost(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResu
             roles = _roles(results, winner, {role: name})
             try:
                 ck = (parts[winner] if name == winner else
-                      assemble({n: parts[n] for n in _parts(roles)}, roles))
+                      assemble({n: parts[n] for n in PerOutputConfig(**roles).parts()}, roles))
             except ValueError:                 # parts that cannot run together
                 cache[role, name] = float("inf")
             else:
@@ -365,7 +361,7 @@ def compose(ds: WindowSet, va: np.ndarray, results: dict[str, TrainResult], winn
     if all(n == winner for n in roles.values()):
         return None
     roles = _roles(results, winner, roles)
-    names = _parts(roles)
+    names = PerOutputConfig(**roles).parts()
     ck = assemble({n: results[n].checkpoint() for n in names}, roles)
     pred = {n: results[n].val_pred for n in names}
     prob, v, w = combine(role_outputs(roles, {n: (pred[n]["prob"], pred[n]["v"],
