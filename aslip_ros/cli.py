@@ -38,6 +38,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "train": ("aslip_ros.learn.training.cli",
               "train a slip model (chosen on your data, or by name)"),
     "evaluate": ("aslip_ros.learn.evaluate", "evaluate a checkpoint on a dataset (JSON metrics)"),
+    "hybrid": ("aslip_ros.learn.models.aslip_hybrid",
+               "run a streaming and a window checkpoint as one (slip_inference)"),
     "check": ("aslip_ros.bringup.check",
               "bring-up checks of a new cell: audio, taps, mocap, grasp plane, arm, "
               "real-time headroom"),

@@ -36,7 +36,9 @@ Results: ``<out>/summary.json``, ``<out>/table.md`` (beside the paper's numbers)
 Models: the shipped checkpoints (``models/aslip_stream.pt``, ``models/aslip_cnn.pt``,
 ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``) when they match the scene
 (``models/manifest.json``), otherwise they are retrained first (``--train-models`` forces it;
-:mod:`benchmarks.demo_models`).
+:mod:`benchmarks.demo_models`). ``--methods aslip_hybrid``: the streaming model and the
+window CNN as one checkpoint (learn/models/aslip_hybrid.py), assembled from those two into
+``--train-data`` (``demo_models.hybrid_checkpoint``) unless ``--hybrid`` names one.
 """
 
 from __future__ import annotations
@@ -62,7 +64,7 @@ from benchmarks.demo_episode import (CHARGES, LOCKSTEP_BUDGET_S, MODES, TASKS, E
 from benchmarks import demo_models
 from benchmarks.demo_models import OBJECTS
 
-METHODS = tuple(demo_models.MODELS)
+METHODS = tuple(demo_models.MODELS) + (demo_models.HYBRID,)
 #: What ``make demo`` runs: the package's estimator first, then the three it is measured by.
 DEFAULT_METHODS = ("aslip", "aslip_window", "aslip_uncalibrated", "svm")
 #: Repeats of a trial that a watchdog ended on stale input (a stalled machine).
@@ -85,6 +87,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cnn-uncalibrated", default=None,
                    help="window CNN checkpoint without calibration (default: --models)")
     p.add_argument("--svm", default=None, help="SVM checkpoint (default: --models)")
+    p.add_argument("--hybrid", default=None,
+                   help="aslip_hybrid: its checkpoint (default: the hybrid of the aslip and "
+                        "aslip_window checkpoints, written to --train-data)")
     p.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help=f"comma-separated methods out of {','.join(METHODS)}")
@@ -222,24 +227,33 @@ def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
     return eps
 
 
-def resolve_models(args, methods=METHODS) -> dict:
+def resolve_models(args, methods=tuple(demo_models.MODELS)) -> dict:
     """Checkpoint per method: explicit, shipped and matching, or freshly trained."""
     d = Path(args.models)
     explicit = {"aslip": args.stream, "aslip_window": args.cnn,
                 "aslip_uncalibrated": args.cnn_uncalibrated, "svm": args.svm}
-    if all(explicit[m] for m in methods if m in explicit):
-        return {**{m: Path(p) for m, p in explicit.items() if p}, "source": "command line"}
-    man = demo_models.shipped_models(d)
-    if man is None:
-        print(f"[demo] no checkpoints in {d} for this scene version "
-              f"({demo_models.scene_version()}): training them (a few minutes)",
-              file=sys.stderr, flush=True)
-        man = demo_models.train_models(d, args.train_data, progress=not args.no_progress)
-        source = "trained now"
+    need = [m for m in methods if m in explicit]
+    if demo_models.HYBRID in methods and not args.hybrid:        # assembled from its parts
+        need += [m for m in demo_models.HYBRID_PARTS if m not in need]
+    if all(explicit[m] for m in need):
+        out = {**{m: Path(p) for m, p in explicit.items() if p}, "source": "command line"}
     else:
-        source = f"shipped ({d / demo_models.MANIFEST})"
-    return {**{m: Path(p or d / man["files"][m]) for m, p in explicit.items()},
-            "source": source, "test_metrics": man.get("test_metrics")}
+        man = demo_models.shipped_models(d)
+        if man is None:
+            print(f"[demo] no checkpoints in {d} for this scene version "
+                  f"({demo_models.scene_version()}): training them (a few minutes)",
+                  file=sys.stderr, flush=True)
+            man = demo_models.train_models(d, args.train_data, progress=not args.no_progress)
+            source = "trained now"
+        else:
+            source = f"shipped ({d / demo_models.MANIFEST})"
+        out = {**{m: Path(p or d / man["files"][m]) for m, p in explicit.items()},
+               "source": source, "test_metrics": man.get("test_metrics")}
+    if demo_models.HYBRID in methods:
+        out[demo_models.HYBRID] = Path(args.hybrid) if args.hybrid else \
+            demo_models.hybrid_checkpoint(*(out[m] for m in demo_models.HYBRID_PARTS),
+                                          Path(args.train_data) / demo_models.HYBRID_NAME)
+    return out
 
 
 def run_episodes(episodes: list[Episode], workers: int, trace_dir: Path,

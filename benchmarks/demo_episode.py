@@ -51,10 +51,10 @@ CHARGES = ("budget", "measured")
 #: The compute time charged to simulated time per block in lockstep [s], per node: the
 #: estimator's by model family, about the p99 of the live node on the reference machine
 #: (``make latency``, results/latency/tail.json: streaming 2.5 ms, window CNN 4.8 ms end to
-#: end, idle), and the controller's one step. ``--charge measured`` charges what this host
-#: takes instead.
+#: end, idle; a hybrid, which runs both, as the slower), and the controller's one step.
+#: ``--charge measured`` charges what this host takes instead.
 LOCKSTEP_BUDGET_S = {"aslip_stream": 0.003, "aslip_cnn": 0.005, "svm": 0.005,
-                     "controller": 0.0005}
+                     "aslip_hybrid": 0.005, "controller": 0.0005}
 #: Lockstep: the longest the graph may take over one block before the episode is given up
 #: as stalled (wall clock; a guard against a lost message, never reached in a sound run).
 LOCKSTEP_STALL_S = 20.0
@@ -304,12 +304,14 @@ def warm_up(checkpoint: str) -> None:
     """
     if checkpoint in _WARM:
         return
+    from aslip_ros.learn.checkpoint import load_checkpoint
     from aslip_ros.learn.models.registry import model_backend
     from aslip_ros.learn.inference.live import load_predictor
-    pred = load_predictor(checkpoint, max_time_jump_s=0.05)
-    if model_backend(pred.model_type).streaming:   # slip_inference warms it up itself
+    ckpt = load_checkpoint(checkpoint)
+    if model_backend(ckpt.model_type).streaming:   # slip_inference warms it up itself
         _WARM.add(checkpoint)
         return
+    pred = load_predictor(ckpt, max_time_jump_s=0.05)
     window = np.zeros((int(pred.meta["window_samples"]), len(pred.meta["channel_names"])),
                       dtype=np.float32)
     for _ in range(3):

@@ -62,6 +62,38 @@ MODELS = {"aslip": (STREAM_NAME, "stream", "background"),
           "svm": (SVM_NAME, "svm", "background")}
 
 
+#: The hybrid of the set's streaming model and window CNN (learn/models/aslip_hybrid.py): no
+#: model of its own to train, it is assembled from theirs (``hybrid_checkpoint``).
+HYBRID = "aslip_hybrid"
+HYBRID_NAME = "aslip_hybrid.pt"
+#: Its parts, as demo methods: the streaming part and the window part.
+HYBRID_PARTS = ("aslip", "aslip_window")
+
+
+def hybrid_checkpoint(stream: str | Path, window: str | Path, out: str | Path) -> Path:
+    """The hybrid of two checkpoints (the default ``HybridConfig``: slip and rotation from
+    the stream part, the velocity from the window part), written to ``out`` (atomically)
+    when it is not there already from the same two files."""
+    from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
+    from aslip_ros.learn.models.aslip_hybrid import assemble
+    out = Path(out)
+    sources = {"stream": str(Path(stream).resolve()), "window": str(Path(window).resolve()),
+               "stream_sha256": _sha256(stream), "window_sha256": _sha256(window)}
+    try:
+        if load_checkpoint(out).meta.get("provenance", {}).get("assembled_from") == sources:
+            return out
+    except (OSError, ValueError):
+        pass
+    ck = assemble(load_checkpoint(stream), load_checkpoint(window))
+    ck.meta["provenance"] = {"assembled_from": sources}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return Path(save_checkpoint(out, ck.meta, ck.tensors))
+
+
+def _sha256(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def scene_version() -> str:
     """``aslip_ros.scene.SCENE_VERSION`` when the scene has one, else a hash of its code."""
     import aslip_ros.scene as scene

@@ -15,7 +15,7 @@ from aslip_ros.slip import DEFAULT_THRESHOLD
 from aslip_ros.util import atomic_path
 
 COLORS = {"aslip": "tab:green", "aslip_window": "tab:blue", "aslip_uncalibrated": "tab:purple",
-          "svm": "tab:orange"}
+          "svm": "tab:orange", "aslip_hybrid": "tab:red"}
 #: The slip-stop figure's zoom on the stop: the last seconds of each episode [s].
 ZOOM_S = 1.0
 

@@ -112,7 +112,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     for opt, what in (("--stream", "the aslip method's streaming checkpoint"),
                       ("--cnn", "aslip_window: window CNN checkpoint"),
                       ("--cnn-uncalibrated", "window CNN checkpoint without calibration"),
-                      ("--svm", "SVM checkpoint")):
+                      ("--svm", "SVM checkpoint"),
+                      ("--hybrid", "aslip_hybrid: its checkpoint (default: assembled from the "
+                                   "aslip and aslip_window checkpoints)")):
         p.add_argument(opt, default=None, help=f"{what} (default: --models)")
     p.add_argument("--stressors", default=None,
                    help="comma-separated stressors (default: every one the loop can run: "

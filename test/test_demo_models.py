@@ -34,8 +34,10 @@ def test_the_uncalibrated_cnn_is_trained_without_calibration_and_the_others_with
     assert _option(cmds["aslip"], "--stage") == "stream"
     assert _option(cmds["aslip"], "--calibration") == "background"
     assert demo_models.MODELS["aslip"][0] == "aslip_stream.pt"
-    # Every method of the demo has a model in the set, and the set nothing else.
-    assert set(demo_models.MODELS) == set(demo.METHODS)
+    # Every method of the demo has a model in the set, and the set nothing else, but for the
+    # hybrid, assembled from two of them.
+    assert set(demo_models.MODELS) | {demo_models.HYBRID} == set(demo.METHODS)
+    assert set(demo_models.HYBRID_PARTS) <= set(demo_models.MODELS)
 
 
 def _write_set(d: Path, version: str, skip: str | None = None) -> dict:
@@ -205,3 +207,32 @@ def test_track_settings_from_the_command_line_keep_their_types_and_refuse_unknow
         demo.settings_overrides(TrackSettings, ["no_such_field=1"])
     with pytest.raises(ValueError):
         demo.settings_overrides(TrackSettings, ["gain=fast"])
+
+
+def test_the_hybrid_is_assembled_from_the_sets_stream_and_window_models(tmp_path):
+    from aslip_ros.learn.checkpoint import load_checkpoint
+    from node_support import make_checkpoint
+    from test_learn_streaming_model import NAMES
+    from test_learn_streaming_model import make_checkpoint as make_stream
+    models, data = tmp_path / "models", tmp_path / "data"
+    _write_set(models, demo_models.scene_version())
+    make_stream(models / demo_models.STREAM_NAME, threshold=0.5, angular=True)
+    make_checkpoint(models / demo_models.CNN_NAME, channel_names=NAMES, angular=True)
+    args = _args(models, train_data=str(data))
+    got = demo.resolve_models(args, ["aslip_hybrid"])[demo_models.HYBRID]
+    assert got == data / demo_models.HYBRID_NAME
+    hybrid, cnn = load_checkpoint(got), load_checkpoint(models / demo_models.CNN_NAME)
+    assert hybrid.model_type == "aslip_hybrid"
+    assert all((hybrid.tensors[f"window/{k}"] == v).all() for k, v in cnn.tensors.items())
+    # The same parts: the file is kept; another window model: assembled again.
+    stamp = got.stat().st_mtime_ns
+    assert demo.resolve_models(args, ["aslip_hybrid"])[demo_models.HYBRID] == got
+    assert got.stat().st_mtime_ns == stamp
+    make_checkpoint(models / demo_models.CNN_NAME, channel_names=NAMES, angular=True, seed=9)
+    demo.resolve_models(args, ["aslip_hybrid"])
+    cnn = load_checkpoint(models / demo_models.CNN_NAME)
+    hybrid = load_checkpoint(got)
+    assert all((hybrid.tensors[f"window/{k}"] == v).all() for k, v in cnn.tensors.items())
+    # One named on the command line is run as it is.
+    named = demo.resolve_models(_args(models, hybrid=str(tmp_path / "h.pt")), ["aslip_hybrid"])
+    assert named[demo_models.HYBRID] == tmp_path / "h.pt"

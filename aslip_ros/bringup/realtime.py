@@ -167,7 +167,8 @@ class _Episode:
     def __init__(self, ckpt, hop_s: float, seed: int) -> None:
         from aslip_ros.control.slip_stop import SlipStop, SlipStopConfig
         from aslip_ros.hw.sources import world_metadata
-        from aslip_ros.learn.inference.live import LiveConfig, LiveEstimator, load_predictor
+        from aslip_ros.learn.inference.hybrid_estimator import open_estimator
+        from aslip_ros.learn.inference.live import LiveConfig
         from aslip_ros.scene import scenarios
         from aslip_ros.scene.world import World
         self.layout = _scene_layout(ckpt)
@@ -179,7 +180,7 @@ class _Episode:
         self.names = list(world_metadata(self.world)['channel_names'])
         direction = world_metadata(self.world)['task']['push_direction']
         self.task = SlipStop(SlipStopConfig(direction=direction))
-        self.est = LiveEstimator(load_predictor(ckpt), LiveConfig(hop_s=hop_s))
+        self.est = open_estimator(ckpt, LiveConfig(hop_s=hop_s))
         self.block_frames = max(1, int(round(hop_s * self.world.fs)))
         self.started = False
 

@@ -60,6 +60,10 @@ the first published estimates already come at the hop rate.
 
 Streaming checkpoints (``aslip_stream``): no window nor model thread, a
 SlipVector per 10 ms hop, state resets in ``stream_resets`` and ``last_reset_reason``.
+Hybrid checkpoints (``aslip_hybrid``, ``learn.inference.hybrid_estimator``): both. The stream
+part publishes a SlipVector per hop from the audio callback, and each takes the outputs
+the checkpoint gives the window part from the newest window the model thread has finished
+(``hops_with_window`` counts them); the window part's estimates are not published alone.
 
 Falling behind (a machine too slow or too busy for the stream): the node degrades, it does
 not stall. A window model's waiting window is replaced by a newer one (``hops_superseded``
@@ -105,7 +109,8 @@ from visualization_msgs.msg import MarkerArray
 
 from aslip_ros import topics
 from aslip_ros.lag import LagMeter
-from aslip_ros.learn.inference.live import Estimate, Job, LiveConfig, LiveEstimator, load_predictor
+from aslip_ros.learn.inference.hybrid_estimator import open_estimator
+from aslip_ros.learn.inference.live import Estimate, Job, LiveConfig
 from aslip_ros.msg import AudioFrame, SlipVector
 from aslip_ros.nodes import common as c
 from aslip_ros.runtime.process import ConfigError, ready, run_node
@@ -197,12 +202,11 @@ class SlipInference(Node):
         config = LiveConfig(hop_s=self.p["hop_s"], max_time_jump_s=self.p["max_time_jump_s"],
                             dead_channel_margin_db=self.p["dead_channel_margin_db"])
         try:
-            pr = load_predictor(self.p["checkpoint"],
-                                max_time_jump_s=self.p["max_time_jump_s"])
-            # The predictor holds the one decision threshold; -1 leaves the checkpoint's.
-            pr.set_threshold(None if self.p["threshold"] < 0 else self.p["threshold"])
             # Warms the model up before anything is subscribed (first torch calls are slow).
-            self.est = LiveEstimator(pr, config)
+            # The one decision threshold: -1 leaves the checkpoint's.
+            self.est = open_estimator(self.p["checkpoint"], config,
+                                      None if self.p["threshold"] < 0 else self.p["threshold"])
+            pr = self.est.predictor
         except (OSError, ValueError) as exc:
             raise ConfigError(f"cannot load checkpoint {self.p['checkpoint']!r}: {exc}") \
                 from exc
@@ -240,7 +244,7 @@ class SlipInference(Node):
         self.diag = c.Diagnostics(self, "aslip: slip_inference", self.source)
         self._worker = threading.Thread(target=self._infer_loop, name="slip_inference_model",
                                         daemon=True)
-        if not self.est.streaming:
+        if self.est.runs_windows:
             self._worker.start()
         # The audio callback only decodes, gates, buffers and hands over: its own group, so
         # neither diagnostics nor metadata ever wait behind it (or it behind them).

@@ -59,9 +59,9 @@ from aslip_ros.learn.checkpoint import Checkpoint, load_checkpoint
 from aslip_ros.learn.features import LogMel, SlidingLogMel
 from aslip_ros.learn.inference.audio_window import RingBuffer, StreamGate
 from aslip_ros.learn.inference.channel_check import DEAD_MARGIN_DB, dead_channels
-from aslip_ros.learn.inference.predictor import Prediction, Predictor
+from aslip_ros.learn.inference.predictor import BatchPrediction, Prediction, Predictor
 from aslip_ros.learn.inference.stream_predictor import DEFAULT_MAX_TIME_JUMP_S, StreamingPredictor
-from aslip_ros.learn.models.registry import PER_OUTPUT, model_backend
+from aslip_ros.learn.models.registry import HYBRID, PER_OUTPUT, model_backend
 
 #: direction_sigma [rad] while the per-grasp calibration has not converged: uninformative.
 UNCONVERGED_DIRECTION_SIGMA = float(np.pi)
@@ -73,6 +73,11 @@ def load_predictor(checkpoint: str | os.PathLike | Checkpoint, threshold: float 
     the registry says its model streams, else a window ``Predictor``. OSError / ValueError
     when unusable."""
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
+    if ckpt.model_type == HYBRID:
+        raise ValueError(f"an {HYBRID} checkpoint runs two models side by side, live only "
+                         "(slip_inference; learn.inference.hybrid_estimator.open_estimator): "
+                         "evaluate its parts, the --stream and --window checkpoints of "
+                         "aslip hybrid")
     if model_backend(ckpt.model_type).streaming:
         return StreamingPredictor(ckpt, threshold, max_time_jump_s)
     return Predictor(ckpt, threshold)
@@ -245,6 +250,11 @@ class LiveEstimator:
         return cls(load_predictor(checkpoint, threshold, config.max_time_jump_s), config)
 
     # --- settings -------------------------------------------------------------------------
+    @property
+    def runs_windows(self) -> bool:
+        """Whether ``accept`` hands out window jobs for ``run`` (a caller's model thread)."""
+        return not self.streaming
+
     def set_hop(self, hop_s: float) -> None:
         self.hop_frames = max(1, int(round(hop_s * self.predictor.sample_rate)))
 
@@ -482,10 +492,12 @@ class LiveEstimator:
         dead = dead_channels(job.window, self.predictor.channel_names, margin) \
             if margin > 0 else []
         t1 = time.perf_counter()
-        problem, pred, features = "", None, 0.0
+        problem, pred, features, raw = "", None, 0.0, (0.0, 0.0)
         if not dead:
             try:
-                pred, features = self._predict(job)
+                batch, features = self._predict(job)
+                pred = batch[0]
+                raw = (float(batch.raw_velocity[0, 0]), float(batch.raw_velocity[0, 1]))
             except ValueError as exc:
                 problem = str(exc)
             if pred is not None and not _finite(pred):
@@ -504,13 +516,15 @@ class LiveEstimator:
             self.stats.estimates += 1
         sigma = UNCONVERGED_DIRECTION_SIGMA if job.offsets is not None and not job.converged \
             else pred.direction_sigma
-        return Estimate(job.stamp_ns, pred, sigma)
+        return Estimate(job.stamp_ns, pred, sigma, raw)
 
-    def _predict(self, job: Job) -> tuple[Prediction, float]:
-        """The model's estimate of ``job`` and the seconds its sliding features took (0.0
-        when the backend featurised the window itself)."""
+    def _predict(self, job: Job) -> tuple[BatchPrediction, float]:
+        """The model's estimate of ``job`` (a batch of one, with its ungated velocity) and the
+        seconds its sliding features took (0.0 when the backend featurised the window
+        itself)."""
         if self._sliding is None or job.start is None:
-            return self.predictor.predict(job.window, job.offsets), 0.0
+            offsets = None if job.offsets is None else np.asarray(job.offsets)[None]
+            return self.predictor.predict_batch(job.window[None], offsets=offsets), 0.0
         t0 = time.perf_counter()
         with self._sliding_lock:
             feats = self._sliding(job.window, job.start, job.epoch)
@@ -518,8 +532,8 @@ class LiveEstimator:
         offsets = None if job.offsets is None else np.asarray(job.offsets)[None]
         if self.predictor.model_type == PER_OUTPUT:
             return self.predictor.predict_window_features(job.window[None], feats[None],
-                                                          offsets)[0], t1 - t0
-        return self.predictor.predict_features(feats[None], offsets)[0], t1 - t0
+                                                          offsets), t1 - t0
+        return self.predictor.predict_features(feats[None], offsets), t1 - t0
 
     def feed(self, a) -> list[Estimate]:
         """``accept`` and, for a window model, ``run`` at once: every estimate of the block."""

@@ -111,13 +111,21 @@ def assemble(parts: dict[str, Checkpoint], roles: dict[str, str]) -> Checkpoint:
     return Checkpoint(meta=meta, tensors=tensors)
 
 
-def _part_problems(name: str, part: Any, meta: dict[str, Any]) -> list[str]:
+def document_problems(name: str, part: Any, container: str) -> list[str]:
+    """What makes part ``name``'s document no part of a ``container`` checkpoint (one that
+    holds its parts' documents: this one, ``aslip_hybrid``): not a document, a container
+    itself, or an unsound document (``validate_meta``)."""
     where = f"parts.{name}"
     if not isinstance(part, dict):
         return [f"{where} must be a checkpoint document, got {type(part).__name__}"]
-    if part.get("model_type") == PerOutputBackend.model_type:
-        return [f"{where} is itself a {PerOutputBackend.model_type} model"]
-    problems = [f"{where}: {p}" for p in validate_meta(part)]
+    if part.get("model_type") == container:
+        return [f"{where} is itself a {container} model"]
+    return [f"{where}: {p}" for p in validate_meta(part)]
+
+
+def _part_problems(name: str, part: Any, meta: dict[str, Any]) -> list[str]:
+    where = f"parts.{name}"
+    problems = document_problems(name, part, PerOutputBackend.model_type)
     if problems:
         return problems
     if model_backend(part["model_type"]).streaming:

@@ -52,8 +52,9 @@ BUILTIN: dict[str, str] = {
     "svm": "aslip_ros.learn.models.svm:SvmBackend",
     "aslip_stream": "aslip_ros.learn.models.aslip_stream:StreamBackend",
     "per_output": "aslip_ros.learn.models.per_output:PerOutputBackend",
+    "aslip_hybrid": "aslip_ros.learn.models.aslip_hybrid:HybridBackend",
 }
-CNN, SVM, STREAM, PER_OUTPUT = BUILTIN
+CNN, SVM, STREAM, PER_OUTPUT, HYBRID = BUILTIN
 ENTRY_POINT_GROUP = "aslip_ros.models"
 
 MODELS: dict[str, type] = {}
