@@ -36,9 +36,11 @@ Results: ``<out>/summary.json``, ``<out>/table.md`` (beside the paper's numbers)
 Models: the shipped checkpoints (``models/aslip_stream.pt``, ``models/aslip_cnn.pt``,
 ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``) when they match the scene
 (``models/manifest.json``), otherwise they are retrained first (``--train-models`` forces it;
-:mod:`benchmarks.demo_models`). ``--methods aslip_hybrid``: the streaming model and the
-window CNN as one checkpoint (learn/models/aslip_hybrid.py), assembled from those two into
-``--train-data`` (``demo_models.hybrid_checkpoint``) unless ``--hybrid`` names one.
+:mod:`benchmarks.demo_models`). ``aslip``, the package's default estimator, is the hybrid
+of the streaming model and the window CNN (learn/models/aslip_hybrid.py): the shipped
+``models/aslip.pt`` where it was assembled from the two checkpoints in use, else their
+hybrid assembled into ``--train-data`` (``demo_models.default_checkpoint``), unless
+``--aslip`` names one.
 """
 
 from __future__ import annotations
@@ -64,9 +66,10 @@ from benchmarks.demo_episode import (CHARGES, LOCKSTEP_BUDGET_S, MODES, TASKS, E
 from benchmarks import demo_models
 from benchmarks.demo_models import OBJECTS
 
-METHODS = tuple(demo_models.MODELS) + (demo_models.HYBRID,)
-#: What ``make demo`` runs: the package's estimator first, then the three it is measured by.
-DEFAULT_METHODS = ("aslip", "aslip_window", "aslip_uncalibrated", "svm")
+METHODS = (demo_models.DEFAULT,) + tuple(demo_models.MODELS)
+#: What ``make demo`` runs: the package's estimator first, then its two parts and the two it
+#: is measured by.
+DEFAULT_METHODS = METHODS
 #: Repeats of a trial that a watchdog ended on stale input (a stalled machine).
 MAX_RERUNS = 2
 #: Seeds are disjoint from the training set's (simulate derives those from seed 0).
@@ -81,15 +84,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="(re)train the demo checkpoints into --models and exit")
     p.add_argument("--train-data", default="data/demo", help="scratch data for --train-models")
     p.add_argument("--stream", default=None,
-                   help="the aslip method's streaming checkpoint (default: --models)")
+                   help="aslip_stream: the streaming checkpoint (default: --models)")
     p.add_argument("--cnn", default=None,
                    help="aslip_window: window CNN checkpoint (default: --models)")
     p.add_argument("--cnn-uncalibrated", default=None,
                    help="window CNN checkpoint without calibration (default: --models)")
     p.add_argument("--svm", default=None, help="SVM checkpoint (default: --models)")
-    p.add_argument("--hybrid", default=None,
-                   help="aslip_hybrid: its checkpoint (default: the hybrid of the aslip and "
-                        "aslip_window checkpoints, written to --train-data)")
+    p.add_argument("--aslip", default=None,
+                   help="aslip: the default (hybrid) checkpoint (default: --models' "
+                        "aslip.pt where it was assembled from the aslip_stream and "
+                        "aslip_window checkpoints, else their hybrid assembled into "
+                        "--train-data)")
     p.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help=f"comma-separated methods out of {','.join(METHODS)}")
@@ -230,11 +235,12 @@ def plan_episodes(tasks, methods, objects, trials: int, checkpoints: dict,
 def resolve_models(args, methods=tuple(demo_models.MODELS)) -> dict:
     """Checkpoint per method: explicit, shipped and matching, or freshly trained."""
     d = Path(args.models)
-    explicit = {"aslip": args.stream, "aslip_window": args.cnn,
+    explicit = {"aslip_stream": args.stream, "aslip_window": args.cnn,
                 "aslip_uncalibrated": args.cnn_uncalibrated, "svm": args.svm}
     need = [m for m in methods if m in explicit]
-    if demo_models.HYBRID in methods and not args.hybrid:        # assembled from its parts
-        need += [m for m in demo_models.HYBRID_PARTS if m not in need]
+    default = demo_models.DEFAULT
+    if default in methods and not args.aslip:        # assembled from its parts
+        need += [m for m in demo_models.DEFAULT_PARTS if m not in need]
     if all(explicit[m] for m in need):
         out = {**{m: Path(p) for m, p in explicit.items() if p}, "source": "command line"}
     else:
@@ -249,10 +255,9 @@ def resolve_models(args, methods=tuple(demo_models.MODELS)) -> dict:
             source = f"shipped ({d / demo_models.MANIFEST})"
         out = {**{m: Path(p or d / man["files"][m]) for m, p in explicit.items()},
                "source": source, "test_metrics": man.get("test_metrics")}
-    if demo_models.HYBRID in methods:
-        out[demo_models.HYBRID] = Path(args.hybrid) if args.hybrid else \
-            demo_models.hybrid_checkpoint(*(out[m] for m in demo_models.HYBRID_PARTS),
-                                          Path(args.train_data) / demo_models.HYBRID_NAME)
+    if default in methods:
+        out[default] = Path(args.aslip) if args.aslip else demo_models.default_checkpoint(
+            d, *(out[m] for m in demo_models.DEFAULT_PARTS), args.train_data)
     return out
 
 

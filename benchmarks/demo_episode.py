@@ -492,7 +492,10 @@ def _spin_lockstep(ep: Episode, executor, sim, infer, ctl, rec, t_wall0: float,
         if not sim.lockstep_block():
             return "duration"
         blocks += 1
-        _spin_until(executor, probe, lambda: infer.blocks_in >= blocks and infer.idle()
+        # The model thread's end wakes no executor where it publishes nothing (a hybrid's
+        # window part): wait on the thread itself, not a spin's timeout.
+        _spin_until(executor, probe, lambda: infer.blocks_in >= blocks
+                    and infer.wait_idle(SPIN_TIMEOUT_S)
                     and ctl.slip_count + ctl.rejected_slip >= infer.published
                     and len(rec.slip) >= infer.published
                     and ctl.pose_count >= sim.tcp_published, "estimate for the block")

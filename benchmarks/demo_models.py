@@ -1,7 +1,9 @@
-"""The demo's checkpoints, trained on the scene: the package's estimator (``aslip``: the
-causal streaming model, one estimate per 10 ms hop, with the live per-grasp calibration),
-the 200 ms window CNN with and without that calibration (``aslip_window``,
-``aslip_uncalibrated``) and the SVM baseline (calibrated).
+"""The demo's checkpoints, trained on the scene: the causal streaming model (``aslip_stream``:
+one estimate per 10 ms hop, with the live per-grasp calibration), the 200 ms window CNN
+with and without that calibration (``aslip_window``, ``aslip_uncalibrated``) and the SVM
+baseline (calibrated); and the package's default estimator, ``aslip``: the hybrid of the
+streaming model and the window CNN (learn/models/aslip_hybrid.py, ``models/aslip.pt``),
+assembled from those two, not trained.
 
 ``python -m benchmarks.demo --train-models`` runs this: simulate externally induced slip on
 the five objects with the scene's microphones (4mic, 200 ms windows), mostly with the arm
@@ -10,8 +12,9 @@ moving and with a share of the agent's pushes twisting the object about the pad 
 gravity turns in the grasp (``gravity_pivot``), so every model learns the rotational output
 the pivot-stop task acts on (issue #21); export it, train the four models on the same
 trials, evaluate them on the held-out test trials and write ``models/aslip_stream.pt``,
-``models/aslip_cnn.pt``, ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt`` and
-``models/manifest.json`` (scene version, recipe, commands, metrics). A set is used only when
+``models/aslip_cnn.pt``, ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``, their
+hybrid ``models/aslip.pt`` and ``models/manifest.json`` (scene version, recipe, commands,
+metrics). A set is used only when
 every model in it was trained for the current scene version with the current recipe
 (manifest version 4); otherwise all are retrained, never mixed.
 
@@ -33,6 +36,7 @@ import sys
 import time
 from pathlib import Path
 
+from aslip_ros import node_table
 from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 from aslip_ros.util import write_json
 
@@ -56,38 +60,45 @@ MANIFEST_VERSION = 4
 #: The condition of the gravity-pivot trials (the arm holds still).
 PIVOT_CONDITION = "robot_stationary"
 #: Demo method -> (checkpoint file, ``aslip train`` stage, per-grasp calibration).
-MODELS = {"aslip": (STREAM_NAME, "stream", "background"),
+MODELS = {"aslip_stream": (STREAM_NAME, "stream", "background"),
           "aslip_window": (CNN_NAME, "scratch", "background"),
           "aslip_uncalibrated": (UNCALIBRATED_NAME, "scratch", "off"),
           "svm": (SVM_NAME, "svm", "background")}
 
 
-#: The hybrid of the set's streaming model and window CNN (learn/models/aslip_hybrid.py): no
-#: model of its own to train, it is assembled from theirs (``hybrid_checkpoint``).
-HYBRID = "aslip_hybrid"
-HYBRID_NAME = "aslip_hybrid.pt"
+#: The package's default estimator: the hybrid of the set's streaming model and window CNN
+#: (learn/models/aslip_hybrid.py, its default ``HybridConfig``), the one model both
+#: closed-loop launch files run (``node_table``). No model of its own to train: it is
+#: assembled from its parts (``hybrid_checkpoint``).
+DEFAULT = "aslip"
+DEFAULT_NAME = node_table.DEFAULT_MODEL
 #: Its parts, as demo methods: the streaming part and the window part.
-HYBRID_PARTS = ("aslip", "aslip_window")
+DEFAULT_PARTS = ("aslip_stream", "aslip_window")
 
 
 def hybrid_checkpoint(stream: str | Path, window: str | Path, out: str | Path) -> Path:
-    """The hybrid of two checkpoints (the default ``HybridConfig``: slip and rotation from
-    the stream part, the velocity from the window part), written to ``out`` (atomically)
-    when it is not there already from the same two files."""
-    from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
-    from aslip_ros.learn.models.aslip_hybrid import assemble
-    out = Path(out)
-    sources = {"stream": str(Path(stream).resolve()), "window": str(Path(window).resolve()),
-               "stream_sha256": _sha256(stream), "window_sha256": _sha256(window)}
-    try:
-        if load_checkpoint(out).meta.get("provenance", {}).get("assembled_from") == sources:
-            return out
-    except (OSError, ValueError):
-        pass
-    ck = assemble(load_checkpoint(stream), load_checkpoint(window))
-    ck.meta["provenance"] = {"assembled_from": sources}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    return Path(save_checkpoint(out, ck.meta, ck.tensors))
+    """The hybrid of two checkpoints (the default ``HybridConfig``: ``aslip hybrid``),
+    written to ``out`` (atomically) unless it is there already, assembled from the same two
+    files (their sha256; where they lay does not matter)."""
+    from aslip_ros.learn.models.aslip_hybrid import assembled_from, write_hybrid
+    if assembled_from(out) == _parts_sha256(stream, window):
+        return Path(out)
+    return write_hybrid(stream, window, out)
+
+
+def default_checkpoint(models_dir: str | Path, stream: str | Path, window: str | Path,
+                       scratch: str | Path) -> Path:
+    """The default estimator of these two parts: the shipped ``models_dir/aslip.pt`` where
+    it was assembled from them, else one assembled now into ``scratch``."""
+    from aslip_ros.learn.models.aslip_hybrid import assembled_from
+    shipped = Path(models_dir) / DEFAULT_NAME
+    if assembled_from(shipped) == _parts_sha256(stream, window):
+        return shipped
+    return hybrid_checkpoint(stream, window, Path(scratch) / DEFAULT_NAME)
+
+
+def _parts_sha256(stream: str | Path, window: str | Path) -> dict[str, str]:
+    return {"stream": _sha256(stream), "window": _sha256(window)}
 
 
 def _sha256(path: str | Path) -> str:
@@ -211,17 +222,22 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
         metrics[method].update({k: v for k, v in overall.items()
                                 if "rotation" in k and isinstance(v, (int, float))})
     files = {m: v[0] for m, v in MODELS.items()}
+    hybrid_checkpoint(*(out / files[m] for m in DEFAULT_PARTS), out / DEFAULT_NAME)
+    stream, window = (files[m] for m in DEFAULT_PARTS)
     man = {"format": "aslip-demo-models", "version": MANIFEST_VERSION,
            "scene_version": scene_version(),
            "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
-           "layout": DEFAULT_LAYOUT, "files": files,
+           "layout": DEFAULT_LAYOUT, "files": {**files, DEFAULT: DEFAULT_NAME},
            "calibration": {m: v[2] for m, v in MODELS.items()},
-           "train_commands": {m: "aslip " + " ".join(train_command(m, "D", f"models/{f}"))
-                              for m, f in files.items()},
-           "sizes_bytes": {f: (out / f).stat().st_size for f in files.values()},
+           "train_commands": {**{m: "aslip " + " ".join(train_command(m, "D", f"models/{f}"))
+                                 for m, f in files.items()},
+                              DEFAULT: f"aslip hybrid --stream models/{stream} --window "
+                                       f"models/{window} --out models/{DEFAULT_NAME}"},
+           "sizes_bytes": {f: (out / f).stat().st_size
+                           for f in list(files.values()) + [DEFAULT_NAME]},
            "test_metrics": metrics, "train_s_per_model": train_s,
            "train_s": round(time.perf_counter() - t0, 1),
            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
     write_json(out / MANIFEST, man)
-    _log(f"wrote {', '.join(files.values())} and {MANIFEST} in {out}")
+    _log(f"wrote {', '.join(man['files'].values())} and {MANIFEST} in {out}")
     return man

@@ -14,8 +14,8 @@ import numpy as np
 from aslip_ros.slip import DEFAULT_THRESHOLD
 from aslip_ros.util import atomic_path
 
-COLORS = {"aslip": "tab:green", "aslip_window": "tab:blue", "aslip_uncalibrated": "tab:purple",
-          "svm": "tab:orange", "aslip_hybrid": "tab:red"}
+COLORS = {"aslip": "tab:red", "aslip_stream": "tab:green", "aslip_window": "tab:blue",
+          "aslip_uncalibrated": "tab:purple", "svm": "tab:orange"}
 #: The slip-stop figure's zoom on the stop: the last seconds of each episode [s].
 ZOOM_S = 1.0
 

@@ -109,12 +109,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--models", default="models", help="directory of the shipped checkpoints")
     p.add_argument("--train-data", default="data/demo",
                    help="scratch data when the checkpoints must be trained first")
-    for opt, what in (("--stream", "the aslip method's streaming checkpoint"),
+    for opt, what in (("--stream", "aslip_stream: the streaming checkpoint"),
                       ("--cnn", "aslip_window: window CNN checkpoint"),
                       ("--cnn-uncalibrated", "window CNN checkpoint without calibration"),
                       ("--svm", "SVM checkpoint"),
-                      ("--hybrid", "aslip_hybrid: its checkpoint (default: assembled from the "
-                                   "aslip and aslip_window checkpoints)")):
+                      ("--aslip", "aslip: the default (hybrid) checkpoint (else assembled "
+                                  "from the aslip_stream and aslip_window checkpoints)")):
         p.add_argument(opt, default=None, help=f"{what} (default: --models)")
     p.add_argument("--stressors", default=None,
                    help="comma-separated stressors (default: every one the loop can run: "

@@ -1,7 +1,8 @@
 """The tail of the live path: ``make latency`` (``python -m benchmarks.tail_latency``).
 
-For every checkpoint (default: the three shipped ones; with ``--per-output MAIN SPEED`` also
-the ``per_output`` model of MAIN's outputs with SPEED's speed),
+For every checkpoint (default: the default hybrid ``models/aslip.pt`` and the three other
+shipped neural models; with ``--per-output MAIN SPEED`` also the ``per_output`` model of
+MAIN's outputs with SPEED's speed),
 ``node_bench.measure_node_latency`` runs ``audio_capture`` (simulated scene, 4 channels at
 48 kHz) and ``slip_inference`` as separate processes for ``--duration`` seconds, one
 checkpoint after the other (never two at once), optionally beside ``--hogs`` CPU-busy
@@ -29,10 +30,12 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
+from aslip_ros.node_table import DEFAULT_MODEL
 from aslip_ros.util import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
-MODELS = ("models/aslip_stream.pt", "models/aslip_cnn.pt", "models/aslip_cnn_uncalibrated.pt")
+MODELS = (f"models/{DEFAULT_MODEL}", "models/aslip_stream.pt", "models/aslip_cnn.pt",
+          "models/aslip_cnn_uncalibrated.pt")
 #: The node's steps (``step_<name>_*_ms`` in its diagnostics), in the order of the path.
 STEPS = ("queue", "features", "forward", "publish")
 STATS = ("p50", "p99", "p999", "max")

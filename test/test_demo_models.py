@@ -30,14 +30,15 @@ def test_the_uncalibrated_cnn_is_trained_without_calibration_and_the_others_with
                      if a not in ("off", "out/aslip_uncalibrated.pt")]
     assert _option(cmds["aslip_window"], "--stage") == "scratch"
     assert _option(cmds["svm"], "--stage") == "svm"
-    # The package's estimator, aslip: the streaming model, on the same trials, calibrated.
-    assert _option(cmds["aslip"], "--stage") == "stream"
-    assert _option(cmds["aslip"], "--calibration") == "background"
-    assert demo_models.MODELS["aslip"][0] == "aslip_stream.pt"
+    # The streaming model, on the same trials, calibrated.
+    assert _option(cmds["aslip_stream"], "--stage") == "stream"
+    assert _option(cmds["aslip_stream"], "--calibration") == "background"
+    assert demo_models.MODELS["aslip_stream"][0] == "aslip_stream.pt"
     # Every method of the demo has a model in the set, and the set nothing else, but for the
-    # hybrid, assembled from two of them.
-    assert set(demo_models.MODELS) | {demo_models.HYBRID} == set(demo.METHODS)
-    assert set(demo_models.HYBRID_PARTS) <= set(demo_models.MODELS)
+    # package's estimator, aslip, assembled from two of them.
+    assert demo_models.DEFAULT == "aslip" and "aslip" not in demo_models.MODELS
+    assert set(demo_models.MODELS) | {demo_models.DEFAULT} == set(demo.METHODS)
+    assert demo_models.DEFAULT_PARTS == ("aslip_stream", "aslip_window")
 
 
 def _write_set(d: Path, version: str, skip: str | None = None) -> dict:
@@ -127,7 +128,7 @@ def _args(models: Path, **kw) -> argparse.Namespace:
 def test_each_method_runs_its_own_checkpoint(tmp_path):
     _write_set(tmp_path, demo_models.scene_version())
     got = demo.resolve_models(_args(tmp_path))
-    assert got["aslip"] == tmp_path / demo_models.STREAM_NAME
+    assert got["aslip_stream"] == tmp_path / demo_models.STREAM_NAME
     assert got["aslip_window"] == tmp_path / demo_models.CNN_NAME
     assert got["aslip_uncalibrated"] == tmp_path / demo_models.UNCALIBRATED_NAME
     assert got["svm"] == tmp_path / demo_models.SVM_NAME
@@ -148,8 +149,8 @@ def test_a_stale_set_is_retrained_before_the_demo_runs(tmp_path, monkeypatch):
 
 def test_explicit_checkpoints_need_no_manifest(tmp_path):
     a = _args(tmp_path / "nothing", stream="a.pt", svm="s.pt")
-    got = demo.resolve_models(a, ("aslip", "svm"))
-    assert got["aslip"] == Path("a.pt") and got["svm"] == Path("s.pt")
+    got = demo.resolve_models(a, ("aslip_stream", "svm"))
+    assert got["aslip_stream"] == Path("a.pt") and got["svm"] == Path("s.pt")
     assert got["source"] == "command line"
     assert "aslip_uncalibrated" not in got          # not asked for, so not made up
 
@@ -170,8 +171,9 @@ def test_the_shipped_models_belong_to_this_scene_with_their_calibration():
             assert meta["calibration"]["method"] == calibration, method
 
 
-def test_the_demo_runs_the_package_estimator_first_beside_the_three_it_is_measured_by():
-    assert demo.DEFAULT_METHODS == ("aslip", "aslip_window", "aslip_uncalibrated", "svm")
+def test_the_demo_runs_the_package_estimator_first_beside_its_parts_and_two_baselines():
+    assert demo.DEFAULT_METHODS == ("aslip", "aslip_stream", "aslip_window",
+                                    "aslip_uncalibrated", "svm")
 
 
 def test_retraining_trains_every_model_and_records_its_scene(tmp_path, monkeypatch):
@@ -188,14 +190,26 @@ def test_retraining_trains_every_model_and_records_its_scene(tmp_path, monkeypat
         return 0
     (tmp_path / "data").mkdir()
     monkeypatch.setattr(demo_models, "aslip", fake_aslip)
+    assembled = []
+
+    def fake_hybrid(stream, window, out):
+        assembled.append((stream, window, out))
+        Path(out).write_bytes(b"hybrid")
+        return Path(out)
+    monkeypatch.setattr(demo_models, "hybrid_checkpoint", fake_hybrid)
     man = demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
     assert sorted(trained) == ["scratch", "scratch", "stream", "svm"]
     assert man["scene_version"] == demo_models.scene_version()
     assert man["version"] == demo_models.MANIFEST_VERSION
     assert man["recipe"]["twist_fraction"] == demo_models.RECIPE["twist_fraction"]
-    assert man["calibration"] == {"aslip": "background", "aslip_window": "background",
+    assert man["calibration"] == {"aslip_stream": "background", "aslip_window": "background",
                                   "aslip_uncalibrated": "off", "svm": "background"}
-    assert demo_models.shipped_models(tmp_path)["files"]["aslip"] == demo_models.STREAM_NAME
+    files = demo_models.shipped_models(tmp_path)["files"]
+    assert files["aslip_stream"] == demo_models.STREAM_NAME
+    assert files["aslip"] == demo_models.DEFAULT_NAME == "aslip.pt"
+    assert man["train_commands"]["aslip"].startswith("aslip hybrid --stream models/")
+    assert assembled == [(tmp_path / demo_models.STREAM_NAME, tmp_path / demo_models.CNN_NAME,
+                          tmp_path / "aslip.pt")]
 
 
 def test_track_settings_from_the_command_line_keep_their_types_and_refuse_unknown_names():
@@ -209,7 +223,7 @@ def test_track_settings_from_the_command_line_keep_their_types_and_refuse_unknow
         demo.settings_overrides(TrackSettings, ["gain=fast"])
 
 
-def test_the_hybrid_is_assembled_from_the_sets_stream_and_window_models(tmp_path):
+def test_the_default_is_the_hybrid_of_the_sets_stream_and_window_models(tmp_path):
     from aslip_ros.learn.checkpoint import load_checkpoint
     from node_support import make_checkpoint
     from test_learn_streaming_model import NAMES
@@ -219,20 +233,45 @@ def test_the_hybrid_is_assembled_from_the_sets_stream_and_window_models(tmp_path
     make_stream(models / demo_models.STREAM_NAME, threshold=0.5, angular=True)
     make_checkpoint(models / demo_models.CNN_NAME, channel_names=NAMES, angular=True)
     args = _args(models, train_data=str(data))
-    got = demo.resolve_models(args, ["aslip_hybrid"])[demo_models.HYBRID]
-    assert got == data / demo_models.HYBRID_NAME
+    # No aslip.pt in the set: assembled into the scratch folder.
+    got = demo.resolve_models(args, ["aslip"])["aslip"]
+    assert got == data / demo_models.DEFAULT_NAME
     hybrid, cnn = load_checkpoint(got), load_checkpoint(models / demo_models.CNN_NAME)
     assert hybrid.model_type == "aslip_hybrid"
+    assert hybrid.meta["model_config"]["detection"] == "latched"
     assert all((hybrid.tensors[f"window/{k}"] == v).all() for k, v in cnn.tensors.items())
-    # The same parts: the file is kept; another window model: assembled again.
+    # The same parts: the file is kept.
     stamp = got.stat().st_mtime_ns
-    assert demo.resolve_models(args, ["aslip_hybrid"])[demo_models.HYBRID] == got
+    assert demo.resolve_models(args, ["aslip"])["aslip"] == got
     assert got.stat().st_mtime_ns == stamp
+    # A shipped aslip.pt of these parts is run, wherever they were assembled from.
+    shipped = models / demo_models.DEFAULT_NAME
+    got.rename(shipped)
+    assert demo.resolve_models(args, ["aslip"])["aslip"] == shipped
+    # Another window model: the shipped one no longer fits, and a new one is assembled.
     make_checkpoint(models / demo_models.CNN_NAME, channel_names=NAMES, angular=True, seed=9)
-    demo.resolve_models(args, ["aslip_hybrid"])
-    cnn = load_checkpoint(models / demo_models.CNN_NAME)
-    hybrid = load_checkpoint(got)
+    got = demo.resolve_models(args, ["aslip"])["aslip"]
+    assert got == data / demo_models.DEFAULT_NAME
+    cnn, hybrid = load_checkpoint(models / demo_models.CNN_NAME), load_checkpoint(got)
     assert all((hybrid.tensors[f"window/{k}"] == v).all() for k, v in cnn.tensors.items())
     # One named on the command line is run as it is.
-    named = demo.resolve_models(_args(models, hybrid=str(tmp_path / "h.pt")), ["aslip_hybrid"])
-    assert named[demo_models.HYBRID] == tmp_path / "h.pt"
+    named = demo.resolve_models(_args(models, aslip=str(tmp_path / "h.pt")), ["aslip"])
+    assert named["aslip"] == tmp_path / "h.pt"
+
+
+def test_the_shipped_default_is_the_hybrid_of_the_shipped_parts():
+    """models/aslip.pt, the one checkpoint both closed-loop launch files run, was assembled
+    from the streaming model and the window CNN beside it."""
+    from aslip_ros import node_table
+    from aslip_ros.learn.checkpoint import load_checkpoint
+    d = ROOT / "models"
+    man = demo_models.shipped_models(d)
+    assert man is not None and man["files"]["aslip"] == node_table.DEFAULT_MODEL
+    assert {s.default_model for s in node_table.nodes().values() if s.drives_arm
+            and s.default_model} == {node_table.DEFAULT_MODEL}
+    ck = load_checkpoint(d / node_table.DEFAULT_MODEL)
+    assert ck.model_type == "aslip_hybrid" and "wy" in ck.meta["outputs"]
+    from aslip_ros.learn.models.aslip_hybrid import assembled_from
+    assert assembled_from(d / node_table.DEFAULT_MODEL) == {
+        "stream": demo_models._sha256(d / demo_models.STREAM_NAME),
+        "window": demo_models._sha256(d / demo_models.CNN_NAME)}

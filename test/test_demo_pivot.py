@@ -138,7 +138,7 @@ def test_the_pivot_rows_reach_summary_json_and_table_md(tmp_path, monkeypatch):
     p = argparse.ArgumentParser()
     demo.add_arguments(p)
     args = p.parse_args(["--out", str(tmp_path / "out"), "--tasks", "pivot_stop",
-                         "--trials", "2", "--objects", "chips_can", "--stream", str(ckpt),
+                         "--trials", "2", "--objects", "chips_can", "--aslip", str(ckpt),
                          "--no-plots", "--no-progress"])
     assert demo.run(args) == 0
     assert len(seen) == 4 and {e.checkpoint for e in seen} == {str(ckpt)}

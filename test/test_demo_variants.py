@@ -14,8 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from aslip_ros.node_table import DEFAULT_MODEL
+
 ROOT = Path(__file__).resolve().parents[1]
-STREAM = ROOT / "models" / "aslip_stream.pt"
+#: The package's default estimator (the hybrid), as both closed-loop launch files run it.
+DEFAULT = ROOT / "models" / DEFAULT_MODEL
 #: What the issue asks the loop to run under at least.
 ASKED = {"default", "contact", "confounders", "one_sided", "mocap", "robot2x", "robot4x"}
 
@@ -24,7 +27,7 @@ def _episode(variant=None, robot_noise_x=1.0, task="slip_stop", obj="cracker_box
     from benchmarks.demo import SEED_BASE
     from benchmarks.demo_episode import Episode
     from benchmarks.demo_models import OBJECTS
-    return Episode(task, "aslip", str(STREAM), obj, 0,
+    return Episode(task, "aslip", str(DEFAULT), obj, 0,
                    SEED_BASE[task] + 100 * OBJECTS.index(obj), variant=variant,
                    robot_noise_x=robot_noise_x)
 
@@ -109,7 +112,7 @@ def variant_stop():
     """One slip-stop episode of the package's estimator in the confounders variant with the
     arm's noise twice as loud again."""
     from benchmarks.demo_episode import run_episode
-    assert STREAM.is_file(), STREAM
+    assert DEFAULT.is_file(), DEFAULT
     return run_episode(_episode("confounders", 2.0))
 
 

@@ -248,8 +248,11 @@ def test_closed_loop_defaults_use_the_shipped_model(launch_file):
     assert all(handles_exit(ev, n[3]) for n in ev.nodes)
     ckpt = nodes["slip_inference"]["checkpoint"]
     share = get_package_share_directory("aslip_ros")
-    want = {"slip_stop.launch.py": "aslip_stream.pt", "slip_track.launch.py": "aslip_cnn.pt"}
-    assert ckpt == os.path.join(share, "models", want[launch_file])
+    # Both tasks run the package's one default estimator, the one make demo runs as aslip.
+    from aslip_ros.node_table import DEFAULT_MODEL
+    from benchmarks import demo_models
+    assert ckpt == os.path.join(share, "models", DEFAULT_MODEL)
+    assert demo_models.DEFAULT == "aslip" and demo_models.DEFAULT_NAME == DEFAULT_MODEL
     assert Path(ckpt).is_file(), f"{ckpt} is not installed"
     assert {"scene_sim", "slip_inference", "mocap_bridge", launch_file.split(".")[0]} == \
         set(nodes)

@@ -48,7 +48,7 @@ def test_a_hybrid_checkpoint_round_trips_and_opens_as_one_estimator(parts, tmp_p
     path = _hybrid(parts, tmp_path)
     ck = load_checkpoint(path)
     assert ck.model_type == "aslip_hybrid" and sorted(ck.meta["parts"]) == ["stream", "window"]
-    assert ck.meta["model_config"]["detection"] == "stream"
+    assert ck.meta["model_config"]["detection"] == "latched"
     assert ck.meta["threshold"] == 0.0                      # the stream part's
     est = open_estimator(path)
     assert isinstance(est, HybridEstimator) and est.streaming and est.runs_windows
@@ -92,11 +92,41 @@ def test_either_part_may_say_slip_at_its_own_threshold(parts, tmp_path):
         assert e.prediction.probability == pytest.approx(FIXED_P, abs=1e-5)
         assert e.prediction.threshold == 0.5
     assert all(e.prediction.threshold == 1.0 for e in got if not e.prediction.slipping)
-    # Detection by the stream part alone (the default): it never says slip, whatever the
-    # window says.
-    _, alone = _run(_hybrid(parts, tmp_path, stream="never"), blocks)
+    # Detection by the stream part alone: it never says slip, whatever the window says.
+    _, alone = _run(_hybrid(parts, tmp_path, stream="never", detection="stream"), blocks)
     assert len(alone) == len(got) and not any(e.prediction.slipping for e in alone)
     assert all(e.prediction.vx == 0.0 and e.prediction.vz == 0.0 for e in alone)
+
+
+def test_latched_the_stream_part_starts_a_slip_and_either_part_keeps_it(parts, tmp_path):
+    blocks = recorded_stream(STREAM_NAMES, seconds=0.4)
+    half = len(blocks) // 2
+
+    def run(detection, stream="always"):
+        est = open_estimator(_hybrid(parts, tmp_path, stream=stream, detection=detection))
+        first = [e for b in blocks[:half] for e in est.feed(b)]
+        est.set_threshold(1.0)              # from here the stream part never says slip
+        return est, first, [e for b in blocks[half:] for e in est.feed(b)]
+
+    est, first, then = run("latched")
+    assert first and all(e.prediction.slipping for e in first)
+    assert first[-1].prediction.threshold == 0.0            # the stream part's slip
+    # The window part keeps it: its p(slip) and threshold, its velocity.
+    assert then and all(e.prediction.slipping for e in then)
+    for e in then:
+        assert e.prediction.probability == pytest.approx(FIXED_P, abs=1e-5)
+        assert e.prediction.threshold == 0.5
+        assert (e.prediction.vx, e.prediction.vz) == pytest.approx((0.0, 0.02), abs=1e-5)
+    # Once the slip ends (a new grasp here), the window alone starts none.
+    est.new_grasp("test")
+    assert not any(e.prediction.slipping for b in blocks for e in est.feed(b))
+    # Nor did it ever, with a stream part that never says slip; the stream part alone
+    # ends the slip when it stops saying it.
+    _, first, then = run("latched", stream="never")
+    assert not any(e.prediction.slipping for e in first + then)
+    _, first, then = run("stream")
+    assert all(e.prediction.slipping for e in first)
+    assert not any(e.prediction.slipping for e in then)
 
 
 def test_a_window_estimate_older_than_the_limit_is_not_used(parts, tmp_path):
@@ -166,6 +196,13 @@ def test_aslip_hybrid_writes_a_checkpoint_slip_inference_runs(parts, tmp_path, c
     assert "direction stream+window" in capsys.readouterr().out
     est = open_estimator(tmp_path / "h.pt")
     assert isinstance(est, HybridEstimator) and est.cfg.direction == "stream+window"
+    # It names its parts by their content, so a copy elsewhere is known as theirs.
+    import hashlib
+    from aslip_ros.learn.models.aslip_hybrid import assembled_from
+    assert assembled_from(tmp_path / "h.pt") == {
+        n: hashlib.sha256((tmp_path / f).read_bytes()).hexdigest()
+        for n, f in (("stream", "always.pt"), ("window", "fixed.pt"))}
+    assert assembled_from(tmp_path / "always.pt") is None
     # Parts the wrong way round: one line, exit 1, nothing written.
     wrong = ["hybrid", "--stream", str(tmp_path / "fixed.pt"), "--window",
              str(tmp_path / "always.pt"), "--out", str(tmp_path / "bad.pt")]

@@ -135,8 +135,10 @@ def test_a_slow_window_model_supersedes_hops_and_keeps_their_stamps(rclpy_contex
         msgs = _blocks(60)
         for m in msgs:
             node._on_audio(m)
+        # The model thread holds a window: not idle, however long one waits for it.
+        assert not node.idle() and not node.wait_idle(0.05)
         gate.set()
-        assert _wait(lambda: node.idle())
+        assert node.wait_idle(10.0) and node.idle()
         assert node.est.report()["values"]["hops_superseded"] > 0
         with lock:
             stamps = list(sent)

@@ -35,11 +35,12 @@ import numpy as np
 from aslip_ros.audio_frame import NS_PER_S, AudioData
 from aslip_ros.bringup.verdict import Verdict
 from aslip_ros.control.command import apply_command
+from aslip_ros.node_table import DEFAULT_MODEL
 
 #: The shipped checkpoints measured when none is given (``models/`` of the checkout, else
 #: of the install's ``share/aslip_ros``).
-DEFAULT_CHECKPOINTS = ("aslip_stream.pt", "aslip_cnn.pt", "aslip_cnn_uncalibrated.pt",
-                       "svm.pt")
+DEFAULT_CHECKPOINTS = (DEFAULT_MODEL, "aslip_stream.pt", "aslip_cnn.pt",
+                       "aslip_cnn_uncalibrated.pt", "svm.pt")
 #: Seconds of audio measured per checkpoint [s].
 DEFAULT_DURATION_S = 5.0
 #: OK when the per-hop p99 is at most this fraction of the hop.

@@ -447,8 +447,15 @@ class SlipInference(Node):
     def idle(self) -> bool:
         """True when no window waits for the model and the model thread is not on one (a
         streaming model works in the audio callback: always idle between callbacks)."""
+        return self.wait_idle(0.0)
+
+    def wait_idle(self, timeout_s: float) -> bool:
+        """Wait at most ``timeout_s`` for :meth:`idle`; whether it is. For a caller that
+        must know the model thread is done without an event to wake it: a hybrid's window
+        part publishes nothing of its own."""
         with self._wake:
-            return self._job is None and not self._running
+            return self._wake.wait_for(lambda: self._job is None and not self._running,
+                                       timeout_s)
 
     def destroy_node(self) -> None:
         """Stop the model thread, then destroy the node."""

@@ -29,7 +29,8 @@ from aslip_ros.learn.checkpoint import Checkpoint, estimates_rotation, load_chec
 from aslip_ros.learn.inference.live import (Estimate, Event, Job, LiveConfig, LiveEstimator,
                                             load_predictor)
 from aslip_ros.learn.inference.predictor import Prediction
-from aslip_ros.learn.models.aslip_hybrid import EITHER, STREAM, WINDOW, HybridBackend
+from aslip_ros.learn.models.aslip_hybrid import (EITHER, LATCHED, STREAM, WINDOW,
+                                                 HybridBackend)
 from aslip_ros.learn.models.per_output import combine, members, role_outputs
 
 
@@ -107,6 +108,7 @@ class HybridEstimator:
         self.max_age_ns = int(round(self.cfg.max_window_age_s * 1e9))
         self.predictor = _Facts(self)
         self._latest: Optional[Estimate] = None     # the newest window estimate (``run``)
+        self._slipping = False                      # the last hop's decision (``latched``)
         self.merged = 0                             # hops that read a window estimate
 
     # --- settings, shared by both parts ---------------------------------------------------
@@ -194,11 +196,11 @@ class HybridEstimator:
     def restart(self, reason: str) -> None:
         self.stream.restart(reason)
         self.window.restart(reason)
-        self._latest = None
+        self._latest, self._slipping = None, False
 
     def new_grasp(self, reason: str) -> bool:
         stream, window = self.stream.new_grasp(reason), self.window.new_grasp(reason)
-        self._latest = None
+        self._latest, self._slipping = None, False
         return stream or window
 
     # --- the estimates --------------------------------------------------------------------
@@ -228,8 +230,10 @@ class HybridEstimator:
         part = self.cfg.detection
         if win is None:
             part = STREAM
-        elif part == EITHER:
-            part = STREAM if hop.prediction.slipping or not win.prediction.slipping else WINDOW
+        elif part == EITHER or part == LATCHED:
+            keeps = part == EITHER or self._slipping
+            part = (WINDOW if keeps and win.prediction.slipping
+                    and not hop.prediction.slipping else STREAM)
         return part, (self.stream if part == STREAM else self.window).threshold
 
     def _merge(self, hop: Estimate) -> Estimate:
@@ -243,7 +247,7 @@ class HybridEstimator:
             self.merged += 1
         prob, v, rate = combine(role_outputs(roles, outs))
         p, s = float(prob[0]), hop.prediction
-        slipping = p >= t
+        slipping = self._slipping = p >= t
         vx, vz = (float(v[0, 0]), float(v[0, 1])) if slipping else (0.0, 0.0)
         speed = float(np.hypot(vx, vz))
         sigma_from = win if fresh and WINDOW in members(roles["direction"]) else hop

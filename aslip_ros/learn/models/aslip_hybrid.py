@@ -15,17 +15,21 @@ The checkpoint holds the two parts' whole documents under ``parts`` (``stream``,
 ``per_output`` checkpoint does. ``model_config`` names the part of each role: ``stream``,
 ``window`` or ``stream+window`` (their mean: ``per_output.combine``). The detection is one
 part's, or ``either``'s: slip when either part says so at its own threshold, the estimate
-then taking p(slip) and threshold from the part that said it (the stream part's first). The
-checkpoint's threshold and output calibration are the stream part's under ``either``. The
+then taking p(slip) and threshold from the part that said it (the stream part's first), or
+``latched``'s: only the stream part starts a slip, and while one goes on either part keeps
+it (a window estimate alone never starts one). The checkpoint's threshold and output
+calibration are the stream part's under ``either`` and ``latched``. The
 top-level stream facts (rate, channels, window, features) are the window part's: the
 longest audio any estimate reads. Build one with ``assemble``.
 
-The default (``HybridConfig()``): the stream part detects and gives the rotation, the
-window part the speed and the direction. In the closed loop (docs/results.md, "One
+The default (``HybridConfig()``): the stream part starts a slip and either part keeps it
+(``latched``), the window part gives the speed and the direction, the stream part the
+rotation. It is the package's default estimator (``aslip``: ``models/aslip.pt``, run by
+both closed-loop launch files and ``make demo``). In the closed loop (docs/results.md, "One
 estimator for both tasks") it stops as the streaming model does, also at 4x the robot's
-noise, where ``either`` and the window CNN stop early on the approach (15/15 against
-6/15), and it tracks better than the streaming model (6.7 against 10.6 mm; 12.5 against
-21.2 at 4x) but worse than the window CNN on the default scene (5.7 mm).
+noise, where ``either`` and the window CNN stop early on the approach (15/15 against 6/15),
+and it tracks as the window CNN does (7.6 against 7.4 mm over 50 slip-tracks; the stream
+part's detection alone 8.4, the streaming model 11.6).
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
+import hashlib
+import os
 from pathlib import Path
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -47,6 +53,9 @@ STREAM, WINDOW = "stream", "window"
 PARTS = (STREAM, WINDOW)
 #: The detection of either part: slip when either says so (module docstring).
 EITHER = "either"
+#: The stream part starts a slip, either part keeps it going (module docstring).
+LATCHED = "latched"
+DETECTIONS = PARTS + (EITHER, LATCHED)
 #: What a role may name: one part, or the blend of both.
 CHOICES = (STREAM, WINDOW, STREAM + BLEND + WINDOW)
 #: The stream facts both parts must share with the checkpoint.
@@ -58,7 +67,7 @@ class HybridConfig:
     """Which part gives each output, and how old a window estimate may be to be used [s]
     (counted on the stream clock, from its window's last sample to the hop's)."""
 
-    detection: str = STREAM
+    detection: str = LATCHED
     speed: str = WINDOW
     direction: str = WINDOW
     rotation: str | None = STREAM
@@ -71,8 +80,8 @@ class HybridConfig:
                 continue
             if name not in CHOICES:
                 raise ValueError(f"{role} must be one of {CHOICES}, got {name!r}")
-        if self.detection not in PARTS + (EITHER,):
-            raise ValueError(f"detection must be one of {PARTS + (EITHER,)}, got "
+        if self.detection not in DETECTIONS:
+            raise ValueError(f"detection must be one of {DETECTIONS}, got "
                              f"{self.detection!r}")
         if not 0.0 < self.max_window_age_s <= 10.0:
             raise ValueError(f"max_window_age_s must be in (0, 10], got {self.max_window_age_s}")
@@ -88,7 +97,7 @@ class HybridConfig:
     @property
     def threshold_part(self) -> str:
         """The part whose threshold is the checkpoint's (and the ``threshold`` parameter's)."""
-        return STREAM if self.detection == EITHER else self.detection
+        return STREAM if self.detection in (EITHER, LATCHED) else self.detection
 
 
 def assemble(stream: Checkpoint, window: Checkpoint,
@@ -172,6 +181,38 @@ class HybridBackend:
                          for n in PARTS})
 
 
+def _sha256(path: str | os.PathLike) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def assembled_from(path: str | os.PathLike) -> dict[str, str] | None:
+    """The sha256 of the two files a hybrid checkpoint was assembled from (``stream``,
+    ``window``), as :func:`write_hybrid` recorded them; None for any other file."""
+    from aslip_ros.learn.checkpoint import load_checkpoint
+    try:
+        src = load_checkpoint(path).meta.get("provenance", {}).get("assembled_from")
+    except (OSError, ValueError):
+        return None
+    if not isinstance(src, dict):
+        return None
+    return {n: src.get(f"{n}_sha256") for n in PARTS}
+
+
+def write_hybrid(stream: str | os.PathLike, window: str | os.PathLike,
+                 out: str | os.PathLike, config: HybridConfig = HybridConfig()) -> Path:
+    """Assemble the hybrid of two checkpoint files and write it to ``out`` (atomically),
+    recording the parts' names and sha256 in ``provenance.assembled_from``. OSError /
+    ValueError when a part is unreadable or they make no hybrid."""
+    from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
+    ck = assemble(load_checkpoint(stream), load_checkpoint(window), config)
+    out = Path(out)
+    ck.meta["provenance"] = {"assembled_from": {
+        "stream": Path(stream).name, "window": Path(window).name,
+        "stream_sha256": _sha256(stream), "window_sha256": _sha256(window)}}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return Path(save_checkpoint(out, ck.meta, ck.tensors))
+
+
 # --- ``aslip hybrid`` ------------------------------------------------------------------------
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -181,9 +222,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--window", required=True,
                    help="the window checkpoint (aslip train), of the same stream")
     p.add_argument("--out", required=True, help="the hybrid checkpoint to write")
-    p.add_argument("--detection", choices=PARTS + (EITHER,), default=d.detection,
+    p.add_argument("--detection", choices=DETECTIONS, default=d.detection,
                    help="the part that says slip; either: slip when either part does, at "
-                        "its own threshold")
+                        "its own threshold; latched: the stream part starts a slip and "
+                        "either part keeps it")
     for role in ("speed", "direction"):
         p.add_argument(f"--{role}", choices=CHOICES, default=getattr(d, role),
                        help=f"the part that gives the {role} ({STREAM + BLEND + WINDOW}: "
@@ -197,14 +239,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
     cfg = HybridConfig(detection=args.detection, speed=args.speed, direction=args.direction,
                        rotation=None if args.rotation == "none" else args.rotation,
                        max_window_age_s=args.max_window_age)
-    ck = assemble(load_checkpoint(args.stream), load_checkpoint(args.window), cfg)
-    ck.meta["provenance"] = {"assembled_from": {"stream": str(Path(args.stream).resolve()),
-                                                "window": str(Path(args.window).resolve())}}
-    out = save_checkpoint(args.out, ck.meta, ck.tensors)
+    out = write_hybrid(args.stream, args.window, args.out, cfg)
     roles = ", ".join(f"{r} {n}" for r, n in cfg.roles().items())
     print(f"wrote {out}: {roles}")
     return 0
