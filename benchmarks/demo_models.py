@@ -80,8 +80,8 @@ def hybrid_checkpoint(stream: str | Path, window: str | Path, out: str | Path) -
     """The hybrid of two checkpoints (the default ``HybridConfig``: ``aslip hybrid``),
     written to ``out`` (atomically) unless it is there already, assembled from the same two
     files (their sha256; where they lay does not matter)."""
-    from aslip_ros.learn.models.aslip_hybrid import assembled_from, write_hybrid
-    if assembled_from(out) == _parts_sha256(stream, window):
+    from aslip_ros.learn.models.aslip_hybrid import assembled_from, parts_sha256, write_hybrid
+    if assembled_from(out) == parts_sha256(stream, window):
         return Path(out)
     return write_hybrid(stream, window, out)
 
@@ -90,19 +90,11 @@ def default_checkpoint(models_dir: str | Path, stream: str | Path, window: str |
                        scratch: str | Path) -> Path:
     """The default estimator of these two parts: the shipped ``models_dir/aslip.pt`` where
     it was assembled from them, else one assembled now into ``scratch``."""
-    from aslip_ros.learn.models.aslip_hybrid import assembled_from
+    from aslip_ros.learn.models.aslip_hybrid import assembled_from, parts_sha256
     shipped = Path(models_dir) / DEFAULT_NAME
-    if assembled_from(shipped) == _parts_sha256(stream, window):
+    if assembled_from(shipped) == parts_sha256(stream, window):
         return shipped
     return hybrid_checkpoint(stream, window, Path(scratch) / DEFAULT_NAME)
-
-
-def _parts_sha256(stream: str | Path, window: str | Path) -> dict[str, str]:
-    return {"stream": _sha256(stream), "window": _sha256(window)}
-
-
-def _sha256(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def scene_version() -> str:

@@ -181,8 +181,10 @@ class HybridBackend:
                          for n in PARTS})
 
 
-def _sha256(path: str | os.PathLike) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+def parts_sha256(stream: str | os.PathLike, window: str | os.PathLike) -> dict[str, str]:
+    """The sha256 of two part files, as :func:`assembled_from` gives them back."""
+    return {n: hashlib.sha256(Path(p).read_bytes()).hexdigest()
+            for n, p in zip(PARTS, (stream, window))}
 
 
 def assembled_from(path: str | os.PathLike) -> dict[str, str] | None:
@@ -206,9 +208,10 @@ def write_hybrid(stream: str | os.PathLike, window: str | os.PathLike,
     from aslip_ros.learn.checkpoint import load_checkpoint, save_checkpoint
     ck = assemble(load_checkpoint(stream), load_checkpoint(window), config)
     out = Path(out)
+    sha = parts_sha256(stream, window)
     ck.meta["provenance"] = {"assembled_from": {
         "stream": Path(stream).name, "window": Path(window).name,
-        "stream_sha256": _sha256(stream), "window_sha256": _sha256(window)}}
+        "stream_sha256": sha[STREAM], "window_sha256": sha[WINDOW]}}
     out.parent.mkdir(parents=True, exist_ok=True)
     return Path(save_checkpoint(out, ck.meta, ck.tensors))
 
