@@ -10,12 +10,15 @@ cores. Run it from a shell where `make test` works (install/ and, for the launch
 the launch stack sourced; the Makefile target does that). Prints, per test that did not
 pass every time, its passes, failures, errors and skips over the runs, then the totals and
 the wall time of each run; exit status 1 when any test failed or erred in any run.
+The junit report and the whole pytest output of every run with a failure are kept in
+``--keep`` (default ``results/flake_hunt``), so a failure seen once can be read in full.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -36,11 +39,12 @@ def outcomes(junit: Path) -> tuple[dict, dict]:
                     else "skipped" if "skipped" in kinds else "passed")
         bad = kinds.get("failure", kinds.get("error"))
         if bad is not None:
-            why[tid] = (bad.get("message") or "").splitlines()[:3]
+            why[tid] = [ln for ln in (bad.get("message") or "").splitlines() if ln.strip()][:3]
     return out, why
 
 
-def hunt(runs: int, hogs: int, pytest_args: list, marker: str = "processes") -> int:
+def hunt(runs: int, hogs: int, pytest_args: list, marker: str = "processes",
+         keep: Path = Path("results/flake_hunt")) -> int:
     tally: dict = collections.defaultdict(collections.Counter)
     walls = []
     hog_procs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL) for _ in range(hogs)]
@@ -48,12 +52,13 @@ def hunt(runs: int, hogs: int, pytest_args: list, marker: str = "processes") -> 
         with tempfile.TemporaryDirectory(prefix="aslip_flake_hunt_") as tmp:
             for k in range(runs):
                 junit = Path(tmp) / f"run{k}.xml"
+                log = Path(tmp) / f"run{k}.log"
                 # -P: the repository root must not shadow the built package on sys.path.
                 cmd = [sys.executable, "-P", "-m", "pytest", "test", "-m", marker, "-q",
                        "-p", "no:cacheprovider", f"--junitxml={junit}", *pytest_args]
                 t0 = time.monotonic()
-                rc = subprocess.call(cmd, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.DEVNULL)
+                with open(log, "wb") as out:
+                    rc = subprocess.call(cmd, stdout=out, stderr=subprocess.STDOUT)
                 walls.append(time.monotonic() - t0)
                 if not junit.exists():
                     print(f"run {k + 1}: pytest exited {rc} without a report", flush=True)
@@ -66,6 +71,12 @@ def hunt(runs: int, hogs: int, pytest_args: list, marker: str = "processes") -> 
                       f"{walls[-1]:.0f} s{' : ' + ', '.join(bad) if bad else ''}", flush=True)
                 for tid in bad:
                     print(f"  {tid}: " + " / ".join(why.get(tid, [])), flush=True)
+                if bad:
+                    keep.mkdir(parents=True, exist_ok=True)
+                    stamp = time.strftime("%Y%m%d-%H%M%S")
+                    for src in (junit, log):
+                        shutil.copy(src, keep / f"{stamp}-{src.name}")
+                    print(f"  kept: {keep / stamp}-run{k}.xml and .log", flush=True)
     finally:
         for p in hog_procs:
             p.kill()
@@ -93,12 +104,15 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=5, help="pytest sessions (default 5)")
     ap.add_argument("--hogs", type=int, default=2, help="CPU-busy processes (default 2)")
     ap.add_argument("--marker", default="processes", help="the tier (default processes)")
+    ap.add_argument("--keep", type=Path, default=Path("results/flake_hunt"),
+                    help="where the reports of runs with a failure go")
     ap.add_argument("pytest_args", nargs=argparse.REMAINDER,
                     help="passed to pytest, e.g. -k inference")
     a = ap.parse_args(argv)
     if a.runs < 1 or a.hogs < 0:
         ap.error("--runs must be >= 1 and --hogs >= 0")
-    return hunt(a.runs, a.hogs, [x for x in a.pytest_args if x != "--"], a.marker)
+    return hunt(a.runs, a.hogs, [x for x in a.pytest_args if x != "--"], a.marker,
+                a.keep)
 
 
 if __name__ == "__main__":

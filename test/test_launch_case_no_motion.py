@@ -71,3 +71,25 @@ def test_a_moving_command_sent_after_the_stop_fails_the_check():
     probe.add("cmd", _twist(0.01, t_stop + 50_000_000), t_stop + 51_000_000)
     with pytest.raises(AssertionError, match="1 moving arm commands sent after the stop"):
         lc.assert_no_motion_after_stop(probe)
+
+
+class _Exited:
+    def __init__(self, name: str, code: int) -> None:
+        self.process_name, self.returncode = name, code
+
+
+class _Output:
+    def __init__(self, text: bytes) -> None:
+        self.text = text
+
+
+def test_an_unclean_exit_names_the_process_its_code_and_its_last_output():
+    lc = _launch_case()
+    lc.assert_clean_exit([_Exited("scene_sim-1", 0), _Exited("aslip-2", -2)], {})
+    output = {"slip_inference-3": [_Output(b"ready\n"), _Output(b"shutdown took over 4 s\n")]}
+    with pytest.raises(AssertionError) as err:
+        lc.assert_clean_exit([_Exited("scene_sim-1", 0), _Exited("slip_inference-3", 1)],
+                             output)
+    text = str(err.value)
+    assert "slip_inference-3 (1)" in text and "scene_sim-1" not in text
+    assert "shutdown took over 4 s" in text

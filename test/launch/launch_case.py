@@ -241,10 +241,32 @@ def post_shutdown_test():
     return launch_testing.post_shutdown_test()
 
 
-def assert_clean_exit(proc_info) -> None:
-    """Every process exited 0 (or died of the launch's SIGINT), none was killed."""
-    import launch_testing.asserts
-    launch_testing.asserts.assertExitCodes(proc_info, allowable_exit_codes=[0, -2])
+#: Exit codes of a clean end: 0, or death by the launch's SIGINT.
+CLEAN_EXIT_CODES = (0, -2)
+
+
+def assert_clean_exit(proc_info, proc_output=None, tail_lines: int = 40) -> None:
+    """Every process exited 0 (or died of the launch's SIGINT), none was killed.
+
+    The failure names every process that did not, with its code and, given
+    ``proc_output``, the last ``tail_lines`` lines it wrote: a failure seen once under
+    load must say which node and why."""
+    bad = [(str(info.process_name), info.returncode) for info in proc_info
+           if info.returncode not in CLEAN_EXIT_CODES]
+    if not bad:
+        return
+    parts = []
+    for name, code in bad:
+        parts.append(f"{name} exited with code {code}")
+        if proc_output is not None:
+            try:
+                text = b"".join(io.text for io in proc_output[name]).decode(errors="replace")
+            except KeyError:
+                text = ""
+            tail = text.splitlines()[-tail_lines:]
+            parts.append("  last output:\n    " + "\n    ".join(tail or ["(none)"]))
+    raise AssertionError("not every process exited cleanly: " + "; ".join(
+        f"{n} ({c})" for n, c in bad) + "\n" + "\n".join(parts))
 
 
 def final_result_time(probe: Probe):

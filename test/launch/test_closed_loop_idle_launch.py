@@ -48,9 +48,9 @@ class TestIdleController(unittest.TestCase):
 class TestShutdown(unittest.TestCase):
     """Every node exits cleanly on SIGINT."""
 
-    def test_exit_codes(self, proc_info):
+    def test_exit_codes(self, proc_info, proc_output):
         try:
-            lc.assert_clean_exit(proc_info)
+            lc.assert_clean_exit(proc_info, proc_output)
         finally:
             if "probe" in PROBE:
                 PROBE["probe"].close()

@@ -47,8 +47,8 @@ class TestCollection(unittest.TestCase):
 class TestBag(unittest.TestCase):
     """Clean exits, and a readable bag of every stream."""
 
-    def test_exit_codes(self, proc_info):
-        lc.assert_clean_exit(proc_info)
+    def test_exit_codes(self, proc_info, proc_output):
+        lc.assert_clean_exit(proc_info, proc_output)
 
     def test_bag_holds_every_stream(self):
         from aslip_ros.data.bags import BagReader

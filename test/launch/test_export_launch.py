@@ -43,8 +43,8 @@ class TestExport(unittest.TestCase):
 class TestDataset(unittest.TestCase):
     """`aslip export` succeeded and wrote the dataset."""
 
-    def test_exit_codes(self, proc_info):
-        lc.assert_clean_exit(proc_info)
+    def test_exit_codes(self, proc_info, proc_output):
+        lc.assert_clean_exit(proc_info, proc_output)
 
     def test_dataset_written(self):
         try:

@@ -62,9 +62,9 @@ class TestShutdown(unittest.TestCase):
     def test_rviz_runs_where_installed(self, proc_info):
         lc.assert_rviz_started_where_installed(proc_info)
 
-    def test_exit_codes(self, proc_info):
+    def test_exit_codes(self, proc_info, proc_output):
         try:
-            lc.assert_clean_exit(proc_info)
+            lc.assert_clean_exit(proc_info, proc_output)
         finally:
             if "probe" in PROBE:
                 PROBE["probe"].close()

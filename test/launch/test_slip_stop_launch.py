@@ -52,8 +52,8 @@ class TestSlipStop(unittest.TestCase):
 class TestShutdown(unittest.TestCase):
     """Every node exits cleanly on SIGINT; no moving command after the result."""
 
-    def test_exit_codes(self, proc_info):
-        lc.assert_clean_exit(proc_info)
+    def test_exit_codes(self, proc_info, proc_output):
+        lc.assert_clean_exit(proc_info, proc_output)
 
     def test_rviz_runs_where_installed(self, proc_info):
         lc.assert_rviz_started_where_installed(proc_info)

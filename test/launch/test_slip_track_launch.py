@@ -65,8 +65,8 @@ class TestSlipTrack(unittest.TestCase):
 class TestShutdown(unittest.TestCase):
     """Every node exits cleanly on SIGINT; the last arm command is a stop."""
 
-    def test_exit_codes(self, proc_info):
-        lc.assert_clean_exit(proc_info)
+    def test_exit_codes(self, proc_info, proc_output):
+        lc.assert_clean_exit(proc_info, proc_output)
 
     def test_last_arm_command_is_a_stop(self):
         probe = PROBE.get("probe")
