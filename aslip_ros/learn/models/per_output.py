@@ -22,7 +22,9 @@ trained with the calibration (their ``calibration`` must equal the checkpoint's)
 those trained without. A part is a window model (no streaming one, no ``per_output``) of the
 checkpoint's rate, channels and window. The metrics of the combination are the parts':
 detection reads only p(slip), the speed error only the velocity's norm and the direction
-error only its angle (learn/metrics.py).
+error only its angle (learn/metrics.py). A part that gives only the speed, and can give it
+alone (an SVM: ``predict_speed``, ``infer_speed``), computes only that, unless some window
+has no direction from the direction parts.
 """
 
 from __future__ import annotations
@@ -167,6 +169,11 @@ class PerOutputBackend:
                 self.logmel = logmel
             if _same_features(logmel, self.logmel):
                 self._reads_features.add(name)
+        #: Parts that give the speed and nothing else, and can give it alone
+        #: (``predict_speed``, ``infer_speed``: an SVM): only that is computed of them.
+        others = {m for r, n in roles.items() if r != "speed" for m in members(n)}
+        self._speed_only = {m for m in members(roles["speed"]) if m not in others
+                            and hasattr(backends[m], "predict_speed")}
 
     @classmethod
     def meta_problems(cls, meta, model_config, feature_config) -> list[str]:
@@ -209,9 +216,11 @@ class PerOutputBackend:
 
     def predict(self, windows: np.ndarray, offsets: np.ndarray | None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        outs = {name: b.predict(windows, offsets if self.calibrated[name] else None)
-                for name, b in self.backends.items()}
-        return combine(role_outputs(self.roles, outs))
+        def run(name: str, b: Any, speed_only: bool):
+            off = offsets if self.calibrated[name] else None
+            return _speed_output(b.predict_speed(windows, off)) if speed_only \
+                else b.predict(windows, off)
+        return self._combined(run)
 
     def predict_with_features(self, windows: np.ndarray, feats: np.ndarray,
                               offsets: np.ndarray | None
@@ -219,15 +228,39 @@ class PerOutputBackend:
         """``predict`` with ``feats = self.logmel(windows)`` given (the live estimator's
         sliding log-mel): the parts that read it take it, less the offsets where they were
         trained with them; the others read the windows."""
-        outs = {}
-        for name, b in self.backends.items():
+        def run(name: str, b: Any, speed_only: bool):
             off = offsets if self.calibrated[name] else None
-            if name in self._reads_features:
-                f = feats if off is None else feats - off[:, :, None, None]
-                outs[name] = b.infer_features(f)
-            else:
-                outs[name] = b.predict(windows, off)
+            if name not in self._reads_features:
+                return _speed_output(b.predict_speed(windows, off)) if speed_only \
+                    else b.predict(windows, off)
+            f = feats if off is None else feats - off[:, :, None, None]
+            return _speed_output(b.infer_speed(f)) if speed_only else b.infer_features(f)
+        return self._combined(run)
+
+    def _combined(self, run) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """``combine`` of every part's output, ``run(name, backend, speed_only)``: of the
+        speed-only parts their speed alone, unless some window has no direction from the
+        direction parts (the speed parts' own direction then stands in: run them whole)."""
+        outs = {n: run(n, b, n in self._speed_only) for n, b in self.backends.items()}
+        if self._speed_only and not _has_direction(
+                [outs[m] for m in members(self.roles["direction"])]):
+            outs.update({n: run(n, self.backends[n], False) for n in self._speed_only})
         return combine(role_outputs(self.roles, outs))
+
+
+def _speed_output(speed: np.ndarray) -> tuple[None, np.ndarray, None]:
+    """A speed-only part's output as ``combine`` reads it for the speed role: a velocity of
+    that norm (along x: its direction is read only where the direction parts give none,
+    and ``_combined`` then runs the part whole)."""
+    speed = np.asarray(speed, np.float64)
+    return None, np.stack([speed, np.zeros_like(speed)], axis=1), None
+
+
+def _has_direction(outs: list[tuple]) -> bool:
+    """Whether the summed unit directions of ``outs`` (``combine``'s direction) are
+    defined in every window."""
+    unit = sum(_unit(np.asarray(o[1], np.float64)) for o in outs)
+    return bool(np.all(np.linalg.norm(unit, axis=1) > 0))
 
 
 def _same_features(a: LogMel, b: LogMel) -> bool:

@@ -245,7 +245,7 @@ class SvmArrays:
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(probability (B,), ungated velocity (B, 2) m/s, rate wy (B,) rad/s or None)
         from handcrafted features."""
-        z = (np.asarray(feats, dtype=np.float64) - self.mean) / self.std
+        z = self._standardised(feats)
         prob = 1.0 / (1.0 + np.exp(-np.clip(self.slip(z), -50, 50)))
         if self.per_component:
             v = np.stack([self.velocity[c](z) for c in VELOCITY_COMPONENTS],
@@ -257,6 +257,23 @@ class SvmArrays:
         w = None if self.angular is None else (
             self.angular(z) * (self.target_scale / ROTATION_RADIUS_M)).astype(np.float32)
         return prob.astype(np.float32), v.astype(np.float32), w
+
+    def speed(self, feats: np.ndarray) -> np.ndarray:
+        """The slip speed ``(B,)`` m/s alone: the norm of ``predict``'s velocity, from the
+        speed regressor only (the classifier and the direction and rate regressors are not
+        evaluated). It differs from that norm only where both direction regressors give
+        exactly 0 (``predict``'s velocity is then 0). A ``per_output`` model whose speed
+        comes from an SVM needs nothing else of it; beside a CNN part, evaluating the other
+        regressors cost more than themselves (their 2 MB of support vectors evicted the
+        CNN's weights from the cache: 0.5 ms a window against 0.15 for the speed alone)."""
+        z = self._standardised(feats)
+        if self.per_component:
+            v = np.stack([self.velocity[c](z) for c in VELOCITY_COMPONENTS], axis=1)
+            return np.linalg.norm(v * self.target_scale, axis=1)
+        return np.maximum(self.velocity[SPEED_REGRESSOR](z) * self.target_scale, 0.0)
+
+    def _standardised(self, feats: np.ndarray) -> np.ndarray:
+        return (np.asarray(feats, dtype=np.float64) - self.mean) / self.std
 
     @property
     def per_component(self) -> bool:
@@ -417,6 +434,17 @@ class SvmBackend:
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The model alone on log-mel ``(B, C, M, T)`` (offsets already removed); only an
         SVM on log-mel reads them."""
+        return self.arrays.predict(self._logmel_means(feats))
+
+    def predict_speed(self, windows: np.ndarray, offsets: np.ndarray | None) -> np.ndarray:
+        """The speed ``(B,)`` m/s alone (``SvmArrays.speed``): a ``per_output`` speed part."""
+        return self.arrays.speed(self.featurizer(windows, offsets))
+
+    def infer_speed(self, feats: np.ndarray) -> np.ndarray:
+        """``predict_speed`` on log-mel, as ``infer_features``."""
+        return self.arrays.speed(self._logmel_means(feats))
+
+    def _logmel_means(self, feats: np.ndarray) -> np.ndarray:
         if not self.reads_logmel:
             raise ValueError("this SVM reads band features, not log-mel (features: bands)")
-        return self.arrays.predict(LogMelMeans.means(feats))
+        return LogMelMeans.means(feats)
