@@ -90,9 +90,6 @@ class Scenario:
                              "motion is what makes the probe slip")
         if self.kind in ("wall_push", "external_drag") and self.condition != "robot_moving":
             raise ValueError(f"{self.kind} is closed loop: condition must be 'robot_moving'")
-        if self.kind == "gravity_pivot" and self.condition == "robot_moving":
-            raise ValueError("gravity_pivot keeps the arm still: use robot_off or "
-                             "robot_stationary")
         if self.duration_s is not None and not (np.isfinite(self.duration_s)
                                                 and self.duration_s > 0):
             raise ValueError(f"duration_s must be positive (or None), got {self.duration_s!r}")

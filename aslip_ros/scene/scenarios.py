@@ -14,9 +14,10 @@ and the same seed always gives the same motion.
 - ``wall_push``: closed loop; the arm pushes the held object against a wall.
 - ``external_drag``: closed loop; an agent drags the object along a random path.
 - ``scripted``: a still gripper and a known, piecewise-constant slip velocity (tests, demos).
-- ``gravity_pivot``: a still gripper holds an object off its centre of mass; whenever the grip
+- ``gravity_pivot``: the gripper holds an object off its centre of mass; whenever the grip
   relaxes, gravity turns it about the pad normal (and drags it down a little), until the grip
-  is restored; now and then a hand turns it back (labels from mocap).
+  is restored; now and then a hand turns it back (labels from mocap). The arm is still, or
+  with ``robot_moving`` wanders as in ``external_induced``.
 
 Rotational slip (scene version 4): the agent's pulses are ``(vx, vz, wy)``, the planar slip
 velocity at the pad centre and the angular velocity about the pad normal (+y of the grasp
@@ -141,13 +142,12 @@ def scripted(seed: int, segments: list[tuple[float, ...]],
 def gravity_pivot(seed: int, object: str = "chips_can", layout: str = "4mic",
                   pad: str = "textured", condition: str = "robot_stationary",
                   duration_s: float = 30.0, **kw) -> Scenario:
-    """A still gripper holds the object off its centre of mass; when the grip relaxes,
-    gravity turns it about the pad normal (with a little downward slide) until the grip is
-    restored, and a hand turns it back now and then. Labels from mocap (docs/scene.md,
-    "Rotational slip")."""
-    if condition == "robot_moving":
-        raise ValueError("gravity_pivot keeps the arm still: use robot_off or "
-                         "robot_stationary")
+    """The gripper holds the object off its centre of mass; when the grip relaxes, gravity
+    turns it about the pad normal (with a little downward slide) until the grip is
+    restored, and a hand turns it back now and then. With ``robot_moving`` the arm wanders
+    meanwhile, carrying the object (as in ``external_induced``): the turns are the same
+    draws, heard beside the arm's noise. Labels from mocap (docs/scene.md, "Rotational
+    slip")."""
     return Scenario("gravity_pivot", seed, object, layout, pad, condition, duration_s,
                     trial_id=kw.pop("trial_id", _trial_id("piv", object, seed)), **kw)
 

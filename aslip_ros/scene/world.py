@@ -187,6 +187,8 @@ class World:
             self._agent = sc.script_train(scn)
         if scn.kind == "gravity_pivot":
             self._agent, self._touch = sc.gravity_pivots(scn, agent_rng)
+            if scn.condition == "robot_moving":
+                self._wander = sc.arm_wander(scn, motion_rng)
         d = np.asarray(scn.push_dir_xz, dtype=float)
         self._push_xz = d / np.hypot(*d)
         self._push_world = self._plane @ self._push_xz
