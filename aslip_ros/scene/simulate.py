@@ -24,6 +24,8 @@ import zlib
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
+
 from aslip_ros.data.bags import BagError, BagReader, BagWriter
 
 from . import scenarios
@@ -42,10 +44,24 @@ VARIANTS = ("coupling", "one_sided", "contact", "confounders", "mocap", "rate", 
             "path")
 
 
+#: Metadata that simulate records only when its option is given.
+_OPTIONAL_METADATA = ("twist_fraction", "variant", "robot_noise_gain")
+
+
 def trial_seed(base_seed: int, kind: str, object: str, condition: str, index: int) -> int:
     """Deterministic per-trial seed (independent of layout and pad, see module docstring)."""
     key = f"{kind}/{object}/{condition}/{index}".encode()
     return int((int(base_seed) * 1_000_003 + zlib.crc32(key)) % (2**31 - 1))
+
+
+def robot_noise_gain(seed: int, low: float, high: float) -> float:
+    """The arm's loudness of the trial with scenario seed ``seed``: a factor on
+    ``Acoustics.robot_level``, log-uniform in [low, high] and drawn from that seed alone (so
+    the same trial gets the same arm whatever else the set holds)."""
+    if not (0.0 < low <= high and math.isfinite(high)):
+        raise ValueError(f"robot noise range must satisfy 0 < low <= high, got ({low}, {high})")
+    u = np.random.default_rng([int(seed), 0xA7B0]).uniform()
+    return float(math.exp(math.log(low) + u * (math.log(high) - math.log(low))))
 
 
 def record_world(world: Any, path: str | Path, *, block_frames: int = DEFAULT_BLOCK_FRAMES,
@@ -121,6 +137,8 @@ def recorded_differently(path: Path, metadata: dict, duration_s: float) -> str:
     new = json.loads(json.dumps(metadata))
     diffs = [f"{k} {old.get(k)!r} != {v!r}" for k, v in new.items()
              if k != "duration_s" and old.get(k) != v]
+    # What simulate adds only when asked for, and a bag recorded with it holds.
+    diffs += [f"{k} {old[k]!r} != None" for k in _OPTIONAL_METADATA if k in old and k not in new]
     old_duration = old.get("duration_s")
     # Without a recorded duration, the messages span the trial less one block or sample.
     if (old_duration is None and abs(span_s - duration_s) > 0.1) or (
@@ -129,19 +147,58 @@ def recorded_differently(path: Path, metadata: dict, duration_s: float) -> str:
     return "; ".join(diffs)
 
 
+def _trials(kind: str, plan: list[dict], duration_s: float, variant: str | None,
+            twist_fraction: float, sample_rate: float | None,
+            robot_noise_range: tuple[float, float] | None) -> tuple[list, list[dict]]:
+    """Each planned trial's world and the metadata simulate adds to its own (the options
+    of :func:`simulate`, validated here)."""
+    make = getattr(scenarios, KINDS[kind])
+    if variant not in (None,) + VARIANTS:
+        raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
+    if twist_fraction and kind != "external":
+        raise ValueError("twist_fraction applies to --kind external only")
+    twist = {"twist_fraction": float(twist_fraction)} if twist_fraction else {}
+    if sample_rate is not None and not (math.isfinite(sample_rate) and sample_rate >= 8000):
+        raise ValueError(f"sample_rate must be at least 8000 Hz, got {sample_rate!r}")
+    if robot_noise_range is not None:
+        robot_noise_gain(0, *robot_noise_range)                     # refuses a bad range
+    gains = [None if robot_noise_range is None else robot_noise_gain(kw["seed"],
+                                                                     *robot_noise_range)
+             for kw in plan]
+
+    def scene(kw, gain):
+        scn = make(**kw, **twist)
+        if sample_rate is not None:
+            scn = dataclasses.replace(scn, sample_rate=float(sample_rate))
+        if gain is not None:
+            ac = scn.acoustics
+            scn = scn.with_(acoustics=dataclasses.replace(ac, robot_level=ac.robot_level * gain))
+        return scn if variant is None else scenarios.VARIANTS[variant](scn)
+    worlds = [World(scene(kw, g)) for kw, g in zip(plan, gains)]
+    extra = {"duration_s": float(duration_s), **twist}
+    if variant is not None:
+        extra["variant"] = variant
+    extras = [extra if g is None else {**extra, "robot_noise_gain": round(g, 4)} for g in gains]
+    return worlds, extras
+
+
 def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = (None,),
              conditions: Sequence[str | None] = (None,), trials: int = 1,
              duration_s: float = 30.0, seed: int = 0, layout: str | None = None,
              pad: str | None = None, block_frames: int = DEFAULT_BLOCK_FRAMES,
              overwrite: bool = False, progress: bool = True,
              variant: str | None = None, twist_fraction: float = 0.0,
-             sample_rate: float | None = None) -> dict:
+             sample_rate: float | None = None,
+             robot_noise_range: tuple[float, float] | None = None) -> dict:
     """Simulate ``trials`` bags per (object, condition) into ``out_dir``.
 
     ``None`` for object/condition/layout/pad means the scenario's own default.
     ``twist_fraction`` (external only): share of the agent's slipping pushes that twist the
     object (``Scenario.twist_fraction``; recorded in the metadata when not 0).
     ``sample_rate``: the audio interface's rate [Hz] (None: the scenario's, 48 kHz).
+    ``robot_noise_range``: (low, high): each trial's arm as loud as the scene's times a
+    factor drawn per trial (:func:`robot_noise_gain`; recorded as ``robot_noise_gain``), so
+    a model hears arms quieter and louder than one (None: every trial the scene's arm).
     Existing bags
     of the same trials are kept (so an interrupted run resumes) unless ``overwrite``; an
     existing bag recorded with other parameters (duration, layout, pad, seed, scene
@@ -150,31 +207,14 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
     """
     from tqdm import tqdm
 
-    make = getattr(scenarios, KINDS[kind])
     plan = plan_trials(kind, objects, conditions, trials, seed, layout, pad, duration_s)
     out = Path(out_dir)
-    if variant not in (None,) + VARIANTS:
-        raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
-    if twist_fraction and kind != "external":
-        raise ValueError("twist_fraction applies to --kind external only")
-    twist = {"twist_fraction": float(twist_fraction)} if twist_fraction else {}
-
-    if sample_rate is not None and not (math.isfinite(sample_rate) and sample_rate >= 8000):
-        raise ValueError(f"sample_rate must be at least 8000 Hz, got {sample_rate!r}")
-
-    def scene(kw):
-        scn = make(**kw, **twist)
-        if sample_rate is not None:
-            scn = dataclasses.replace(scn, sample_rate=float(sample_rate))
-        return scn if variant is None else scenarios.VARIANTS[variant](scn)
-    worlds = [World(scene(kw)) for kw in plan]
-    extra = {"duration_s": float(duration_s), **twist}
-    if variant is not None:
-        extra["variant"] = variant
+    worlds, extras = _trials(kind, plan, duration_s, variant, twist_fraction, sample_rate,
+                             robot_noise_range)
     if not overwrite:
-        for kw, world in zip(plan, worlds):
+        for kw, world, ex in zip(plan, worlds, extras):
             path = out / kw["trial_id"]
-            why = path.exists() and recorded_differently(path, {**world.metadata(), **extra},
+            why = path.exists() and recorded_differently(path, {**world.metadata(), **ex},
                                                          float(duration_s))
             if why:
                 raise ValueError(f"{path} holds a bag recorded with other parameters ({why}); "
@@ -186,14 +226,14 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
               disable=not progress, leave=False,
               bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s audio [{elapsed}<{remaining}]"
               ) as bar:
-        for kw, world in zip(plan, worlds):
+        for kw, world, ex in zip(plan, worlds, extras):
             path = out / kw["trial_id"]
             if path.exists() and not overwrite:
                 summary["skipped"].append(str(path))
                 bar.update(duration_s)
                 continue
             counts = record_world(world, path, block_frames=block_frames, overwrite=overwrite,
-                                  on_block=bar.update, extra_metadata=extra)
+                                  on_block=bar.update, extra_metadata=ex)
             summary["bags"].append(str(path))
             summary["audio_s"] += counts["audio_s"]
     summary["elapsed_s"] = time.perf_counter() - t_start
@@ -204,6 +244,14 @@ def _csv(text: str | None) -> list[str | None]:
     if not text:
         return [None]
     return [v.strip() for v in text.split(",") if v.strip()]
+
+
+def _range(text: str) -> tuple[float, float]:
+    try:
+        low, high = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LOW,HIGH, got {text!r}") from None
+    return low, high
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -240,6 +288,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the push (default %(default)s: none)")
     parser.add_argument("--sample-rate", type=float, default=None,
                         help="the audio interface's rate in Hz (default: the scene's, 48000)")
+    parser.add_argument("--robot-noise-range", type=_range, default=None, metavar="LOW,HIGH",
+                        help="each trial's arm noise the scene's times a factor drawn per "
+                             "trial, log-uniform in LOW..HIGH, e.g. 0.5,2 (default: the "
+                             "scene's arm in every trial)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -253,7 +305,8 @@ def run(args: argparse.Namespace) -> int:
                            pad=args.pad, block_frames=args.block_frames,
                            overwrite=args.overwrite, progress=not args.no_progress,
                            variant=args.variant, twist_fraction=args.twist_fraction,
-                           sample_rate=args.sample_rate)
+                           sample_rate=args.sample_rate,
+                           robot_noise_range=args.robot_noise_range)
     except (ValueError, OSError) as exc:
         print(f"aslip simulate: error: {exc}", file=sys.stderr)
         return 1
