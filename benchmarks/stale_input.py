@@ -26,7 +26,6 @@ import json
 import os
 import random
 import signal
-import subprocess
 import tempfile
 import threading
 import time
@@ -35,7 +34,7 @@ from typing import Optional
 
 import numpy as np
 
-from aslip_ros.util import die_with_parent, write_json
+from aslip_ros.util import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Below this TCP speed the arm counts as at rest [m/s] (the issue's 1 mm/s).
@@ -257,16 +256,14 @@ def main(argv: Optional[list] = None) -> int:
     for i in range(a.fault):
         episodes.append(run_episode("fault", a.checkpoint, 1201 + i, rng, a.slip_timeout))
         print(json.dumps(episodes[-1]), flush=True)
-    hogs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
-            for _ in range(a.hogs if a.load else 0)]
+    from benchmarks.tail_latency import start_hogs, stop_hogs
+    hogs = start_hogs(a.hogs if a.load else 0)
     try:
         for i in range(a.load):
             episodes.append(run_episode("load", a.checkpoint, 2201 + i, rng, a.slip_timeout))
             print(json.dumps(episodes[-1]), flush=True)
     finally:
-        for h in hogs:
-            h.kill()
-            h.wait()
+        stop_hogs(hogs)
     summary = summarize(episodes)
     summary.update(hogs=a.hogs, slip_timeout_s=a.slip_timeout, load_average=os.getloadavg())
     print(json.dumps(summary, indent=1), flush=True)

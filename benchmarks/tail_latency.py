@@ -43,8 +43,11 @@ STAT_LABELS = {"p50": "p50", "p99": "p99", "p999": "p99.9", "max": "max"}
 
 
 def start_hogs(n: int) -> list:
-    """``n`` CPU-busy processes at normal priority (stop them with ``stop_hogs``)."""
-    return [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL) for _ in range(max(0, n))]
+    """``n`` CPU-busy processes at normal priority (stop them with ``stop_hogs``); they die
+    with this process, should it be killed before it stops them."""
+    from aslip_ros.util import die_with_parent
+    return [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
+            for _ in range(max(0, n))]
 
 
 def stop_hogs(procs: list) -> None:

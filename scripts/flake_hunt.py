@@ -47,7 +47,9 @@ def hunt(runs: int, hogs: int, pytest_args: list, marker: str = "processes",
          keep: Path = Path("results/flake_hunt")) -> int:
     tally: dict = collections.defaultdict(collections.Counter)
     walls = []
-    hog_procs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL) for _ in range(hogs)]
+    from aslip_ros.util import die_with_parent      # the hogs die with this process
+    hog_procs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
+                 for _ in range(hogs)]
     try:
         with tempfile.TemporaryDirectory(prefix="aslip_flake_hunt_") as tmp:
             for k in range(runs):

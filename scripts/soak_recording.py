@@ -28,6 +28,7 @@ from pathlib import Path
 from aslip_ros.data.bags import BagReader
 from aslip_ros.runtime.child import NodeProcess
 from aslip_ros import topics
+from aslip_ros.util import die_with_parent
 
 DURATION_S = 6.0
 #: Longest pause between two node starts [s]: with the nodes' start-up, the recorder is
@@ -81,7 +82,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from domain_coordinator import domain_id
     rng = random.Random(a.seed)
-    hogs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL) for _ in range(a.hogs)]
+    hogs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
+            for _ in range(a.hogs)]
     failed = 0
     t0 = time.monotonic()
     try:

@@ -18,11 +18,16 @@ import pytest
 PARENT = """
 import subprocess, sys, time
 from aslip_ros.util import die_with_parent
-kw = {"preexec_fn": die_with_parent} if sys.argv[1] == "tied" else {}
-child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], **kw)
+if sys.argv[1] == "hog":
+    from benchmarks.tail_latency import start_hogs
+    child = start_hogs(1)[0]
+else:
+    kw = {"preexec_fn": die_with_parent} if sys.argv[1] == "tied" else {}
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], **kw)
 print(child.pid, flush=True)
 time.sleep(60)
 """
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _alive(pid: int) -> bool:
@@ -34,8 +39,10 @@ def _alive(pid: int) -> bool:
 
 
 def _orphan(mode: str) -> int:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        filter(None, [os.environ.get("PYTHONPATH"), str(ROOT)]))}      # benchmarks/
     parent = subprocess.Popen([sys.executable, "-c", PARENT, mode], stdout=subprocess.PIPE,
-                              text=True)
+                              text=True, env=env)
     pid = int(parent.stdout.readline())
     parent.send_signal(signal.SIGKILL)
     parent.wait()
@@ -57,3 +64,20 @@ def test_a_tied_child_dies_with_its_parent_and_an_untied_one_does_not():
                 os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl is Linux only")
+def test_a_benchmarks_cpu_hog_dies_with_the_benchmark():
+    """``make demo --hogs 2`` killed mid-run left its two ``yes`` hogs running (2026-11-29:
+    the next ``make test`` ran beside them)."""
+    hog = _orphan("hog")
+    try:
+        deadline = time.monotonic() + 5.0
+        while _alive(hog) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(hog)
+    finally:
+        try:
+            os.kill(hog, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
