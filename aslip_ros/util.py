@@ -82,6 +82,23 @@ def die_with_parent() -> None:
         pass
 
 
+@contextlib.contextmanager
+def cpu_hogs(n: int) -> Iterator[list]:
+    """``n`` CPU-busy processes (``yes``) at normal priority for the ``with`` block: the load
+    beside which benchmarks, the flake hunt and load tests measure. They are killed when the
+    block ends and die with this process should it be killed first (``die_with_parent``)."""
+    import subprocess
+    procs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
+             for _ in range(max(0, n))]
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait()
+
+
 #: Niceness the node processes ask for: the sensor-to-arm loop keeps its deadlines (the
 #: 50 ms stale-input watchdogs) beside other CPU-bound work. ``ASLIP_NICE`` overrides it;
 #: 0 leaves the priority alone.

@@ -415,13 +415,10 @@ def run(args: argparse.Namespace) -> int:
     eps = plan_episodes(tasks, methods, objects, args.trials, models, stop, track, pivot,
                         pivot_methods, arms, args.mode, args.charge)
     out = Path(args.out)
-    from benchmarks.tail_latency import start_hogs, stop_hogs
-    hogs = start_hogs(args.hogs)
-    try:
+    from aslip_ros.util import cpu_hogs
+    with cpu_hogs(args.hogs):
         return _run_planned(args, t0, eps, models, used, out, asked_meta(
             tasks, methods, objects, stop, track, pivot, pivot_methods, arms))
-    finally:
-        stop_hogs(hogs)
 
 
 def asked_meta(tasks, methods, objects, stop, track, pivot, pivot_methods, arms) -> dict:

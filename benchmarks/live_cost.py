@@ -184,12 +184,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.seconds <= 0.3 or a.repeat < 1 or a.hogs < 0 or a.threads < 1:
         ap.error("need --seconds > 0.3, --repeat >= 1, --hogs >= 0, --threads >= 1")
-    from benchmarks.tail_latency import start_hogs, stop_hogs
+    from aslip_ros.util import cpu_hogs
     blocks = scene_blocks(a.seconds)
     results: dict[str, Any] = {}
     load_before = list(os.getloadavg())
-    procs = start_hogs(a.hogs)
-    try:
+    with cpu_hogs(a.hogs):
         for m in a.models:
             path = Path(m) if Path(m).is_absolute() or Path(m).exists() else ROOT / m
             passes = [run_pass(str(path), blocks, a.threads) for _ in range(a.repeat)]
@@ -197,8 +196,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{Path(m).stem}: " + " | ".join(
                 f"{s} {r[f'{s}_p50_ms']:.3f}/{r[f'{s}_p99_ms']:.3f}" for s in STEPS)
                 + f" ms p50/p99 | {r['cpu_per_audio_s']:.3f} CPU s/s", file=sys.stderr)
-    finally:
-        stop_hogs(procs)
     doc = {"seconds": a.seconds, "repeat": a.repeat, "threads": a.threads, "hogs": a.hogs,
            "block_frames": BLOCK, "load_average_before": load_before,
            "load_average_after": list(os.getloadavg()), "results": results}

@@ -256,14 +256,11 @@ def main(argv: Optional[list] = None) -> int:
     for i in range(a.fault):
         episodes.append(run_episode("fault", a.checkpoint, 1201 + i, rng, a.slip_timeout))
         print(json.dumps(episodes[-1]), flush=True)
-    from benchmarks.tail_latency import start_hogs, stop_hogs
-    hogs = start_hogs(a.hogs if a.load else 0)
-    try:
+    from aslip_ros.util import cpu_hogs
+    with cpu_hogs(a.hogs if a.load else 0):
         for i in range(a.load):
             episodes.append(run_episode("load", a.checkpoint, 2201 + i, rng, a.slip_timeout))
             print(json.dumps(episodes[-1]), flush=True)
-    finally:
-        stop_hogs(hogs)
     summary = summarize(episodes)
     summary.update(hogs=a.hogs, slip_timeout_s=a.slip_timeout, load_average=os.getloadavg())
     print(json.dumps(summary, indent=1), flush=True)

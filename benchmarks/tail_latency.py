@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -42,30 +41,13 @@ STATS = ("p50", "p99", "p999", "max")
 STAT_LABELS = {"p50": "p50", "p99": "p99", "p999": "p99.9", "max": "max"}
 
 
-def start_hogs(n: int) -> list:
-    """``n`` CPU-busy processes at normal priority (stop them with ``stop_hogs``); they die
-    with this process, should it be killed before it stops them."""
-    from aslip_ros.util import die_with_parent
-    return [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
-            for _ in range(max(0, n))]
-
-
-def stop_hogs(procs: list) -> None:
-    for p in procs:
-        p.kill()
-    for p in procs:
-        p.wait()
-
-
 def run_one(checkpoint: str, duration_s: float, hogs: int) -> dict:
     """``measure_node_latency`` of one checkpoint beside ``hogs`` busy processes."""
     from benchmarks.node_bench import measure_node_latency
     load_before = list(os.getloadavg())
-    procs = start_hogs(hogs)
-    try:
+    from aslip_ros.util import cpu_hogs
+    with cpu_hogs(hogs):
         res = measure_node_latency(checkpoint, duration_s)
-    finally:
-        stop_hogs(procs)
     res.update(hogs=hogs, load_average_before=load_before)
     return res
 

@@ -47,42 +47,35 @@ def hunt(runs: int, hogs: int, pytest_args: list, marker: str = "processes",
          keep: Path = Path("results/flake_hunt")) -> int:
     tally: dict = collections.defaultdict(collections.Counter)
     walls = []
-    from aslip_ros.util import die_with_parent      # the hogs die with this process
-    hog_procs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
-                 for _ in range(hogs)]
-    try:
-        with tempfile.TemporaryDirectory(prefix="aslip_flake_hunt_") as tmp:
-            for k in range(runs):
-                junit = Path(tmp) / f"run{k}.xml"
-                log = Path(tmp) / f"run{k}.log"
-                # -P: the repository root must not shadow the built package on sys.path.
-                cmd = [sys.executable, "-P", "-m", "pytest", "test", "-m", marker, "-q",
-                       "-p", "no:cacheprovider", f"--junitxml={junit}", *pytest_args]
-                t0 = time.monotonic()
-                with open(log, "wb") as out:
-                    rc = subprocess.call(cmd, stdout=out, stderr=subprocess.STDOUT)
-                walls.append(time.monotonic() - t0)
-                if not junit.exists():
-                    print(f"run {k + 1}: pytest exited {rc} without a report", flush=True)
-                    return 2
-                res, why = outcomes(junit)
-                for tid, outcome in res.items():
-                    tally[tid][outcome] += 1
-                bad = [t for t, o in res.items() if o in ("failed", "error")]
-                print(f"run {k + 1}/{runs}: {len(res)} tests, {len(bad)} failed or erred, "
-                      f"{walls[-1]:.0f} s{' : ' + ', '.join(bad) if bad else ''}", flush=True)
-                for tid in bad:
-                    print(f"  {tid}: " + " / ".join(why.get(tid, [])), flush=True)
-                if bad:
-                    keep.mkdir(parents=True, exist_ok=True)
-                    stamp = time.strftime("%Y%m%d-%H%M%S")
-                    for src in (junit, log):
-                        shutil.copy(src, keep / f"{stamp}-{src.name}")
-                    print(f"  kept: {keep / stamp}-run{k}.xml and .log", flush=True)
-    finally:
-        for p in hog_procs:
-            p.kill()
-            p.wait()
+    from aslip_ros.util import cpu_hogs
+    with cpu_hogs(hogs), tempfile.TemporaryDirectory(prefix="aslip_flake_hunt_") as tmp:
+        for k in range(runs):
+            junit = Path(tmp) / f"run{k}.xml"
+            log = Path(tmp) / f"run{k}.log"
+            # -P: the repository root must not shadow the built package on sys.path.
+            cmd = [sys.executable, "-P", "-m", "pytest", "test", "-m", marker, "-q",
+                   "-p", "no:cacheprovider", f"--junitxml={junit}", *pytest_args]
+            t0 = time.monotonic()
+            with open(log, "wb") as out:
+                rc = subprocess.call(cmd, stdout=out, stderr=subprocess.STDOUT)
+            walls.append(time.monotonic() - t0)
+            if not junit.exists():
+                print(f"run {k + 1}: pytest exited {rc} without a report", flush=True)
+                return 2
+            res, why = outcomes(junit)
+            for tid, outcome in res.items():
+                tally[tid][outcome] += 1
+            bad = [t for t, o in res.items() if o in ("failed", "error")]
+            print(f"run {k + 1}/{runs}: {len(res)} tests, {len(bad)} failed or erred, "
+                  f"{walls[-1]:.0f} s{' : ' + ', '.join(bad) if bad else ''}", flush=True)
+            for tid in bad:
+                print(f"  {tid}: " + " / ".join(why.get(tid, [])), flush=True)
+            if bad:
+                keep.mkdir(parents=True, exist_ok=True)
+                stamp = time.strftime("%Y%m%d-%H%M%S")
+                for src in (junit, log):
+                    shutil.copy(src, keep / f"{stamp}-{src.name}")
+                print(f"  kept: {keep / stamp}-run{k}.xml and .log", flush=True)
     flaky = {t: c for t, c in tally.items() if c["failed"] or c["error"]}
     skipped = sorted(t for t, c in tally.items() if c["skipped"] and t not in flaky)
     print(f"\n{len(tally)} tests x {runs} runs beside {hogs} CPU hogs; "

@@ -28,7 +28,7 @@ from pathlib import Path
 from aslip_ros.data.bags import BagReader
 from aslip_ros.runtime.child import NodeProcess
 from aslip_ros import topics
-from aslip_ros.util import die_with_parent
+from aslip_ros.util import cpu_hogs
 
 DURATION_S = 6.0
 #: Longest pause between two node starts [s]: with the nodes' start-up, the recorder is
@@ -82,11 +82,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from domain_coordinator import domain_id
     rng = random.Random(a.seed)
-    hogs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
-            for _ in range(a.hogs)]
     failed = 0
     t0 = time.monotonic()
-    try:
+    with cpu_hogs(a.hogs):
         for k in range(a.launches):
             work = Path(tempfile.mkdtemp(prefix="aslip_soak_"))
             try:
@@ -96,10 +94,6 @@ def main(argv=None) -> int:
                 shutil.rmtree(work, ignore_errors=True)
             failed += not ok
             print(f"{k + 1:3d} {'ok  ' if ok else 'FAIL'} {line}", flush=True)
-    finally:
-        for h in hogs:
-            h.kill()
-            h.wait()
     print(f"{a.launches - failed} of {a.launches} recordings with metadata and audio, "
           f"{failed} failed, beside {a.hogs} CPU hogs, {time.monotonic() - t0:.0f} s")
     return 1 if failed else 0

@@ -11,11 +11,12 @@ the table (20/50 instead of 50/50 on a slower host).
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from aslip_ros.util import cpu_hogs
 
 pytestmark = pytest.mark.ros
 
@@ -24,26 +25,12 @@ CNN = ROOT / "models" / "aslip_cnn.pt"       # the window CNN: its model runs on
 STREAM = ROOT / "models" / "aslip_stream.pt"
 
 
-def _hogs(n: int) -> list:
-    return [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL) for _ in range(n)]
-
-
-def _stop(procs: list) -> None:
-    for p in procs:
-        p.kill()
-    for p in procs:
-        p.wait()
-
-
 def _episode(checkpoint: Path, hogs: int, **kw) -> dict:
     from benchmarks.demo_episode import Episode, TrackSettings, run_episode
     ep = Episode("slip_track", "aslip", str(checkpoint), "cracker_box", 0, 2402,
                  track=TrackSettings(duration_s=1.5), **kw)
-    procs = _hogs(hogs)
-    try:
+    with cpu_hogs(hogs):
         return run_episode(ep)
-    finally:
-        _stop(procs)
 
 
 @pytest.mark.parametrize("checkpoint", [CNN, STREAM], ids=["window_cnn", "streaming"])

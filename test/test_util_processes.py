@@ -18,16 +18,16 @@ import pytest
 PARENT = """
 import subprocess, sys, time
 from aslip_ros.util import die_with_parent
-if sys.argv[1] == "hog":
-    from benchmarks.tail_latency import start_hogs
-    child = start_hogs(1)[0]
-else:
-    kw = {"preexec_fn": die_with_parent} if sys.argv[1] == "tied" else {}
-    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], **kw)
+if sys.argv[1] == "hog":         # killed inside the block: the block's own cleanup never runs
+    from aslip_ros.util import cpu_hogs
+    with cpu_hogs(1) as hogs:
+        print(hogs[0].pid, flush=True)
+        time.sleep(60)
+kw = {"preexec_fn": die_with_parent} if sys.argv[1] == "tied" else {}
+child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], **kw)
 print(child.pid, flush=True)
 time.sleep(60)
 """
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _alive(pid: int) -> bool:
@@ -39,10 +39,8 @@ def _alive(pid: int) -> bool:
 
 
 def _orphan(mode: str) -> int:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-        filter(None, [os.environ.get("PYTHONPATH"), str(ROOT)]))}      # benchmarks/
     parent = subprocess.Popen([sys.executable, "-c", PARENT, mode], stdout=subprocess.PIPE,
-                              text=True, env=env)
+                              text=True)
     pid = int(parent.stdout.readline())
     parent.send_signal(signal.SIGKILL)
     parent.wait()
@@ -81,3 +79,12 @@ def test_a_benchmarks_cpu_hog_dies_with_the_benchmark():
             os.kill(hog, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+def test_cpu_hogs_run_for_their_block_and_end_with_it():
+    from aslip_ros.util import cpu_hogs
+    with cpu_hogs(2) as hogs:
+        assert len(hogs) == 2 and all(_alive(h.pid) for h in hogs)
+    assert all(h.returncode is not None for h in hogs)
+    with cpu_hogs(0) as none:
+        assert none == []

@@ -54,12 +54,16 @@ def trial_seed(base_seed: int, kind: str, object: str, condition: str, index: in
     return int((int(base_seed) * 1_000_003 + zlib.crc32(key)) % (2**31 - 1))
 
 
+def _check_noise_range(low: float, high: float) -> None:
+    if not (0.0 < low <= high and math.isfinite(high)):
+        raise ValueError(f"robot noise range must satisfy 0 < low <= high, got ({low}, {high})")
+
+
 def robot_noise_gain(seed: int, low: float, high: float) -> float:
     """The arm's loudness of the trial with scenario seed ``seed``: a factor on
     ``Acoustics.robot_level``, log-uniform in [low, high] and drawn from that seed alone (so
     the same trial gets the same arm whatever else the set holds)."""
-    if not (0.0 < low <= high and math.isfinite(high)):
-        raise ValueError(f"robot noise range must satisfy 0 < low <= high, got ({low}, {high})")
+    _check_noise_range(low, high)
     u = np.random.default_rng([int(seed), 0xA7B0]).uniform()
     return float(math.exp(math.log(low) + u * (math.log(high) - math.log(low))))
 
@@ -161,7 +165,7 @@ def _trials(kind: str, plan: list[dict], duration_s: float, variant: str | None,
     if sample_rate is not None and not (math.isfinite(sample_rate) and sample_rate >= 8000):
         raise ValueError(f"sample_rate must be at least 8000 Hz, got {sample_rate!r}")
     if robot_noise_range is not None:
-        robot_noise_gain(0, *robot_noise_range)                     # refuses a bad range
+        _check_noise_range(*robot_noise_range)
     gains = [None if robot_noise_range is None else robot_noise_gain(kw["seed"],
                                                                      *robot_noise_range)
              for kw in plan]
