@@ -210,32 +210,3 @@ def test_aslip_hybrid_writes_a_checkpoint_slip_inference_runs(parts, tmp_path, c
     err = capsys.readouterr().err.strip()
     assert err.startswith("aslip hybrid: error:") and "\n" not in err
     assert not (tmp_path / "bad.pt").exists()
-
-
-def test_confirmed_a_slip_starts_only_where_the_window_part_says_it_too(parts, tmp_path):
-    blocks = recorded_stream(STREAM_NAMES, seconds=0.4)
-    half = len(blocks) // 2
-
-    def run(detection, window_threshold):
-        est = open_estimator(_hybrid(parts, tmp_path, detection=detection))
-        est.window.set_threshold(window_threshold)      # the fixed window: p(slip) 0.88
-        return est, [e for b in blocks[:half] for e in est.feed(b)]
-
-    # The window part says no slip (threshold over its p): confirmed starts none once a
-    # window estimate is there, where latched starts one on the stream part alone.
-    est, got = run("confirmed", 0.95)
-    assert est.merged > 0
-    windowed = got[len(got) - est.merged:]
-    assert windowed and not any(e.prediction.slipping for e in windowed)
-    _, latched = run("latched", 0.95)
-    assert all(e.prediction.slipping for e in latched)
-    # Both say slip: it starts, carrying the window part's p(slip) and threshold; from then
-    # on either part keeps it, as latched does.
-    est, got = run("confirmed", 0.5)
-    windowed = got[len(got) - est.merged:]
-    assert windowed and all(e.prediction.slipping for e in windowed)
-    assert windowed[0].prediction.probability == pytest.approx(FIXED_P, abs=1e-5)
-    est.window.set_threshold(0.95)
-    then = [e for b in blocks[half:] for e in est.feed(b)]
-    assert then and all(e.prediction.slipping for e in then)
-    assert then[-1].prediction.threshold == 0.0             # the stream part keeps it

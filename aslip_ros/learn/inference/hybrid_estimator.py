@@ -29,7 +29,7 @@ from aslip_ros.learn.checkpoint import Checkpoint, estimates_rotation, load_chec
 from aslip_ros.learn.inference.live import (Estimate, Event, Job, LiveConfig, LiveEstimator,
                                             load_predictor)
 from aslip_ros.learn.inference.predictor import Prediction
-from aslip_ros.learn.models.aslip_hybrid import (CONFIRMED, EITHER, LATCHED, STREAM, WINDOW,
+from aslip_ros.learn.models.aslip_hybrid import (EITHER, LATCHED, STREAM, WINDOW,
                                                  HybridBackend)
 from aslip_ros.learn.models.per_output import combine, members, role_outputs
 
@@ -230,13 +230,10 @@ class HybridEstimator:
         part = self.cfg.detection
         if win is None:
             part = STREAM
-        elif part in (EITHER, LATCHED, CONFIRMED):
+        elif part == EITHER or part == LATCHED:
             keeps = part == EITHER or self._slipping
-            if keeps:
-                part = WINDOW if win.prediction.slipping and not hop.prediction.slipping \
-                    else STREAM
-            else:           # confirmed: once the stream part says slip, the window decides
-                part = WINDOW if part == CONFIRMED and hop.prediction.slipping else STREAM
+            part = (WINDOW if keeps and win.prediction.slipping
+                    and not hop.prediction.slipping else STREAM)
         return part, (self.stream if part == STREAM else self.window).threshold
 
     def _merge(self, hop: Estimate) -> Estimate:
@@ -250,9 +247,7 @@ class HybridEstimator:
             self.merged += 1
         prob, v, rate = combine(role_outputs(roles, outs))
         p, s = float(prob[0]), hop.prediction
-        # confirmed: without a window estimate to agree, no slip starts
-        slipping = self._slipping = p >= t and (
-            fresh or self._slipping or self.cfg.detection != CONFIRMED)
+        slipping = self._slipping = p >= t
         vx, vz = (float(v[0, 0]), float(v[0, 1])) if slipping else (0.0, 0.0)
         speed = float(np.hypot(vx, vz))
         sigma_from = win if fresh and WINDOW in members(roles["direction"]) else hop

@@ -17,11 +17,8 @@ The checkpoint holds the two parts' whole documents under ``parts`` (``stream``,
 part's, or ``either``'s: slip when either part says so at its own threshold, the estimate
 then taking p(slip) and threshold from the part that said it (the stream part's first), or
 ``latched``'s: only the stream part starts a slip, and while one goes on either part keeps
-it (a window estimate alone never starts one), or ``confirmed``'s: as ``latched``, but
-the stream part starts a slip only where the newest window estimate says slip as well
-(and none without a window estimate young enough). The checkpoint's
-threshold and output calibration are the stream part's under ``either``, ``latched`` and
-``confirmed``. The
+it (a window estimate alone never starts one). The checkpoint's threshold and output
+calibration are the stream part's under ``either`` and ``latched``. The
 top-level stream facts (rate, channels, window, features) are the window part's: the
 longest audio any estimate reads. Build one with ``assemble``.
 
@@ -58,9 +55,7 @@ PARTS = (STREAM, WINDOW)
 EITHER = "either"
 #: The stream part starts a slip, either part keeps it going (module docstring).
 LATCHED = "latched"
-#: As ``latched``, but a slip starts only where the newest window estimate says it too.
-CONFIRMED = "confirmed"
-DETECTIONS = PARTS + (EITHER, LATCHED, CONFIRMED)
+DETECTIONS = PARTS + (EITHER, LATCHED)
 #: What a role may name: one part, or the blend of both.
 CHOICES = (STREAM, WINDOW, STREAM + BLEND + WINDOW)
 #: The stream facts both parts must share with the checkpoint.
@@ -102,7 +97,7 @@ class HybridConfig:
     @property
     def threshold_part(self) -> str:
         """The part whose threshold is the checkpoint's (and the ``threshold`` parameter's)."""
-        return STREAM if self.detection in (EITHER, LATCHED, CONFIRMED) else self.detection
+        return STREAM if self.detection in (EITHER, LATCHED) else self.detection
 
 
 def assemble(stream: Checkpoint, window: Checkpoint,
