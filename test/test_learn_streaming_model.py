@@ -269,10 +269,23 @@ def test_threshold_is_chosen_for_the_false_alarm_rate():
     p[[3500, 4000, 4500, 5000]] = 0.72
     assert false_alarms_per_min(p, slip, 0.5, 0.01)[0] == 5
     assert false_alarms_per_min(p, slip, 0.75, 0.01)[0] == 0
-    t, table = select_threshold([p], [slip], 0.01, fa_per_min=2.0)
-    assert t == 0.75 and table[0]["fa_per_min"] > 5.0
-    t, _ = select_threshold([p], [slip], 0.01, fa_per_min=10.0)
+    t, table, quiet_min = select_threshold([p], [slip], 0.01, fa_per_min=2.0)
+    assert t == 0.75 and table[0]["fa_per_min"] > 5.0 and table[0]["false_alarms"] == 5
+    assert 0.9 < quiet_min < 1.0                 # a minute less the slip and its 0.35 s
+    t, _, _ = select_threshold([p], [slip], 0.01, fa_per_min=10.0)
     assert t == 0.5
+
+
+def test_a_threshold_chosen_on_too_little_quiet_audio_is_said_to_be():
+    """The demo set's stream part chose its threshold on 1.75 min of validation audio
+    without slip, where one false alarm is 0.57 a minute against a target of 2: 0.70 or 0.95
+    between two draws of the same recipe (2026-11-29)."""
+    from aslip_ros.learn.training.stream import threshold_support
+    thin = threshold_support(1.75, 2.0)
+    assert thin is not None and "1.8 min" in thin and "0.57 a minute" in thin
+    assert threshold_support(2.0, 2.0) is None           # one false alarm: an eighth
+    assert threshold_support(10.0, 0.5) is None
+    assert threshold_support(0.0, 2.0) is not None
 
 
 def test_a_calibrated_streaming_checkpoint_live_equals_offline_and_converges(tmp_path):
