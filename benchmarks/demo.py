@@ -246,9 +246,9 @@ def resolve_models(args, methods=tuple(demo_models.MODELS)) -> dict:
     else:
         man = demo_models.shipped_models(d)
         if man is None:
-            print(f"[demo] no checkpoints in {d} for this scene version "
-                  f"({demo_models.scene_version()}): training them (a few minutes)",
-                  file=sys.stderr, flush=True)
+            print(f"[demo] checkpoints in {d} missing or not of this scene version "
+                  f"({demo_models.scene_version()}) and recipe: training those (up to 20 "
+                  f"minutes on 2 cores)", file=sys.stderr, flush=True)
             man = demo_models.train_models(d, args.train_data, progress=not args.no_progress)
             source = "trained now"
         else:

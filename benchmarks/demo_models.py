@@ -10,13 +10,21 @@ the five objects with the scene's microphones (4mic, 200 ms windows), mostly wit
 moving and with a share of the agent's pushes twisting the object about the pad normal
 (``twist_fraction``), plus a few trials of an object held off its centre of mass that
 gravity turns in the grasp (``gravity_pivot``), so every model learns the rotational output
-the pivot-stop task acts on (issue #21); export it, train the four models on the same
-trials, evaluate them on the held-out test trials and write ``models/aslip_stream.pt``,
-``models/aslip_cnn.pt``, ``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``, their
-hybrid ``models/aslip.pt`` and ``models/manifest.json`` (scene version, recipe, commands,
-metrics). A set is used only when
-every model in it was trained for the current scene version with the current recipe
-(manifest version 4); otherwise all are retrained, never mixed.
+the pivot-stop task acts on (issue #21); export it, train the models, evaluate each on the
+held-out test trials of its set and write ``models/aslip_stream.pt``, ``models/aslip_cnn.pt``,
+``models/aslip_cnn_uncalibrated.pt``, ``models/svm.pt``, their hybrid ``models/aslip.pt``
+and ``models/manifest.json`` (scene version, each model's recipe and command, metrics).
+
+Two training sets (:data:`DATASETS`): the window models and the SVM learn on ``demo``; the
+streaming part, which decides when a slip starts, on ``arm_drawn``: the same trials, but each
+trial with the arm moving has its own arm loudness, drawn log-uniform in 0.5-4 times the
+scene's (``aslip simulate --robot-noise-range``), and the gravity pivots are made with the
+arm moving too. A streaming part that has heard a loud arm without slip stops as early and
+hears more of the quiet turns (docs/results.md, "The arm drawn up to 4x").
+
+A set is used only when every model in it was trained for the current scene version with its
+current recipe (manifest version 5, ``model_recipes``); a model whose recipe changed is
+retrained, and a model whose recipe did not is kept.
 
 The scene couples every microphone differently in every grasp (since scene version 3), so the
 uncalibrated CNN is the control that shows what the live calibration buys in closed loop.
@@ -48,22 +56,33 @@ STREAM_NAME = "aslip_stream.pt"
 MANIFEST = "manifest.json"
 COMMAND = "python -m benchmarks.demo --train-models"
 #: Trials per object and condition (externally induced; ``gravity_pivot``: held off the
-#: centre of mass, arm still), the share of twisting pushes, seconds per trial, export hop
-#: (the recipe).
+#: centre of mass), the share of twisting pushes, seconds per trial, export hop, the arm's
+#: loudness range of the ``arm_drawn`` set, and the training budgets (the recipe).
 RECIPE = {"robot_moving": 12, "robot_stationary": 6, "gravity_pivot": 2,
           "twist_fraction": 0.3, "duration_s": 10.0, "hop_s": 0.05,
           "window_s": 0.2, "seed": 0, "time_budget_s": 480.0, "epochs": 40,
-          "svm_max_train": 1500, "stream_epochs": 60, "stream_time_budget_s": 600.0}
-#: The manifest's format. 4: the models estimate rotation (trained on twisting pushes and
-#: gravity pivots); a set of an older format is retrained, whatever its scene version.
-MANIFEST_VERSION = 4
-#: The condition of the gravity-pivot trials (the arm holds still).
+          "svm_max_train": 1500, "stream_epochs": 60, "stream_time_budget_s": 1500.0,
+          "stream_threads": 1, "arm_noise_range": [0.5, 4.0]}
+#: The manifest's format. 5: a training set and a recipe per model (``model_recipes``); a
+#: set of an older format is retrained, whatever its scene version.
+MANIFEST_VERSION = 5
+#: The condition of the demo set's gravity-pivot trials (the arm holds still).
 PIVOT_CONDITION = "robot_stationary"
+#: The training sets: ``demo`` (the arm as loud as the scene's, pivots with the arm still)
+#: and ``arm_drawn`` (each arm-moving trial's arm drawn in ``arm_noise_range``, pivots with
+#: the arm moving and still).
+DATASETS = ("demo", "arm_drawn")
+#: The recipe items each set is made from.
+DATA_KEYS = ("robot_moving", "robot_stationary", "gravity_pivot", "twist_fraction",
+             "duration_s", "hop_s", "window_s", "seed")
 #: Demo method -> (checkpoint file, ``aslip train`` stage, per-grasp calibration).
 MODELS = {"aslip_stream": (STREAM_NAME, "stream", "background"),
           "aslip_window": (CNN_NAME, "scratch", "background"),
           "aslip_uncalibrated": (UNCALIBRATED_NAME, "scratch", "off"),
           "svm": (SVM_NAME, "svm", "background")}
+#: Demo method -> the training set it learns on.
+MODEL_DATA = {"aslip_stream": "arm_drawn", "aslip_window": "demo",
+              "aslip_uncalibrated": "demo", "svm": "demo"}
 
 
 #: The package's default estimator: the hybrid of the set's streaming model and window CNN
@@ -110,23 +129,54 @@ def scene_version() -> str:
     return "src-" + h.hexdigest()[:16]
 
 
-def shipped_models(models_dir: str | Path) -> dict | None:
-    """The manifest when every model of :data:`MODELS` is listed, exists and was trained for
-    the current scene with the current recipe (:data:`MANIFEST_VERSION`), else None (a
-    stale or partial set is retrained, never mixed)."""
-    d = Path(models_dir)
+def data_recipe(name: str) -> dict:
+    """What the training set ``name`` (:data:`DATASETS`) is made from, as the manifest keeps
+    it."""
+    if name not in DATASETS:
+        raise ValueError(f"unknown training set {name!r}: one of {', '.join(DATASETS)}")
+    got = {k: RECIPE[k] for k in DATA_KEYS}
+    if name == "arm_drawn":
+        got["arm_noise_range"] = list(RECIPE["arm_noise_range"])
+    return got
+
+
+def model_recipe(method: str) -> dict:
+    """One model's recipe: its training set, what that is made from, and its ``aslip train``
+    command (the manifest's ``model_recipes``; a model is kept while it is unchanged)."""
+    name = MODEL_DATA[method]
+    return {"data": name, "data_recipe": data_recipe(name),
+            "command": train_command(method, name, f"models/{MODELS[method][0]}")}
+
+
+def _read_manifest(models_dir: Path) -> dict | None:
     try:
-        man = json.loads((d / MANIFEST).read_text())
+        man = json.loads((models_dir / MANIFEST).read_text())
     except (OSError, ValueError):
         return None
-    if not isinstance(man, dict) or man.get("scene_version") != scene_version() \
+    return man if isinstance(man, dict) else None
+
+
+def _current(man: dict | None, models_dir: Path, method: str) -> bool:
+    """Whether ``method``'s model in this manifest is there and was trained for the current
+    scene with its current recipe."""
+    if man is None or man.get("scene_version") != scene_version() \
             or man.get("version") != MANIFEST_VERSION:
-        return None
-    files = man.get("files")
-    if not isinstance(files, dict) or any(
-            not isinstance(files.get(m), str) or not (d / files[m]).is_file() for m in MODELS):
-        return None
-    return man
+        return False
+    files, recipes = man.get("files"), man.get("model_recipes")
+    if not isinstance(files, dict) or not isinstance(recipes, dict):
+        return False
+    name = files.get(method)
+    return isinstance(name, str) and (models_dir / name).is_file() \
+        and recipes.get(method) == model_recipe(method)
+
+
+def shipped_models(models_dir: str | Path) -> dict | None:
+    """The manifest when every model of :data:`MODELS` is listed, exists and was trained for
+    the current scene with its current recipe (:data:`MANIFEST_VERSION`,
+    :func:`model_recipe`), else None (a stale or partial set is not run)."""
+    d = Path(models_dir)
+    man = _read_manifest(d)
+    return man if all(_current(man, d, m) for m in MODELS) else None
 
 
 def aslip(argv: list[str]) -> int:
@@ -136,21 +186,9 @@ def aslip(argv: list[str]) -> int:
     return cli.main(argv)
 
 
-def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True) -> Path:
-    """Simulate and export the training set of the current scene; returns the dataset dir.
-
-    Bags are reused when present (simulate resumes), so each scene version gets its own
-    folder: audio from an older scene must never reach a model for the new one. The same
-    bags come from ``aslip simulate --kind external --twist-fraction 0.3`` (each condition)
-    and ``aslip simulate --kind pivot --conditions robot_stationary``."""
-    from aslip_ros.data.export import ExportConfig, export
+def _simulate_demo(bags: Path, common: dict) -> list[Path]:
     from aslip_ros.scene.simulate import simulate
-
     r = RECIPE
-    data = Path(data_dir) / f"scene-{scene_version()}"
-    bags, ds = data / "bags", data / "dataset"
-    common = dict(objects=list(OBJECTS), duration_s=r["duration_s"], seed=r["seed"],
-                  layout=DEFAULT_LAYOUT, progress=progress)
     for cond in ("robot_moving", "robot_stationary"):
         _log(f"simulating {r[cond]} x {len(OBJECTS)} externally induced trials, {cond}, "
              f"{r['twist_fraction']:.0%} of the slipping pushes twisting")
@@ -159,10 +197,55 @@ def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True) -> P
     _log(f"simulating {r['gravity_pivot']} x {len(OBJECTS)} gravity-pivot trials, "
          f"{PIVOT_CONDITION}")
     simulate(bags, "pivot", conditions=[PIVOT_CONDITION], trials=r["gravity_pivot"], **common)
-    _log("exporting")
-    export([bags], ds, ExportConfig(window_s=r["window_s"], hop_s=r["hop_s"], overwrite=True,
-                                    progress=progress))
-    return ds
+    return [bags]
+
+
+def _simulate_arm_drawn(root: Path, common: dict) -> list[Path]:
+    """The demo set's trials with the arm still, and its arm-moving trials plus arm-moving
+    gravity pivots with each trial's arm drawn in ``arm_noise_range`` (a folder each)."""
+    from aslip_ros.scene.simulate import simulate
+    r = RECIPE
+    lo, hi = r["arm_noise_range"]
+    moving, still = root / "bags_moving", root / "bags_still"
+    _log(f"simulating the arm-moving trials with the arm {lo:g}-{hi:g} times as loud")
+    simulate(moving, "external", conditions=["robot_moving"], trials=r["robot_moving"],
+             twist_fraction=r["twist_fraction"], robot_noise_range=(lo, hi), **common)
+    simulate(moving, "pivot", conditions=["robot_moving"], trials=r["gravity_pivot"],
+             robot_noise_range=(lo, hi), **common)
+    _log("simulating the trials with the arm still")
+    simulate(still, "external", conditions=["robot_stationary"], trials=r["robot_stationary"],
+             twist_fraction=r["twist_fraction"], **common)
+    simulate(still, "pivot", conditions=["robot_stationary"], trials=r["gravity_pivot"],
+             **common)
+    return [moving, still]
+
+
+def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True,
+                 sets: tuple[str, ...] = DATASETS) -> dict[str, Path]:
+    """Simulate and export the training sets of the current scene; returns each one's
+    dataset dir.
+
+    Bags are reused when present (simulate resumes), so each scene version gets its own
+    folder: audio from an older scene must never reach a model for the new one. The ``demo``
+    bags come from ``aslip simulate --kind external --twist-fraction 0.3`` (each condition)
+    and ``aslip simulate --kind pivot --conditions robot_stationary``; ``arm_drawn`` adds
+    ``--robot-noise-range 0.5,4`` to its arm-moving trials."""
+    from aslip_ros.data.export import ExportConfig, export
+
+    r = RECIPE
+    data = Path(data_dir) / f"scene-{scene_version()}"
+    common = dict(objects=list(OBJECTS), duration_s=r["duration_s"], seed=r["seed"],
+                  layout=DEFAULT_LAYOUT, progress=progress)
+    out = {}
+    for name in sets:
+        root = data if name == "demo" else data / name
+        bags = _simulate_demo(root / "bags", common) if name == "demo" \
+            else _simulate_arm_drawn(root, common)
+        _log(f"exporting the {name} set")
+        export(bags, root / "dataset", ExportConfig(window_s=r["window_s"], hop_s=r["hop_s"],
+                                                    overwrite=True, progress=progress))
+        out[name] = root / "dataset"
+    return out
 
 
 def _log(msg: str) -> None:
@@ -171,7 +254,8 @@ def _log(msg: str) -> None:
 
 def train_command(method: str, dataset: str | Path, out: str | Path,
                   threads: int = 2) -> list[str]:
-    """``aslip train`` arguments of one demo model (:data:`MODELS`)."""
+    """``aslip train`` arguments of one demo model (:data:`MODELS`); the streaming part
+    trains on the recipe's ``stream_threads``, whatever ``threads`` says."""
     r = RECIPE
     _, stage, calibration = MODELS[method]
     args = ["train", "--dataset", str(dataset), "--stage", stage, "--out", str(out),
@@ -180,39 +264,53 @@ def train_command(method: str, dataset: str | Path, out: str | Path,
         return args + ["--svm-max-train", str(r["svm_max_train"])]
     if stage == "stream":
         return args + ["--epochs", str(r["stream_epochs"]), "--time-budget",
-                       str(r["stream_time_budget_s"]), "--threads", str(threads)]
+                       str(r["stream_time_budget_s"]), "--threads", str(r["stream_threads"])]
     return args + ["--epochs", str(r["epochs"]), "--time-budget", str(r["time_budget_s"]),
                    "--threads", str(threads)]
 
 
+def _train_and_evaluate(method: str, ds: Path, out: Path, quiet: list[str],
+                        threads: int) -> dict:
+    name = MODELS[method][0]
+    _log(f"training {method} on the {MODEL_DATA[method]} set: {' '.join(MODELS[method][1:])}")
+    if aslip(train_command(method, ds, out / name, threads) + quiet) != 0:
+        raise RuntimeError(f"training {method} failed")
+    js = ds.parent / f"eval_{method}.json"
+    _log(f"evaluating {method} on the test trials of its set")
+    if aslip(["evaluate", "--checkpoint", str(out / name), "--dataset", str(ds),
+              "--split", "test", "--json", str(js), "--threads", str(threads)]) != 0:
+        raise RuntimeError(f"evaluating {method} failed")
+    overall = json.loads(js.read_text())["overall"]
+    got = {k: overall.get(k) for k in
+           ("n_windows", "detection_accuracy", "precision", "recall", "direction_mae_deg",
+            "direction_std_deg", "magnitude_rmse_mm", "magnitude_std_mm")}
+    # The rotational figures, under whatever names the evaluation gives them.
+    got.update({k: v for k, v in overall.items()
+                if "rotation" in k and isinstance(v, (int, float))})
+    return {**got, "test_set": MODEL_DATA[method]}
+
+
 def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data/demo",
                  progress: bool = True, threads: int = 2) -> dict:
-    """Simulate, export, train and evaluate; returns the manifest written to models_dir."""
+    """Simulate, export, train and evaluate the models whose recipe changed (every model of
+    a stale set), keep the others; returns the manifest written to models_dir."""
     t0 = time.perf_counter()
-    ds = prepare_data(data_dir, progress)
     out = Path(models_dir)
+    old = _read_manifest(out)
+    kept = [m for m in MODELS if _current(old, out, m)]
+    todo = [m for m in MODELS if m not in kept]
+    if kept:
+        _log(f"keeping {', '.join(kept)}: trained for this scene with their current recipe")
+    sets = prepare_data(data_dir, progress, tuple(dict.fromkeys(MODEL_DATA[m] for m in todo)))
     out.mkdir(parents=True, exist_ok=True)
     quiet = [] if progress else ["--no-progress"]
-    metrics, train_s = {}, {}
-    for method, (name, stage, calibration) in MODELS.items():
-        _log(f"training {method}: {stage}, calibration {calibration}")
+    metrics = {m: old["test_metrics"][m] for m in kept}
+    train_s = {m: old["train_s_per_model"][m] for m in kept}
+    for method in todo:
         t1 = time.perf_counter()
-        if aslip(train_command(method, ds, out / name, threads) + quiet) != 0:
-            raise RuntimeError(f"training {method} failed")
+        metrics[method] = _train_and_evaluate(method, sets[MODEL_DATA[method]], out, quiet,
+                                              threads)
         train_s[method] = round(time.perf_counter() - t1, 1)
-        js = ds.parent / f"eval_{method}.json"
-        _log(f"evaluating {method} on the test trials")
-        if aslip(["evaluate", "--checkpoint", str(out / name), "--dataset", str(ds),
-                  "--split", "test", "--json", str(js), "--threads", str(threads)]) != 0:
-            raise RuntimeError(f"evaluating {method} failed")
-        overall = json.loads(js.read_text())["overall"]
-        metrics[method] = {k: overall.get(k) for k in
-                           ("n_windows", "detection_accuracy", "precision", "recall",
-                            "direction_mae_deg", "direction_std_deg", "magnitude_rmse_mm",
-                            "magnitude_std_mm")}
-        # The rotational figures, under whatever names the evaluation gives them.
-        metrics[method].update({k: v for k, v in overall.items()
-                                if "rotation" in k and isinstance(v, (int, float))})
     files = {m: v[0] for m, v in MODELS.items()}
     hybrid_checkpoint(*(out / files[m] for m in DEFAULT_PARTS), out / DEFAULT_NAME)
     stream, window = (files[m] for m in DEFAULT_PARTS)
@@ -221,14 +319,15 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
            "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
            "layout": DEFAULT_LAYOUT, "files": {**files, DEFAULT: DEFAULT_NAME},
            "calibration": {m: v[2] for m, v in MODELS.items()},
-           "train_commands": {**{m: "aslip " + " ".join(train_command(m, "D", f"models/{f}"))
-                                 for m, f in files.items()},
+           "model_recipes": {m: model_recipe(m) for m in MODELS},
+           "train_commands": {**{m: "aslip " + " ".join(model_recipe(m)["command"])
+                                 for m in MODELS},
                               DEFAULT: f"aslip hybrid --stream models/{stream} --window "
                                        f"models/{window} --out models/{DEFAULT_NAME}"},
            "sizes_bytes": {f: (out / f).stat().st_size
                            for f in list(files.values()) + [DEFAULT_NAME]},
            "test_metrics": metrics, "train_s_per_model": train_s,
-           "train_s": round(time.perf_counter() - t0, 1),
+           "retrained": todo, "train_s": round(time.perf_counter() - t0, 1),
            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
     write_json(out / MANIFEST, man)
     _log(f"wrote {', '.join(man['files'].values())} and {MANIFEST} in {out}")

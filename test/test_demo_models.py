@@ -48,7 +48,9 @@ def _write_set(d: Path, version: str, skip: str | None = None) -> dict:
         if m != skip:
             (d / f).write_bytes(b"x")
     man = {"scene_version": version, "version": demo_models.MANIFEST_VERSION, "files": files,
-           "test_metrics": {}}
+           "model_recipes": {m: demo_models.model_recipe(m) for m in files},
+           "test_metrics": {m: {"test_set": "demo"} for m in files},
+           "train_s_per_model": {m: 1.0 for m in files}}
     (d / demo_models.MANIFEST).write_text(json.dumps(man))
     return man
 
@@ -69,12 +71,12 @@ def test_a_partial_set_is_refused(tmp_path, missing):
     assert demo_models.shipped_models(tmp_path) is None
 
 
-def test_a_set_from_before_the_rotational_recipe_is_refused(tmp_path):
-    """Manifest version 3 (planar-only models) is retrained even for this scene version."""
+def test_a_set_from_before_the_per_model_recipes_is_refused(tmp_path):
+    """Manifest version 4 (one recipe for every model) is retrained even for this scene."""
     _write_set(tmp_path, demo_models.scene_version())
     man = json.loads((tmp_path / demo_models.MANIFEST).read_text())
-    assert demo_models.MANIFEST_VERSION == 4
-    man["version"] = 3
+    assert demo_models.MANIFEST_VERSION == 5
+    man["version"] = 4
     (tmp_path / demo_models.MANIFEST).write_text(json.dumps(man))
     assert demo_models.shipped_models(tmp_path) is None
     del man["version"]
@@ -82,19 +84,33 @@ def test_a_set_from_before_the_rotational_recipe_is_refused(tmp_path):
     assert demo_models.shipped_models(tmp_path) is None
 
 
+@pytest.mark.parametrize("method", sorted(demo_models.MODELS))
+def test_a_set_where_one_models_recipe_changed_is_refused(tmp_path, method):
+    _write_set(tmp_path, demo_models.scene_version())
+    man = json.loads((tmp_path / demo_models.MANIFEST).read_text())
+    man["model_recipes"][method]["data_recipe"]["seed"] = 7
+    (tmp_path / demo_models.MANIFEST).write_text(json.dumps(man))
+    assert demo_models.shipped_models(tmp_path) is None
+
+
+def _simulated(tmp_path, monkeypatch, sets):
+    import aslip_ros.data.export as export
+    import aslip_ros.scene.simulate as simulate
+    calls, exported = [], []
+    monkeypatch.setattr(simulate, "simulate",
+                        lambda out, kind, **kw: calls.append((Path(out), kind, kw)) or {})
+    monkeypatch.setattr(export, "export", lambda bags, ds, cfg: exported.append((bags, ds)))
+    got = demo_models.prepare_data(tmp_path, progress=False, sets=sets)
+    return calls, exported, got
+
+
 def test_the_recipe_trains_on_twisting_pushes_and_gravity_pivots(tmp_path, monkeypatch):
     """The models must hear rotation to estimate it: the externally induced trials twist a
     share of their pushes, and gravity-pivot trials join the set, in the scene-version
     folder the export reads."""
-    import aslip_ros.data.export as export
-    import aslip_ros.scene.simulate as simulate
     r = demo_models.RECIPE
     assert 0.0 < r["twist_fraction"] < 1.0 and r["gravity_pivot"] >= 1
-    calls, exported = [], []
-    monkeypatch.setattr(simulate, "simulate",
-                        lambda out, kind, **kw: calls.append((Path(out), kind, kw)) or {})
-    monkeypatch.setattr(export, "export", lambda bags, ds, cfg: exported.append(bags))
-    demo_models.prepare_data(tmp_path, progress=False)
+    calls, exported, got = _simulated(tmp_path, monkeypatch, ("demo",))
     ext = [kw for _, kind, kw in calls if kind == "external"]
     assert sorted(c for kw in ext for c in kw["conditions"]) == ["robot_moving",
                                                                  "robot_stationary"]
@@ -103,9 +119,34 @@ def test_the_recipe_trains_on_twisting_pushes_and_gravity_pivots(tmp_path, monke
     assert len(pivot) == 1 and pivot[0]["trials"] == r["gravity_pivot"]
     assert pivot[0]["conditions"] == [demo_models.PIVOT_CONDITION]
     assert "twist_fraction" not in pivot[0]
+    assert not any("robot_noise_range" in kw for _, _, kw in calls)   # the scene's arm
     bags = {out for out, _, _ in calls}
-    assert len(bags) == 1 and exported == [[bags.pop()]]
-    assert f"scene-{demo_models.scene_version()}" in str(exported[0][0])
+    assert len(bags) == 1 and [b for b, _ in exported] == [[bags.pop()]]
+    assert f"scene-{demo_models.scene_version()}" in str(exported[0][0][0])
+    assert got == {"demo": exported[0][1]}
+
+
+def test_the_streaming_parts_set_draws_the_arm_only_where_it_moves(tmp_path, monkeypatch):
+    """``arm_drawn``: the demo set's trials, each arm-moving one (external and gravity pivot)
+    with its arm's loudness drawn in the recipe's range, the trials with the arm still as
+    the scene makes them; its own folder, apart from the demo set's bags."""
+    r = demo_models.RECIPE
+    calls, exported, got = _simulated(tmp_path, monkeypatch, ("arm_drawn",))
+    assert sorted((kind, kw["conditions"][0], kw["trials"]) for _, kind, kw in calls) == [
+        ("external", "robot_moving", r["robot_moving"]),
+        ("external", "robot_stationary", r["robot_stationary"]),
+        ("pivot", "robot_moving", r["gravity_pivot"]),
+        ("pivot", "robot_stationary", r["gravity_pivot"])]
+    for _, _, kw in calls:
+        drawn = kw.get("robot_noise_range")
+        assert drawn == (tuple(r["arm_noise_range"]) if kw["conditions"] == ["robot_moving"]
+                         else None)
+    (bags, ds), = exported
+    assert sorted({out for out, _, _ in calls}) == sorted(bags) and len(bags) == 2
+    assert all("arm_drawn" in str(b) for b in bags) and got == {"arm_drawn": ds}
+    assert demo_models.MODEL_DATA["aslip_stream"] == "arm_drawn"
+    assert {demo_models.MODEL_DATA[m] for m in demo_models.MODELS if m != "aslip_stream"} \
+        == {"demo"}
 
 
 def test_a_manifest_from_before_the_uncalibrated_model_is_refused(tmp_path):
@@ -178,17 +219,24 @@ def test_the_demo_runs_the_package_estimator_first_beside_its_parts_and_two_base
 
 def test_retraining_trains_every_model_and_records_its_scene(tmp_path, monkeypatch):
     _write_set(tmp_path, "2")
-    monkeypatch.setattr(demo_models, "prepare_data", lambda *a: tmp_path / "data" / "ds")
+    prepared = []
+
+    def fake_prepare(data_dir, progress, sets):
+        prepared.append(sets)
+        return {s: tmp_path / "data" / s / "ds" for s in sets}
+    monkeypatch.setattr(demo_models, "prepare_data", fake_prepare)
     trained = []
 
     def fake_aslip(argv):
         if argv[0] == "train":
-            trained.append(argv[argv.index("--stage") + 1])
+            trained.append((argv[argv.index("--stage") + 1],
+                            Path(argv[argv.index("--dataset") + 1]).parent.name))
             Path(argv[argv.index("--out") + 1]).write_bytes(b"model")
         else:
             Path(argv[argv.index("--json") + 1]).write_text(json.dumps({"overall": {}}))
         return 0
-    (tmp_path / "data").mkdir()
+    for name in demo_models.DATASETS:
+        (tmp_path / "data" / name).mkdir(parents=True)
     monkeypatch.setattr(demo_models, "aslip", fake_aslip)
     assembled = []
 
@@ -198,7 +246,9 @@ def test_retraining_trains_every_model_and_records_its_scene(tmp_path, monkeypat
         return Path(out)
     monkeypatch.setattr(demo_models, "hybrid_checkpoint", fake_hybrid)
     man = demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
-    assert sorted(trained) == ["scratch", "scratch", "stream", "svm"]
+    assert sorted(trained) == [("scratch", "demo"), ("scratch", "demo"),
+                               ("stream", "arm_drawn"), ("svm", "demo")]
+    assert prepared == [("arm_drawn", "demo")]
     assert man["scene_version"] == demo_models.scene_version()
     assert man["version"] == demo_models.MANIFEST_VERSION
     assert man["recipe"]["twist_fraction"] == demo_models.RECIPE["twist_fraction"]
@@ -210,6 +260,20 @@ def test_retraining_trains_every_model_and_records_its_scene(tmp_path, monkeypat
     assert man["train_commands"]["aslip"].startswith("aslip hybrid --stream models/")
     assert assembled == [(tmp_path / demo_models.STREAM_NAME, tmp_path / demo_models.CNN_NAME,
                           tmp_path / "aslip.pt")]
+    assert man["test_metrics"]["aslip_stream"]["test_set"] == "arm_drawn"
+    # The set is current now: nothing is trained or simulated again.
+    trained.clear()
+    prepared.clear()
+    demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
+    assert trained == [] and prepared == [()]
+    # Only the streaming part's recipe changes: it alone is retrained, on its own set.
+    monkeypatch.setitem(demo_models.RECIPE, "arm_noise_range", [0.5, 3.0])
+    assert demo_models.shipped_models(tmp_path) is None
+    man = demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
+    assert trained == [("stream", "arm_drawn")] and prepared[-1] == ("arm_drawn",)
+    assert man["retrained"] == ["aslip_stream"]
+    assert man["model_recipes"]["aslip_stream"]["data_recipe"]["arm_noise_range"] == [0.5, 3.0]
+    assert demo_models.shipped_models(tmp_path) is not None
 
 
 def test_track_settings_from_the_command_line_keep_their_types_and_refuse_unknown_names():
