@@ -304,8 +304,9 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
     sets = prepare_data(data_dir, progress, tuple(dict.fromkeys(MODEL_DATA[m] for m in todo)))
     out.mkdir(parents=True, exist_ok=True)
     quiet = [] if progress else ["--no-progress"]
-    metrics = {m: old["test_metrics"][m] for m in kept}
-    train_s = {m: old["train_s_per_model"][m] for m in kept}
+    # A kept model's figures come from the manifest it was listed in (None where it has none).
+    metrics = {m: (old.get("test_metrics") or {}).get(m) for m in kept}
+    train_s = {m: (old.get("train_s_per_model") or {}).get(m) for m in kept}
     for method in todo:
         t1 = time.perf_counter()
         metrics[method] = _train_and_evaluate(method, sets[MODEL_DATA[method]], out, quiet,

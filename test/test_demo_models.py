@@ -340,3 +340,32 @@ def test_the_shipped_default_is_the_hybrid_of_the_shipped_parts():
     assert assembled_from(d / node_table.DEFAULT_MODEL) == {
         n: hashlib.sha256((d / f).read_bytes()).hexdigest()
         for n, f in (("stream", demo_models.STREAM_NAME), ("window", demo_models.CNN_NAME))}
+
+
+def test_a_kept_model_without_figures_in_its_manifest_is_kept_without_them(tmp_path,
+                                                                           monkeypatch):
+    """A manifest that lists a current model's recipe but not its test metrics or training
+    time (written by hand, or cut short) keeps the model; it does not fail the retrain."""
+    _write_set(tmp_path, demo_models.scene_version())
+    man = json.loads((tmp_path / demo_models.MANIFEST).read_text())
+    del man["test_metrics"], man["train_s_per_model"]
+    man["model_recipes"]["svm"]["command"] = ["stale"]
+    (tmp_path / demo_models.MANIFEST).write_text(json.dumps(man))
+    monkeypatch.setattr(demo_models, "prepare_data",
+                        lambda data_dir, progress, sets: {s: tmp_path / s / "ds" for s in sets})
+
+    def fake_aslip(argv):
+        if argv[0] == "train":
+            Path(argv[argv.index("--out") + 1]).write_bytes(b"model")
+        else:
+            Path(argv[argv.index("--json") + 1]).write_text(json.dumps({"overall": {}}))
+        return 0
+    (tmp_path / "demo").mkdir()
+    monkeypatch.setattr(demo_models, "aslip", fake_aslip)
+    monkeypatch.setattr(demo_models, "hybrid_checkpoint",
+                        lambda stream, window, out: Path(out).write_bytes(b"h") and Path(out))
+    man = demo_models.train_models(tmp_path, tmp_path / "data", progress=False)
+    assert man["retrained"] == ["svm"]
+    assert man["test_metrics"]["aslip_window"] is None
+    assert man["test_metrics"]["svm"]["test_set"] == "demo"
+    assert demo_models.shipped_models(tmp_path) is not None
