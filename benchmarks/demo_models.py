@@ -156,18 +156,17 @@ def _read_manifest(models_dir: Path) -> dict | None:
     return man if isinstance(man, dict) else None
 
 
-def _current(man: dict | None, models_dir: Path, method: str) -> bool:
-    """Whether ``method``'s model in this manifest is there and was trained for the current
-    scene with its current recipe."""
+def _current(man: dict | None, models_dir: Path) -> list[str]:
+    """The models of :data:`MODELS` that this manifest lists, that are there and that were
+    trained for the current scene with their current recipe."""
     if man is None or man.get("scene_version") != scene_version() \
             or man.get("version") != MANIFEST_VERSION:
-        return False
+        return []
     files, recipes = man.get("files"), man.get("model_recipes")
     if not isinstance(files, dict) or not isinstance(recipes, dict):
-        return False
-    name = files.get(method)
-    return isinstance(name, str) and (models_dir / name).is_file() \
-        and recipes.get(method) == model_recipe(method)
+        return []
+    return [m for m in MODELS if isinstance(files.get(m), str)
+            and (models_dir / files[m]).is_file() and recipes.get(m) == model_recipe(m)]
 
 
 def shipped_models(models_dir: str | Path) -> dict | None:
@@ -176,7 +175,7 @@ def shipped_models(models_dir: str | Path) -> dict | None:
     :func:`model_recipe`), else None (a stale or partial set is not run)."""
     d = Path(models_dir)
     man = _read_manifest(d)
-    return man if all(_current(man, d, m) for m in MODELS) else None
+    return man if len(_current(man, d)) == len(MODELS) else None
 
 
 def aslip(argv: list[str]) -> int:
@@ -297,7 +296,7 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
     t0 = time.perf_counter()
     out = Path(models_dir)
     old = _read_manifest(out)
-    kept = [m for m in MODELS if _current(old, out, m)]
+    kept = _current(old, out)
     todo = [m for m in MODELS if m not in kept]
     if kept:
         _log(f"keeping {', '.join(kept)}: trained for this scene with their current recipe")
@@ -315,14 +314,15 @@ def train_models(models_dir: str | Path = "models", data_dir: str | Path = "data
     files = {m: v[0] for m, v in MODELS.items()}
     hybrid_checkpoint(*(out / files[m] for m in DEFAULT_PARTS), out / DEFAULT_NAME)
     stream, window = (files[m] for m in DEFAULT_PARTS)
+    recipes = {m: model_recipe(m) for m in MODELS}
     man = {"format": "aslip-demo-models", "version": MANIFEST_VERSION,
            "scene_version": scene_version(),
            "command": COMMAND, "recipe": dict(RECIPE), "objects": list(OBJECTS),
            "layout": DEFAULT_LAYOUT, "files": {**files, DEFAULT: DEFAULT_NAME},
            "calibration": {m: v[2] for m, v in MODELS.items()},
-           "model_recipes": {m: model_recipe(m) for m in MODELS},
-           "train_commands": {**{m: "aslip " + " ".join(model_recipe(m)["command"])
-                                 for m in MODELS},
+           "model_recipes": recipes,
+           "train_commands": {**{m: "aslip " + " ".join(r["command"])
+                                 for m, r in recipes.items()},
                               DEFAULT: f"aslip hybrid --stream models/{stream} --window "
                                        f"models/{window} --out models/{DEFAULT_NAME}"},
            "sizes_bytes": {f: (out / f).stat().st_size
