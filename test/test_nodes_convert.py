@@ -129,3 +129,51 @@ def test_marker_arrow_follows_slip_and_color_follows_probability():
     calm = convert.slip_markers(convert.slip_to_msg(0, 0, 0.1, False, 0.5, 0, 0.1, "x"))
     assert calm.markers[0].action == calm.markers[0].DELETE
     assert calm.markers[1].color.g > calm.markers[1].color.r
+
+
+@pytest.mark.parametrize("samples, reason", [
+    ([0.0, float("nan")], None), ([float("-inf"), 0.5], None), ([1.0, -1.0], None),
+    ([float("nan"), 1.5], "out_of_range"), ([-2.0, float("inf")], "out_of_range")])
+def test_without_require_finite_only_finite_samples_are_range_checked(samples, reason):
+    """A reader that keeps NaN/Inf (and names them itself) still gets the range check on
+    the finite samples, however the block's extremes fall."""
+    from aslip_ros.audio_frame import AudioFrameError, decode_audio_frame
+    from aslip_ros.nodes import convert
+    msg = convert.audio_to_msg(0, 0, 48000.0, ["a", "b"], np.zeros((2, 2), np.float32))
+    msg.data = samples * 2
+    if reason is None:
+        assert decode_audio_frame(msg, require_finite=False).block.shape == (2, 2)
+    else:
+        with pytest.raises(AudioFrameError) as err:
+            decode_audio_frame(msg, require_finite=False)
+        assert err.value.reason == reason
+
+
+def _fields(msg) -> tuple:
+    return (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id,
+            msg.probability, msg.slipping, msg.threshold, msg.velocity.x, msg.velocity.y,
+            msg.velocity.z, msg.speed, msg.direction, msg.direction_sigma,
+            msg.angular_velocity, msg.angular_velocity_sigma, msg.window_length, msg.source)
+
+
+def test_a_reused_slip_vector_keeps_nothing_of_the_estimate_before():
+    """The inference node fills one message for every estimate: each fill equals a new
+    message, and a refused estimate leaves the message as it was."""
+    from aslip_ros.nodes import convert
+    slipping = dict(vx=0.02, vz=-0.01, probability=0.9, slipping=True, threshold=0.5,
+                    stamp_ns=3_200_000_000, window_length=0.2, source="aslip",
+                    direction_sigma=0.3, angular_velocity=0.4, angular_sigma=0.1)
+    quiet = dict(vx=0.03, vz=0.01, probability=0.2, slipping=False, threshold=0.5,
+                 stamp_ns=3_210_000_000, window_length=0.0, source="aslip_stream",
+                 frame_id="other_frame")
+    msg = convert.slip_to_msg(**slipping)
+    assert convert.slip_to_msg(**quiet, out=msg) is msg
+    assert _fields(msg) == _fields(convert.slip_to_msg(**quiet))
+    assert (msg.velocity.x, msg.speed, msg.direction_sigma) == (0.0, 0.0, -1.0)
+    assert _fields(convert.slip_to_msg(**slipping, out=msg)) == \
+        _fields(convert.slip_to_msg(**slipping))
+    before = _fields(msg)
+    for bad in ({"vz": float("inf")}, {"probability": 1.5}, {"stamp_ns": -1}):
+        with pytest.raises(ValueError):
+            convert.slip_to_msg(**{**quiet, **bad}, out=msg)
+        assert _fields(msg) == before

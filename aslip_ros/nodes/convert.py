@@ -88,26 +88,35 @@ def audio_from_msg(msg: AudioFrame, require_finite: bool = True) -> AudioData:
 def slip_to_msg(vx: float, vz: float, probability: float, slipping: bool, threshold: float,
                 stamp_ns: int, window_length: float, source: str,
                 frame_id: str = GRASP_FRAME, direction_sigma: float = -1.0,
-                angular_velocity: float = 0.0, angular_sigma: float = -1.0) -> SlipVector:
+                angular_velocity: float = 0.0, angular_sigma: float = -1.0,
+                out: Optional[SlipVector] = None) -> SlipVector:
     """Build a SlipVector; refuses non-finite or out-of-range values instead of sending them.
 
     When ``slipping`` is false the velocity, speed and direction are zero (the paper's zero
     vector), whatever ``vx``/``vz`` say. ``angular_velocity`` [rad/s, about grasp-plane +y]
     and its sigma (negative: none) are not gated by ``slipping``, which is planar: a pure
     rotation is published with ``slipping`` false.
+
+    ``out``: a message to fill instead of a new one (a publisher sending 100 a second reuses
+    one; rclpy serialises it in ``publish``). Every field is written, so nothing of the
+    message it held before is left; on a refusal it is left untouched.
     """
-    values = {"vx": vx, "vz": vz, "probability": probability, "threshold": threshold,
-              "window_length": window_length, "direction_sigma": direction_sigma,
-              "angular_velocity": angular_velocity, "angular_sigma": angular_sigma}
-    bad = [k for k, v in values.items() if not math.isfinite(float(v))]
-    if bad:
-        raise ValueError(f"slip estimate has non-finite {', '.join(bad)}: {values}")
+    # A sum of finite values is finite: one test for the common case, names on failure.
+    if not math.isfinite(float(vx) + float(vz) + float(probability) + float(threshold)
+                         + float(window_length) + float(direction_sigma)
+                         + float(angular_velocity) + float(angular_sigma)):
+        values = {"vx": vx, "vz": vz, "probability": probability, "threshold": threshold,
+                  "window_length": window_length, "direction_sigma": direction_sigma,
+                  "angular_velocity": angular_velocity, "angular_sigma": angular_sigma}
+        bad = [k for k, v in values.items() if not math.isfinite(float(v))]
+        raise ValueError(f"slip estimate has non-finite {', '.join(bad) or 'sum'}: {values}")
     if not 0.0 <= probability <= 1.0 or not 0.0 <= threshold <= 1.0:
         raise ValueError(f"probability {probability} / threshold {threshold} outside [0, 1]")
     if window_length < 0.0:
         raise ValueError(f"window_length must be >= 0, got {window_length}")
-    msg = SlipVector()
-    msg.header.stamp = ns_to_stamp(stamp_ns)
+    stamp = ns_to_stamp(stamp_ns)
+    msg = SlipVector() if out is None else out
+    msg.header.stamp = stamp
     msg.header.frame_id = frame_id
     msg.probability = float(probability)
     msg.slipping = bool(slipping)
@@ -118,6 +127,7 @@ def slip_to_msg(vx: float, vz: float, probability: float, slipping: bool, thresh
         msg.direction = float(math.atan2(vz, vx)) if msg.speed > 0.0 else 0.0
         msg.direction_sigma = float(direction_sigma)
     else:
+        msg.velocity.x = msg.velocity.z = msg.speed = msg.direction = 0.0
         msg.direction_sigma = -1.0
     msg.velocity.y = 0.0
     msg.angular_velocity = float(angular_velocity)

@@ -120,6 +120,9 @@ from aslip_ros.nodes import convert
 #: Estimates the latency figures are computed over: 60 s at the 100 Hz hop rate, so p99.9
 #: rests on the 6 slowest of them rather than on the single maximum.
 TIMING_SAMPLES = 6000
+#: How often the node asks the graph whether anyone shows its rviz markers [s] (a new
+#: subscriber gets them within this).
+MARKER_SUBSCRIBERS_S = 1.0
 #: The diagnostics' names of the timed figures (``<name>_p50_ms`` ...; module docstring).
 TIMED = ("input_age", "step_queue", "step_features", "step_forward", "step_publish",
          "latency")
@@ -235,6 +238,9 @@ class SlipInference(Node):
         self.lag_s = 0.0
         self.pub_slip = self.create_publisher(SlipVector, c.SLIP_TOPIC, RELIABLE_QOS)
         self.pub_marker = self.create_publisher(MarkerArray, c.MARKER_TOPIC, MARKER_QOS)
+        self._slip_msg = SlipVector()            # filled again for each estimate (_publish)
+        self._marker_subscribers = 0
+        self._marker_check_at = 0.0              # monotonic [s] of the next subscriber count
         self.pub_calibration = self.create_publisher(String, topics.CALIBRATION, LATCHED_QOS)
         self._grasp = 0                          # grasps begun (resets of the calibration)
         # The audio, model and service threads all report the estimator's events: one at a
@@ -306,6 +312,8 @@ class SlipInference(Node):
 
     def _report(self) -> None:
         """The estimator's events as log lines and calibration announcements."""
+        if not self.est.has_events:          # the common case: nothing to take or lock
+            return
         with self._report_lock:
             self._log_events(self.est.take_events())
 
@@ -399,16 +407,25 @@ class SlipInference(Node):
 
     def _publish(self, e: Estimate, marker: bool = True) -> None:
         p = e.prediction
+        # One message, filled again for each estimate: the audio thread (streaming) or the
+        # model thread (window models) publishes, never both, and publish serialises it.
         out = convert.slip_to_msg(p.vx, p.vz, p.probability, p.slipping, p.threshold,
                                   e.stamp_ns, p.window_length, self.source, self.p["frame_id"],
                                   direction_sigma=e.direction_sigma,
                                   angular_velocity=p.angular_velocity,
-                                  angular_sigma=p.angular_sigma)
+                                  angular_sigma=p.angular_sigma, out=self._slip_msg)
         self.pub_slip.publish(out)
         with self._lock:
             self.published += 1
-        # rviz needs only the newest arrow, and only when someone shows it.
-        if marker and self.pub_marker.get_subscription_count() > 0:
+        # rviz needs only the newest arrow, and only when someone shows it (asked at most
+        # every MARKER_SUBSCRIBERS_S: the graph query costs more than the estimate).
+        if not marker:
+            return
+        now = time.monotonic()
+        if now >= self._marker_check_at:
+            self._marker_check_at = now + MARKER_SUBSCRIBERS_S
+            self._marker_subscribers = self.pub_marker.get_subscription_count()
+        if self._marker_subscribers > 0:
             self.pub_marker.publish(convert.slip_markers(out,
                                                          scale_s=self.p["marker_scale_s"]))
 

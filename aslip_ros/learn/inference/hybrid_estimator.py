@@ -167,6 +167,10 @@ class HybridEstimator:
     def last_features_s(self) -> float:
         return self.window.last_features_s
 
+    @property
+    def has_events(self) -> bool:
+        return self.stream.has_events or self.window.has_events
+
     def take_events(self) -> list[Event]:
         """Both parts' events, each told once (both see every block, so both tell of a gap)."""
         out: list[Event] = []

@@ -270,6 +270,12 @@ class LiveEstimator:
         return self.predictor.threshold
 
     # --- what the caller hears of ---------------------------------------------------------
+    @property
+    def has_events(self) -> bool:
+        """Whether events wait to be taken (a peek without the lock: one appended meanwhile
+        is taken by the next ``take_events``)."""
+        return bool(self.events)
+
     def take_events(self) -> list[Event]:
         with self._lock:
             out, self.events = self.events, []
