@@ -87,6 +87,26 @@ def test_frames_follow_the_stream_not_the_blocks(constants):
     assert s.state.n_frames == 0 and s.resets == 1 and not s.offsets.any()
 
 
+@pytest.mark.parametrize("input_rate", [SR, 48000.0])
+def test_frame_j_is_the_log_mel_of_its_own_samples(input_rate):
+    """The module's definition: frame j is the log-mel of input samples [j*hop, j*hop+span)
+    featurised on their own, at the stream's rate as at the features' (a strided view must
+    not shift or mix them); the frame count is the same for an int and an array."""
+    from aslip_ros.learn.features import LogMel
+    cutter = FrameCutter(FC, input_rate)
+    a = np.random.default_rng(2).standard_normal((cutter.span + 6 * cutter.hop + 7, 4))
+    a = (0.1 * a).astype(np.float32)
+    frames = cutter.frames(a[::1])
+    assert frames.shape == (4, FC.n_mels, 7)
+    logmel = LogMel(FC, input_rate)
+    for j in range(7):
+        own = logmel(a[j * cutter.hop:j * cutter.hop + cutter.span][None])[0, :, :, 0]
+        np.testing.assert_allclose(frames[:, :, j], own, rtol=1e-6, atol=1e-6)
+    n = np.arange(0, a.shape[0] + 1, 37)
+    assert [cutter.count(int(k)) for k in n] == list(cutter.count(n))
+    assert cutter.count(np.int64(n[-1])) == cutter.count(n)[-1]
+
+
 def test_one_sided_grasp_does_not_bias_the_gain_estimate(constants):
     """80 % of the slip towards one side: the background estimate still finds the coupling
     (error well below the 1-2 dB a slip-energy average makes of the same grasp)."""

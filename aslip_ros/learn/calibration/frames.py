@@ -61,22 +61,26 @@ class FrameCutter:
 
     def count(self, n_samples: Any) -> Any:
         """Frames complete after ``n_samples`` samples of the grasp (scalar or array)."""
+        if isinstance(n_samples, (int, np.integer)):     # the live case, once a block
+            return max(0, (int(n_samples) - self.span) // self.hop + 1)
         n = np.asarray(n_samples, dtype=np.int64)
         out = np.maximum(0, (n - self.span) // self.hop + 1)
         return int(out) if out.ndim == 0 else out
 
     def frames(self, audio: np.ndarray) -> np.ndarray:
         """Every complete frame of ``audio`` ``(n_samples, C)``: log-mel ``(C, M, T)``."""
-        a = np.asarray(audio, dtype=np.float32)
+        a = np.ascontiguousarray(audio, dtype=np.float32)
         t = self.count(a.shape[0])
         m = self.logmel.cfg.n_mels
         if t == 0:
             return np.zeros((a.shape[1], m, 0), np.float32)
-        segs = np.lib.stride_tricks.sliding_window_view(a, self.span, axis=0)[::self.hop][:t]
+        # Frame j's samples as a strided view (n, span, C) of the audio: sliding_window_view
+        # costs more than the frame's log-mel when a block completes one frame (the node).
+        segs = np.ndarray((t, self.span, a.shape[1]), np.float32, a, 0,
+                          (self.hop * a.strides[0],) + a.strides)
         out = np.empty((t, a.shape[1], m), np.float32)
         for s in range(0, t, _CHUNK):
-            seg = np.ascontiguousarray(np.swapaxes(segs[s:s + _CHUNK], 1, 2))  # (n, span, C)
-            out[s:s + _CHUNK] = self.logmel(seg)[..., 0]
+            out[s:s + _CHUNK] = self.logmel(np.ascontiguousarray(segs[s:s + _CHUNK]))[..., 0]
         return np.ascontiguousarray(np.transpose(out, (1, 2, 0)))
 
 

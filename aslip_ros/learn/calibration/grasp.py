@@ -188,13 +188,16 @@ def _frame_stats(frames: np.ndarray, k: CalibrationConstants, g: _GateArrays
     if x.ndim != 3 or x.shape[0] != len(k.channel_names) or x.shape[1] != k.n_mels:
         raise ValueError(f"frames must be ({len(k.channel_names)}, {k.n_mels}, T), got "
                          f"{x.shape}")
-    if not np.all(np.isfinite(x)):
+    if not np.isfinite(x).all():
         raise ValueError("frames contain NaN or Inf")
+    # Means over channels as sum / count: what ndarray.mean computes, without its per-call
+    # overhead (the live node calls this for every frame).
+    c = x.shape[0]
     top = x.max(axis=1, keepdims=True)
     level = (top + np.log(np.exp(x - top).sum(axis=1, keepdims=True)))[:, 0, :]   # (C, T)
-    mean_level = level.mean(axis=0)
+    mean_level = level.sum(axis=0) / c
     dev = level - mean_level
-    z = (x.mean(axis=0).T - g.mean) / g.std                                       # (T, M)
+    z = (x.sum(axis=0).T / c - g.mean) / g.std                                    # (T, M)
     logit = z @ g.coef + k.gate_bias
     p = 1.0 / (1.0 + np.exp(-np.clip(logit, -50.0, 50.0)))
     active = mean_level > k.floor_level
