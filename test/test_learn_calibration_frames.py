@@ -176,3 +176,28 @@ def test_predictor_refuses_a_stream_its_calibration_cannot_follow(constants):
     """22.05 kHz: a 10 ms hop is no whole number of samples."""
     with pytest.raises(CheckpointMismatch, match="whole number"):
         _predictor(constants["background"].with_(), sample_rate=22050.0)
+
+
+def test_calibrations_that_share_frames_keep_their_own_offsets(constants):
+    """Two calibrations cutting frames with one cutter: the frames of audio seen just before
+    are not computed again, and each one's offsets are bit for bit those it computes alone,
+    also while the other is fed other audio (its own restart, another stream)."""
+    k = constants["background"]
+    rng = np.random.default_rng(3)
+    a1, _ = grasp_audio(rng, [2.0, -1.0, 0.0, -1.0], seconds=2.0)
+    a2, _ = grasp_audio(rng, [-2.0, 1.0, 0.5, 0.0], seconds=2.0)
+    first, same, other = (StreamCalibration(k, FC, SR) for _ in range(3))
+    assert same.share_frames(first) and other.share_frames(first)
+    alone = [StreamCalibration(k, FC, SR) for _ in range(3)]
+    for i in range(0, a1.shape[0], 160):
+        for s, audio in zip((first, same, other), (a1, a1, a2)):
+            s.push(audio[i:i + 160])
+        for s, audio in zip(alone, (a1, a1, a2)):
+            s.push(audio[i:i + 160])
+        for s, ref in zip((first, same, other), alone):
+            np.testing.assert_array_equal(s.offsets, ref.offsets)
+    n = first.state.n_frames
+    assert n > 10 and same.state.n_frames == other.state.n_frames == n
+    assert first.cutter.reused == n                   # ``same`` computed none of its own
+    assert not StreamCalibration(k, FeatureConfig(n_mels=16, n_fft=512, hop=160),
+                                 SR).share_frames(first)     # other frames: not shared

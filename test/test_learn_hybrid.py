@@ -210,3 +210,30 @@ def test_aslip_hybrid_writes_a_checkpoint_slip_inference_runs(parts, tmp_path, c
     err = capsys.readouterr().err.strip()
     assert err.startswith("aslip hybrid: error:") and "\n" not in err
     assert not (tmp_path / "bad.pt").exists()
+
+
+def test_the_shipped_hybrid_cuts_its_calibration_frames_once():
+    """models/aslip.pt: both parts calibrate on the same frames; the window part reads the
+    stream part's, and each part's offsets are those it computes alone."""
+    from pathlib import Path
+
+    from aslip_ros.audio_frame import AudioData
+    from aslip_ros.learn.calibration.frames import StreamCalibration
+    path = Path(__file__).resolve().parents[1] / "models" / "aslip.pt"
+    est = open_estimator(path)
+    parts = (est.stream.predictor, est.window.predictor)
+    cals = [p._stream_cal for p in parts]
+    assert cals[0].cutter is cals[1].cutter
+    alone = [StreamCalibration(p.calibration, p.feature_config, p.sample_rate) for p in parts]
+    rng = np.random.default_rng(0)
+    names, fs = list(parts[1].channel_names), parts[1].sample_rate
+    for i in range(60):
+        block = (0.01 * rng.standard_normal((480, len(names)))).astype(np.float32)
+        est.feed(AudioData(i * 480, 10**9 + int(i * 480 / fs * 1e9), fs, names, "4mic",
+                           "aslip_sensor", block))
+        for s in alone:
+            s.push(block)
+    for c, s in zip(cals, alone):
+        assert c.state.n_frames == s.state.n_frames > 50
+        np.testing.assert_array_equal(c.offsets, s.offsets)
+    assert cals[0].cutter.reused == cals[0].state.n_frames

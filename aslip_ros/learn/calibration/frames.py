@@ -54,6 +54,15 @@ class FrameCutter:
             span += 1
         self.span = span
         self.input_rate = float(input_rate)
+        #: The newest ``live_frames`` call: (its audio, its frames), for a second stream
+        #: calibration that cuts the same frames (``StreamCalibration.share_frames``).
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self.reused = 0                     # live_frames calls answered from ``_last``
+
+    def cuts_like(self, other: "FrameCutter") -> bool:
+        """Whether ``other`` cuts the same frames from the same audio."""
+        return (self.logmel.cfg == other.logmel.cfg and self.input_rate == other.input_rate
+                and (self.hop, self.span) == (other.hop, other.span))
 
     @property
     def hop_s(self) -> float:
@@ -83,6 +92,19 @@ class FrameCutter:
             out[s:s + _CHUNK] = self.logmel(np.ascontiguousarray(segs[s:s + _CHUNK]))[..., 0]
         return np.ascontiguousarray(np.transpose(out, (1, 2, 0)))
 
+    def live_frames(self, audio: np.ndarray) -> np.ndarray:
+        """``frames`` of a block's few new frames (read-only); the same audio as the call
+        before gives that call's frames without computing them again."""
+        a = np.ascontiguousarray(audio, dtype=np.float32)
+        last = self._last
+        if last is not None and last[0].shape == a.shape and np.array_equal(last[0], a):
+            self.reused += 1
+            return last[1]
+        out = self.frames(a)
+        out.flags.writeable = False
+        self._last = (a.copy(), out)
+        return out
+
 
 class StreamCalibration:
     """The live form: ``push`` each accepted block; ``reset`` when a new grasp starts."""
@@ -94,6 +116,16 @@ class StreamCalibration:
         self.resets = 0
         self._tail = np.zeros((0, len(constants.channel_names)), np.float32)
 
+    def share_frames(self, other: "StreamCalibration") -> bool:
+        """Cut frames with ``other``'s cutter where it cuts the same ones (a hybrid's two
+        parts push the same audio: the second one's frames then cost a comparison). Each
+        keeps its own state and constants; a part whose audio differs (its own restart)
+        computes its own. Whether it is shared."""
+        if not self.cutter.cuts_like(other.cutter):
+            return False
+        self.cutter = other.cutter
+        return True
+
     def reset(self) -> None:
         self.state.reset()
         self._tail = self._tail[:0]
@@ -104,8 +136,8 @@ class StreamCalibration:
         tail = np.concatenate([self._tail, np.asarray(block, dtype=np.float32)])
         n = self.cutter.count(tail.shape[0])
         if n:
-            self.state.update(self.cutter.frames(tail[:(n - 1) * self.cutter.hop
-                                                      + self.cutter.span]))
+            self.state.update(self.cutter.live_frames(tail[:(n - 1) * self.cutter.hop
+                                                           + self.cutter.span]))
             tail = tail[n * self.cutter.hop:]
         self._tail = tail
 

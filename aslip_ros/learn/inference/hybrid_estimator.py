@@ -100,6 +100,8 @@ class HybridEstimator:
         jump = config.max_time_jump_s
         self.stream = LiveEstimator(load_predictor(backend.parts[STREAM], None, jump), config)
         self.window = LiveEstimator(load_predictor(backend.parts[WINDOW], None, jump), config)
+        # Both parts push every block to their calibration: the frames are cut once.
+        self.window.predictor.share_calibration_frames(self.stream.predictor)
         self.detector = self.stream if self.cfg.threshold_part == STREAM else self.window
         self.set_threshold(threshold)
         rot = estimates_rotation(backend.parts[STREAM].meta) and self.cfg.rotation is not None

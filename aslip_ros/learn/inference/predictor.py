@@ -171,6 +171,12 @@ class PredictorBase(CheckpointFacts):
         """True when the checkpoint carries a per-grasp calibration."""
         return self.calibration is not None
 
+    def share_calibration_frames(self, other: "PredictorBase") -> bool:
+        """Cut the per-grasp calibration's frames with ``other``'s where both calibrate on the
+        same frames of the same stream (``StreamCalibration.share_frames``)."""
+        mine, theirs = self._stream_cal, other._stream_cal
+        return mine is not None and theirs is not None and mine.share_frames(theirs)
+
     def reset_calibration(self) -> None:
         """A new grasp (gap, restart, request): the estimate starts again from zero gain."""
         if self._stream_cal is not None:
