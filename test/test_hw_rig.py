@@ -429,3 +429,28 @@ def test_alsa_config_names_the_fifo():
     mod = _load_rig_module()
     text = mod.alsa_config("/tmp/x.fifo", "mics")
     assert 'infile "/tmp/x.fifo"' in text and "pcm.mics" in text and "type null" in text
+
+
+def test_a_rig_that_does_not_stop_after_its_signal_says_where_and_exits(tmp_path):
+    """The rig's exit watch: a run that has not returned ``EXIT_GRACE_S`` after the stop
+    signal appends every thread's stack to the status file (``exit_forced``) and exits 3,
+    so a test's teardown never waits out a hung stand-in (CI once waited 20 s on one)."""
+    status = tmp_path / "status.jsonl"
+    code = textwrap.dedent(f"""
+        import importlib.util, threading, time
+        spec = importlib.util.spec_from_file_location("rig", {str(RIG)!r})
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        mod.EXIT_GRACE_S = 0.2
+        threading.Thread(target=mod._exit_watch, args=(threading.Event(), {str(status)!r}),
+                         daemon=True).start()
+        time.sleep(120)                       # a run that never returns
+    """)
+    script = tmp_path / "hung_rig.py"
+    script.write_text(code)
+    done = subprocess.run([sys.executable, "-P", str(script)], env=_child_env(), cwd=str(ROOT),
+                          capture_output=True, text=True, timeout=100)
+    assert done.returncode == 3, done.stderr
+    doc = json.loads(status.read_text().splitlines()[-1])
+    assert doc["event"] == "exit_forced" and doc["grace_s"] == 0.2
+    assert "time.sleep(120)" in doc["stacks"]["MainThread"]

@@ -82,6 +82,7 @@ import sys
 import termios
 import threading
 import time
+import traceback
 from collections import deque
 from pathlib import Path
 
@@ -543,13 +544,45 @@ def main(argv=None) -> int:
     from aslip_ros.util import raise_cpu_priority
     raise_cpu_priority()
     rig = Rig(a)
+    exited = threading.Event()
 
     def on_signal(signum, frame):
+        if not rig.stopping.is_set():
+            threading.Thread(target=_exit_watch, args=(exited, a.status), name="exit-watch",
+                             daemon=True).start()
         rig.stopping.set()
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGPIPE, signal.SIG_IGN)
-    return rig.run()
+    rc = rig.run()
+    exited.set()
+    # Nothing is left to write: leave without the interpreter's finalisation (rclpy's and
+    # DDS's exit hooks, foreign threads), which a stand-in has no reason to wait on.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(rc)
+
+
+#: After a stop signal the rig is gone within this [s] (a test's teardown waits 20 s).
+EXIT_GRACE_S = 10.0
+
+
+def _exit_watch(exited: threading.Event, status: str | None) -> None:
+    """Once stopped by a signal: if ``run`` has not returned within ``EXIT_GRACE_S``, append
+    where every thread is to the status file (event ``exit_forced``; no ``exit`` event is
+    written, so a test that reads it fails) and exit with status 3."""
+    if exited.wait(EXIT_GRACE_S):
+        return
+    frames = sys._current_frames()
+    stacks = {t.name: "".join(traceback.format_stack(frames[t.ident]))
+              for t in threading.enumerate() if t.ident in frames}
+    try:
+        if status:
+            with open(status, "a") as f:     # not the rig's JsonLines: its lock may be held
+                f.write(json.dumps({"event": "exit_forced", "grace_s": EXIT_GRACE_S,
+                                    "stacks": stacks}) + "\n")
+    finally:
+        os._exit(3)
 
 
 if __name__ == "__main__":
