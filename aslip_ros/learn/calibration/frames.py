@@ -57,6 +57,7 @@ class FrameCutter:
         #: The newest ``live_frames`` call: (its audio, its frames), for a second stream
         #: calibration that cuts the same frames (``StreamCalibration.share_frames``).
         self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self.shared = False                 # set by ``share_frames``: only then remembered
         self.reused = 0                     # live_frames calls answered from ``_last``
 
     def cuts_like(self, other: "FrameCutter") -> bool:
@@ -93,8 +94,10 @@ class FrameCutter:
         return np.ascontiguousarray(np.transpose(out, (1, 2, 0)))
 
     def live_frames(self, audio: np.ndarray) -> np.ndarray:
-        """``frames`` of a block's few new frames (read-only); the same audio as the call
-        before gives that call's frames without computing them again."""
+        """``frames`` of a block's few new frames; for a shared cutter (read-only) the same
+        audio as the call before gives that call's frames without computing them again."""
+        if not self.shared:                 # one calibration: nothing to remember
+            return self.frames(audio)
         a = np.ascontiguousarray(audio, dtype=np.float32)
         last = self._last
         if last is not None and last[0].shape == a.shape and np.array_equal(last[0], a):
@@ -124,6 +127,7 @@ class StreamCalibration:
         if not self.cutter.cuts_like(other.cutter):
             return False
         self.cutter = other.cutter
+        self.cutter.shared = True
         return True
 
     def reset(self) -> None:
