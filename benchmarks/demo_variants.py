@@ -4,7 +4,9 @@
 Slip-stop and slip-track of :mod:`benchmarks.demo` with the shipped models, in the default
 scene and under each stressor: the held-out scene variants (:mod:`aslip_ros.scene.variants`,
 ``make transfer``'s, none trained on) and the arm's operating noise 2 and 4 times as loud
-(``robot2x``, ``robot4x``: ``Acoustics.robot_level``). A stressor reaches the scene as
+(``robot2x``, ``robot4x``: ``Acoustics.robot_level``). ``--stressors`` also takes the arm's
+noise at any other factor by the same name (``robot0x``: the arm silent, ``robot0.5x``), to
+ask how much of a loop's error the arm's noise makes. A stressor reaches the scene as
 ``scene_sim``'s ``variant`` and ``robot_noise_x`` parameters (``Episode.variant``,
 ``Episode.robot_noise_x``); every stressor runs the same seeds as the default scene, so its
 trials are paired with the default's. The episodes are the demo's (planning, the worker
@@ -78,13 +80,28 @@ NOTES = {
 }
 
 
-def stressors() -> dict[str, tuple[Optional[str], float]]:
-    """Every stressor by name: ``(variant or None, robot noise factor)``."""
+def stressors(names: Sequence[str] = ()) -> dict[str, tuple[Optional[str], float]]:
+    """Every stressor by name: ``(variant or None, robot noise factor)``; with those of
+    ``names`` that name the arm's noise at another factor (:func:`robot_noise_factor`)."""
     from aslip_ros.scene.variants import VARIANTS
     out: dict = {"default": (None, 1.0)}
     out.update({v: (v, 1.0) for v in VARIANTS})
     out.update({f"robot{x:g}x": (None, x) for x in ROBOT_NOISE_X})
+    out.update({n: (None, x) for n in names if n not in out
+                for x in [robot_noise_factor(n)] if x is not None})
     return out
+
+
+def robot_noise_factor(name: str) -> Optional[float]:
+    """The factor a ``robot<x>x`` name gives the arm's noise (``robot0.5x``: 0.5), or None
+    for any other name. One name a factor: ``x`` as ``%g`` writes it, finite and >= 0."""
+    if not (name.startswith("robot") and name.endswith("x")):
+        return None
+    try:
+        x = float(name[len("robot"):-1])
+    except ValueError:
+        return None
+    return x if math.isfinite(x) and x >= 0.0 and name == f"robot{x:g}x" else None
 
 
 def refusal(variant: Optional[str]) -> Optional[str]:
@@ -118,7 +135,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         p.add_argument(opt, default=None, help=f"{what} (default: --models)")
     p.add_argument("--stressors", default=None,
                    help="comma-separated stressors (default: every one the loop can run: "
-                        "default, the scene variants but rate, robot2x, robot4x)")
+                        "default, the scene variants but rate, robot2x, robot4x; the arm's "
+                        "noise at any other factor x >= 0 as robot<x>x, robot0x: silent)")
     p.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks")
     p.add_argument("--methods", default=",".join(demo.DEFAULT_METHODS),
                    help=f"comma-separated methods out of {','.join(demo.METHODS)}")
@@ -140,7 +158,7 @@ def plan(tasks, methods, objects, trials: int, checkpoints: dict, names: Sequenc
          charge: str = CHARGES[0]) -> list[Episode]:
     """The demo's episodes (:func:`benchmarks.demo.plan_episodes`, lockstep), each under
     every stressor of ``names``: the same seeds in every scene."""
-    table = stressors()
+    table = stressors(names)
     base = demo.plan_episodes(tasks, methods, objects, trials, checkpoints, StopSettings(),
                               TrackSettings(), mode=MODES[0], charge=charge)
     return [replace(ep, variant=table[n][0], robot_noise_x=table[n][1])
@@ -318,7 +336,7 @@ def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True
     names, methods = meta["stressors"], meta["methods"]
     ok = [r for r in results if "error" not in r]
     doc = {"format": "aslip-demo-variants", "version": 1, "meta": meta,
-           "stressors": {n: dict(zip(("variant", "robot_noise_x"), stressors()[n]))
+           "stressors": {n: dict(zip(("variant", "robot_noise_x"), stressors(names)[n]))
                          for n in names},
            "rows": summarize(results, names, methods),
            "same_as_default": same_as_default(ok, names),
@@ -401,7 +419,7 @@ def _lists(args) -> tuple[list, list, list, list, list]:
         return [x for x in text.split(",") if x]
     tasks, methods, objects = split(args.tasks), split(args.methods), split(args.objects)
     names = split(args.stressors) if args.stressors else default_stressors()
-    table = stressors()
+    table = stressors(names)
     bad = [t for t in tasks if t not in TASKS] + [m for m in methods if m not in demo.METHODS] \
         + [o for o in objects if o not in OBJECTS] + [s for s in names if s not in table]
     bad += [f"{s} ({refusal(table[s][0])})" for s in names
@@ -415,7 +433,7 @@ def run(args: argparse.Namespace) -> int:
     tasks, methods, objects, names, bad = _lists(args)
     if bad or args.trials < 1 or not (tasks and methods and objects and names):
         print(f"benchmarks.demo_variants: unknown or refused task/method/object/stressor "
-              f"{bad} (stressors: {', '.join(stressors())}), or --trials < 1",
+              f"{bad} (stressors: {', '.join(stressors())}, robot<x>x), or --trials < 1",
               file=sys.stderr)
         return 2
     models = demo.resolve_models(args, methods)

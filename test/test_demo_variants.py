@@ -61,6 +61,30 @@ def test_every_stressor_runs_the_default_scenes_seeds():
     assert (four.variant, four.robot_noise_x) == (None, 4.0)
 
 
+def test_the_arms_noise_runs_at_any_factor_its_name_gives():
+    """``robot0x`` (the arm silent) and ``robot0.5x`` are stressors when named: planned on
+    the default scene's seeds with that factor, and kept in the run's record; a name that
+    gives no factor, or one factor under a second name, is refused."""
+    from benchmarks import demo_variants as dv
+    assert dv.robot_noise_factor("robot0x") == 0.0
+    assert dv.robot_noise_factor("robot0.5x") == 0.5
+    for name in ("robotx", "robot-1x", "robotnanx", "robotinfx", "robot0.50x", "robot2",
+                 "contact", "robot 2x"):
+        assert dv.robot_noise_factor(name) is None, name
+    assert "robot0x" not in dv.default_stressors()
+    eps = dv.plan(["slip_track"], ["aslip"], ["pla_rod"], 1, {"aslip": "aslip.pt"},
+                  ["default", "robot0x", "robot0.5x"])
+    by = {e.stressor: e for e in eps}
+    assert set(by) == {"default", "robot0x", "robot0.5x"}
+    assert (by["robot0x"].variant, by["robot0x"].robot_noise_x) == (None, 0.0)
+    assert by["robot0.5x"].robot_noise_x == 0.5
+    assert by["robot0x"].seed == by["default"].seed
+    args = argparse.ArgumentParser()
+    dv.add_arguments(args)
+    assert dv.run(args.parse_args(["--stressors", "default,robot0.50x"])) == 2
+    assert dv.run(args.parse_args(["--stressors", "robotx"])) == 2
+
+
 def test_the_default_episode_hands_the_scene_no_stressor():
     """The default path is unchanged: no variant, no noise factor, the demo's trace names."""
     from benchmarks.demo_episode import node_params
