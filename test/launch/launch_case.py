@@ -182,15 +182,37 @@ def assert_arm_commanded(probe: Probe, at_least: int = 20) -> list:
     return moving
 
 
-def controller_status(probe: Probe, node: str) -> list:
-    """The controller's diagnostics values, oldest first (from /aslip/diagnostics)."""
+def controller_status(probe: Probe, node: str, since: float = float("-inf")) -> list:
+    """The controller's diagnostics values, oldest first (from /aslip/diagnostics), of the
+    reports received after ``since`` (the probe's monotonic receipt time)."""
     out = []
-    for _, m in probe.messages("diag"):
+    for t, m in probe.messages("diag"):
+        if t <= since:
+            continue
         doc = json.loads(m.data)
         if doc.get("name") == f"aslip: {node}":
             out.append(dict(doc.get("values", {}), level=doc.get("level"),
                             message=doc.get("message")))
     return out
+
+
+def change_state(probe: Probe, node: str, *transitions: str, timeout: float = 30.0) -> None:
+    """Take lifecycle ``node`` through ``transitions`` (e.g. ``"deactivate", "activate"``),
+    each awaited on its ``change_state`` service; fail where one is refused."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+    client = probe.node.create_client(ChangeState, f"/{node}/change_state")
+    try:
+        probe.wait_for(lambda: client.service_is_ready(), timeout, f"/{node}/change_state")
+        for label in transitions:
+            req = ChangeState.Request()
+            req.transition.id = getattr(Transition, f"TRANSITION_{label.upper()}")
+            future = client.call_async(req)
+            probe.wait_for(future.done, timeout, f"{node}'s answer to {label}")
+            if not future.result().success:
+                raise AssertionError(f"{node} refused the lifecycle transition {label}")
+    finally:
+        probe.node.destroy_client(client)
 
 
 def final_slip_stop_result(probe: Probe):
