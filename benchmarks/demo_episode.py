@@ -137,6 +137,12 @@ class TrackSettings:
         return {k: v for k, v in asdict(self).items() if k in names}
 
 
+def robot_noise_name(x: float) -> str:
+    """The stressor name of the arm's noise at ``x`` times the scene's: ``robot<x>x``, ``x``
+    as ``%g`` writes it (``robot0.5x``); one name a factor."""
+    return f"robot{x:g}x"
+
+
 @dataclass(frozen=True)
 class Episode:
     """What to run: task, method label, checkpoint, object, seed."""
@@ -181,7 +187,7 @@ class Episode:
         """The scene's stressor in words: ``default``, the variant's name, ``robot<x>x``
         for louder robot noise, or both joined by ``+``."""
         parts = ([self.variant] if self.variant else []) + \
-            ([f"robot{self.robot_noise_x:g}x"] if self.robot_noise_x != 1.0 else [])
+            ([robot_noise_name(self.robot_noise_x)] if self.robot_noise_x != 1.0 else [])
         return "+".join(parts) or "default"
 
     @property

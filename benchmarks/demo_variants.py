@@ -49,7 +49,7 @@ from aslip_ros.util import write_json, write_text
 from benchmarks import demo
 from benchmarks import demo_metrics as dm
 from benchmarks.demo_episode import (CHARGES, LOCKSTEP_BUDGET_S, MODES, Episode,
-                                     StopSettings, TrackSettings)
+                                     StopSettings, TrackSettings, robot_noise_name)
 from benchmarks.demo_models import OBJECTS
 
 TASKS = ("slip_stop", "slip_track")
@@ -86,7 +86,7 @@ def stressors(names: Sequence[str] = ()) -> dict[str, tuple[Optional[str], float
     from aslip_ros.scene.variants import VARIANTS
     out: dict = {"default": (None, 1.0)}
     out.update({v: (v, 1.0) for v in VARIANTS})
-    out.update({f"robot{x:g}x": (None, x) for x in ROBOT_NOISE_X})
+    out.update({robot_noise_name(x): (None, x) for x in ROBOT_NOISE_X})
     out.update({n: (None, x) for n in names if n not in out
                 for x in [robot_noise_factor(n)] if x is not None})
     return out
@@ -101,7 +101,7 @@ def robot_noise_factor(name: str) -> Optional[float]:
         x = float(name[len("robot"):-1])
     except ValueError:
         return None
-    return x if math.isfinite(x) and x >= 0.0 and name == f"robot{x:g}x" else None
+    return x if math.isfinite(x) and x >= 0.0 and name == robot_noise_name(x) else None
 
 
 def refusal(variant: Optional[str]) -> Optional[str]:
@@ -334,9 +334,10 @@ def report_md(doc: dict) -> str:
 def write_outputs(out: Path, results: list[dict], meta: dict, plots: bool = True) -> dict:
     """variants.json, variants.md and variants.png, each written atomically."""
     names, methods = meta["stressors"], meta["methods"]
+    known = stressors(names)
     ok = [r for r in results if "error" not in r]
     doc = {"format": "aslip-demo-variants", "version": 1, "meta": meta,
-           "stressors": {n: dict(zip(("variant", "robot_noise_x"), stressors(names)[n]))
+           "stressors": {n: dict(zip(("variant", "robot_noise_x"), known[n]))
                          for n in names},
            "rows": summarize(results, names, methods),
            "same_as_default": same_as_default(ok, names),
