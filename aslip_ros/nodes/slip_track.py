@@ -3,8 +3,8 @@
 The control law is :class:`aslip_ros.control.slip_track.SlipTrack`: the commanded gripper
 velocity is the estimated OBJECT velocity, the TCP velocity measured over
 ``velocity_window_s`` plus ``gain`` times the predicted slip (deadband, low-pass, magnitude
-saturation), plus ``position_gain_1_s`` times the integrated slip (the relative displacement
-accumulated during detection delays), rotated from the grasp plane into ``link_base`` with
+saturation), plus, where set, ``position_gain_1_s`` times the integrated slip (off by
+default: it fails its ablation), rotated from the grasp plane into ``link_base`` with
 the newest TCP pose and the ``grasp_plane_in_tcp`` calibration. When slip ends it keeps the
 last object velocity for ``hold_s``, decays it to zero with ``decay_s`` and waits for the
 next slip (or, with ``stop_on_slip_end``, ends the task).
