@@ -107,6 +107,28 @@ def test_a_streaming_node_behind_the_stream_skips_blocks_and_keeps_its_stamps(rc
         node.destroy_node()
 
 
+def test_a_source_whose_stamps_fall_behind_once_is_skipped_only_for_a_moment(rclpy_context):
+    # scene_sim in real time, more than its catch-up behind, skips scene time: every later
+    # block arrives at the stream's pace, 300 ms later than its stamp says. The node skips
+    # them for STEP_AFTER_S, then estimates again (before: for the meter's 10 s window).
+    from aslip_ros.lag import STEP_AFTER_S
+    node, sent, lock = _node(rclpy_context, STREAM)
+    clock = _Clock()
+    node._arrival_s = clock
+    try:
+        msgs = _blocks(150)
+        for k, m in enumerate(msgs):
+            clock.t += 0.01 + (0.3 if k == 40 else 0.0)
+            node._on_audio(m)
+        assert 0 < node.skipped_behind <= STEP_AFTER_S / 0.01 + 1
+        with lock:
+            stamps = list(sent)
+        assert sum(st > _end_ns(msgs[80]) for st in stamps) >= 60   # estimates again
+        assert _diag(node)["lag_clock_steps"] == 1
+    finally:
+        node.destroy_node()
+
+
 def test_a_node_on_time_skips_nothing(rclpy_context):
     node, sent, _ = _node(rclpy_context, STREAM)
     clock = _Clock()

@@ -72,8 +72,11 @@ make every later estimate later still: a block that reaches the node more than
 ``max_lag_s`` later than the stream's usual delay (``aslip_ros.lag.LagMeter``: its stamps
 against this host's clock, where they are on it) is skipped instead, counted in
 ``hops_skipped_behind`` (and ``dropped_behind``, with a throttled warning), and the stream
-restarts on the first block that is on time. Every estimate keeps the stamp of the audio it
-was computed from, so a controller judges its age truthfully. On simulated time
+restarts on the first block that is on time. A lag that outlasts ``STEP_AFTER_S`` (0.25 s)
+is no backlog but a step of the source's clock: the usual delay starts again there
+(``lag_clock_steps``, with a throttled warning; ``aslip_ros.lag``), so a source whose stamps
+fall behind once is not skipped for the meter's whole window. Every estimate keeps the stamp
+of the audio it was computed from, so a controller judges its age truthfully. On simulated time
 (``use_sim_time``, lockstep) nothing is behind and nothing is skipped.
 
 Latency in the diagnostics, over the newest ``TIMING_SAMPLES`` published estimates (a
@@ -108,7 +111,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from aslip_ros import topics
-from aslip_ros.lag import LagMeter
+from aslip_ros.lag import STEP_AFTER_S, LagMeter
 from aslip_ros.learn.inference.hybrid_estimator import open_estimator
 from aslip_ros.learn.inference.live import Estimate, Job, LiveConfig
 from aslip_ros.msg import AudioFrame, SlipVector
@@ -394,13 +397,20 @@ class SlipInference(Node):
         """True when this block is skipped because the node is behind the stream."""
         if self._lag is None:
             return False
-        lag = self._lag.lag(self._arrival_s(), end_stamp_ns * 1e-9)
         with self._lock:
-            self.lag_s = lag
             limit = self.p["max_lag_s"]
-            if not (limit > 0.0 and lag > limit):
-                return False
-            self.skipped_behind += 1
+            steps = self._lag.steps
+            lag, skip = self._lag.behind(self._arrival_s(), end_stamp_ns * 1e-9, limit)
+            self.lag_s = lag
+            if skip:
+                self.skipped_behind += 1
+        if self._lag.steps != steps:
+            self.get_logger().warning(
+                f"the audio's stamps stay over max_lag_s ({limit * 1e3:.0f} ms) late for "
+                f"{STEP_AFTER_S * 1e3:.0f} ms: its source's clock stepped (no backlog); the "
+                "usual delay starts again", throttle_duration_sec=1.0)
+        if not skip:
+            return False
         self.est.drop("behind", f"{lag * 1e3:.0f} ms behind the stream (max_lag_s "
                                 f"{limit * 1e3:.0f} ms): block skipped, the stream restarts")
         return True
@@ -490,6 +500,7 @@ class SlipInference(Node):
             arr = list(self.arrivals)
             values = {"blocks_received": self.blocks_in, "estimates_published": self.published,
                       "model": self.source, "hops_skipped_behind": self.skipped_behind,
+                      "lag_clock_steps": self._lag.steps if self._lag else 0,
                       "lag_ms": self.lag_s * 1e3}
         rep = self.est.report()
         values.update(rep["values"])
