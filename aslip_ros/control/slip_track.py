@@ -93,8 +93,8 @@ def _finite(name: str, value: float, minimum: float, strict: bool) -> float:
 @dataclass(frozen=True)
 class SlipTrackConfig:
     """Parameters of slip tracking (SI units). The defaults are the tuned law the node, its
-    config file and the demo run (a 50 ms low-pass, a 0.3 s hold decaying over 0.2 s, a
-    2 /s position term leaking over 3 s); each ``0`` below switches its part off.
+    config file and the demo run (a 50 ms low-pass, a 0.3 s hold decaying over 0.2 s, the
+    position term off: module docstring); each ``0`` below switches its part off.
 
     :param gain: fraction of the estimated slip corrected (1 = command the estimated object
         velocity; the steady state matches the object for any gain in (0, 2)).
