@@ -83,8 +83,7 @@ class LagMeter:
         if self._late_since is None:
             self._late_since = arrival_s
         elif arrival_s - self._late_since > step_after_s:
-            self._late_since = None
             self.steps += 1
-            self._hist.clear()
+            self.reset()
             return self.lag(arrival_s, stamp_s), False
         return lag, True

@@ -54,6 +54,14 @@ def _node(rclpy_context, checkpoint: Path, **params):
     return node, sent, lock
 
 
+def _clocked_node(rclpy_context):
+    """A streaming node whose arrival clock is the test's: (node, sent, lock, clock)."""
+    node, sent, lock = _node(rclpy_context, STREAM)
+    clock = _Clock()
+    node._arrival_s = clock
+    return node, sent, lock, clock
+
+
 def _blocks(n: int, start_index: int = 0, start_ns: int = 5_000_000_000, seed: int = 0):
     from aslip_ros.nodes import convert
     rng = np.random.default_rng(seed)
@@ -70,9 +78,7 @@ def _end_ns(msg) -> int:
 
 
 def test_a_streaming_node_behind_the_stream_skips_blocks_and_keeps_its_stamps(rclpy_context):
-    node, sent, lock = _node(rclpy_context, STREAM)
-    clock = _Clock()
-    node._arrival_s = clock
+    node, sent, lock, clock = _clocked_node(rclpy_context)
     try:
         msgs = _blocks(120)
         for m in msgs[:40]:                  # on time: one block per 10 ms
@@ -112,9 +118,7 @@ def test_a_source_whose_stamps_fall_behind_once_is_skipped_only_for_a_moment(rcl
     # block arrives at the stream's pace, 300 ms later than its stamp says. The node skips
     # them for STEP_AFTER_S, then estimates again (before: for the meter's 10 s window).
     from aslip_ros.lag import STEP_AFTER_S
-    node, sent, lock = _node(rclpy_context, STREAM)
-    clock = _Clock()
-    node._arrival_s = clock
+    node, sent, lock, clock = _clocked_node(rclpy_context)
     try:
         msgs = _blocks(150)
         for k, m in enumerate(msgs):
@@ -130,9 +134,7 @@ def test_a_source_whose_stamps_fall_behind_once_is_skipped_only_for_a_moment(rcl
 
 
 def test_a_node_on_time_skips_nothing(rclpy_context):
-    node, sent, _ = _node(rclpy_context, STREAM)
-    clock = _Clock()
-    node._arrival_s = clock
+    node, sent, _, clock = _clocked_node(rclpy_context)
     try:
         rng = np.random.default_rng(1)
         t0 = clock.t
