@@ -250,6 +250,11 @@ def slip_stop_reasons() -> set:
     return {r.value for r in StopReason}
 
 
+def slip_stop_success_reasons() -> set:
+    from aslip_ros.control.slip_stop import SUCCESS_REASONS
+    return {r.value for r in SUCCESS_REASONS}
+
+
 def rviz_missing() -> bool:
     """True where rviz2 is not installed (the launch files then run without it)."""
     from aslip_ros.launch_support.common import rviz_found
