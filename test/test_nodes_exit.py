@@ -82,16 +82,15 @@ def _thread_name(pid: int, tid: int) -> str:
         return ""
 
 
-def test_a_shutdown_stuck_in_c_with_the_gil_still_exits_with_a_stack_dump(ros_env):
-    """The forced exit is armed in C (faulthandler): a cleanup that holds the GIL, where the
-    Python timer can never run, still ends the process, and the dump says where it hung."""
+def _run_stuck_node(env, *args: str) -> tuple[int, str, float]:
+    """Start test/helpers/stuck_node.py with ``args``, SIGINT it once ready; its exit code,
+    output and the seconds from the signal to its exit."""
     import signal
 
     from conftest import HELPERS
 
-    from aslip_ros.runtime.process import C_EXIT_MARGIN_S, EXIT_GRACE_S
     from aslip_ros.util import die_with_parent
-    proc = subprocess.Popen([sys.executable, str(HELPERS / "stuck_node.py")], env=ros_env,
+    proc = subprocess.Popen([sys.executable, str(HELPERS / "stuck_node.py"), *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             preexec_fn=die_with_parent)
     try:
@@ -108,12 +107,34 @@ def test_a_shutdown_stuck_in_c_with_the_gil_still_exits_with_a_stack_dump(ros_en
         except subprocess.TimeoutExpired:
             proc.kill()
             raise AssertionError("the stuck node did not exit within 60 s of SIGINT")
-        took = time.monotonic() - t0
+        return proc.returncode, "".join(lines) + out, time.monotonic() - t0
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert "sleeping with the GIL held" in out, out
-    assert proc.returncode == 1, out               # faulthandler's exit, not the timer's 0
+
+
+def test_a_shutdown_stuck_in_c_with_the_gil_still_exits_with_a_stack_dump(ros_env):
+    """The forced exit is armed in C (faulthandler): a cleanup that holds the GIL, where the
+    Python timer can never run, still ends the process, and the dump says where it hung.
+    The node's own shutdown work (``before_shutdown``) did not finish: exit code 1."""
+    from aslip_ros.runtime.process import C_EXIT_MARGIN_S, EXIT_GRACE_S
+    rc, out, took = _run_stuck_node(ros_env)
+    assert "before_shutdown: sleeping with the GIL held" in out, out
+    assert rc == 1, out                            # faulthandler's exit, not the timer's 0
     assert "most recent call first" in out and "before_shutdown" in out, out
+    assert took >= EXIT_GRACE_S, took
+    assert took < EXIT_GRACE_S + C_EXIT_MARGIN_S + 30.0, took
+
+
+@pytest.mark.parametrize("code", [0, 3])
+def test_a_teardown_stuck_after_the_nodes_work_exits_with_the_nodes_code(ros_env, code):
+    """Once ``before_shutdown`` is done, a hang in the middleware's teardown (CI: mocap_bridge
+    held the GIL in ``destroy_node`` past the grace, exited 1 and failed a launch test) ends
+    in the node's own exit code, with the stack dump still on stderr."""
+    from aslip_ros.runtime.process import C_EXIT_MARGIN_S, EXIT_GRACE_S
+    rc, out, took = _run_stuck_node(ros_env, "teardown", str(code))
+    assert "before_shutdown: done" in out and "teardown: sleeping with the GIL held" in out, out
+    assert rc == code, out
+    assert "most recent call first" in out and "destroy_node" in out, out
     assert took >= EXIT_GRACE_S, took
     assert took < EXIT_GRACE_S + C_EXIT_MARGIN_S + 30.0, took

@@ -63,13 +63,14 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     """
     stop = threading.Event()
     arming = threading.Lock()
+    forced = []         # the forced exit, once armed
 
     def on_signal(signum: int) -> None:
         # The forced exit is armed before the loop may end: the cleanup that follows can
         # hold the GIL, and arming it afterwards would then wait for the GIL forever.
         with arming:
             if not stop.is_set():
-                _exit_after(EXIT_GRACE_S, _name(factory))
+                forced.append(_exit_after(EXIT_GRACE_S, _name(factory)))
                 stop.set()
 
     _watch_signals(on_signal)
@@ -103,6 +104,8 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
                     hook()
                 except Exception as exc:  # noqa: BLE001 - shutdown must go on
                     _say(f"[{_name(factory)}] error while shutting down: {exc}")
+        if forced and exit_process:
+            forced[0].work_done(code)
         if executor is not None:
             # Before destroying the node, so no callback runs on a destroyed entity.
             executor.shutdown(timeout_sec=2.0)
@@ -234,28 +237,101 @@ def _raise_priority(name: str) -> None:
               "the arm (README, Reliability)", file=sys.stderr, flush=True)
 
 
-def _exit_after(seconds: float, name: str) -> None:
+def _exit_after(seconds: float, name: str) -> "_ForcedExit":
     """Force the process out ``seconds`` from now unless it has exited by then.
 
     Two timers: a Python one that exits 0 with a line on stderr, and a C one
     (``faulthandler.dump_traceback_later``) ``C_EXIT_MARGIN_S`` later that needs no GIL:
     an interpreter stuck in a C call that holds the GIL still exits, with every thread's
-    stack on stderr (exit code 1), instead of waiting for the launch's SIGKILL."""
+    stack on stderr (exit code 1), instead of waiting for the launch's SIGKILL. Once the
+    node's own shutdown work is over, :meth:`_ForcedExit.work_done` makes both exit with
+    the node's code."""
+    return _ForcedExit(seconds, name)
+
+
+class _ForcedExit:
+    """The forced exit of :func:`_exit_after`."""
+
+    def __init__(self, seconds: float, name: str) -> None:
+        import time
+        self.name = name
+        self.seconds = seconds
+        self.deadline = time.monotonic() + seconds
+        self.code = 0
+        timer = threading.Timer(seconds, self._force)
+        timer.daemon = True
+        timer.start()
+        self.dump = _dump_stacks_later(seconds + C_EXIT_MARGIN_S, exit=True)
+
+    def _force(self) -> None:
+        import os
+        _say(f"[{self.name}] shutdown took over {self.seconds:g} s; exiting now")
+        os._exit(self.code)
+
+    def work_done(self, code: int) -> None:
+        """The node's shutdown work (``before_shutdown``) is over; what remains is the
+        middleware's teardown (``destroy_node``, ``rclpy.try_shutdown``). That teardown
+        once held the GIL past the grace in CI (mocap_bridge in ``destroy_node``, exit 1
+        from faulthandler): a hang there now ends in ``code``, the node's own exit code,
+        from a C timer that needs no GIL (:func:`_c_exit_later`), its stacks dumped just
+        before. Where the C library has no such timer, faulthandler's exit 1 stays."""
+        import time
+        self.code = code
+        if not self.dump:
+            return
+        at = max(self.deadline - time.monotonic(), 0.0) + C_EXIT_MARGIN_S
+        if _c_exit_later(at, code):
+            _dump_stacks_later(max(at - C_EXIT_MARGIN_S / 2, 0.01), exit=False)
+
+
+def _dump_stacks_later(seconds: float, exit: bool) -> bool:
+    """``faulthandler.dump_traceback_later`` on the original stderr (replacing any pending
+    one); False where it cannot be armed (no usable stderr)."""
     import faulthandler
-    import os
-
-    def force() -> None:
-        _say(f"[{name}] shutdown took over {seconds:g} s; exiting now")
-        os._exit(0)
-
-    timer = threading.Timer(seconds, force)
-    timer.daemon = True
-    timer.start()
     try:
-        faulthandler.dump_traceback_later(seconds + C_EXIT_MARGIN_S, exit=True,
-                                          file=sys.__stderr__)
+        faulthandler.dump_traceback_later(seconds, exit=exit, file=sys.__stderr__)
     except (OSError, ValueError, AttributeError, RuntimeError):
-        pass        # no usable stderr: the Python timer alone
+        return False
+    return True
+
+
+def _c_exit_later(seconds: float, code: int) -> bool:
+    """Have the C library call ``_exit(code)`` ``seconds`` from now, on a thread of its own
+    (POSIX ``timer_create`` with ``SIGEV_THREAD``): an exit that needs neither the GIL nor a
+    signal handler. False where it cannot be armed (not Linux, no such call)."""
+    import ctypes
+    if not sys.platform.startswith("linux"):
+        return False
+    ptr = ctypes.sizeof(ctypes.c_void_p)
+
+    class SigEvent(ctypes.Structure):       # struct sigevent: 64 bytes on Linux
+        _fields_ = [("value", ctypes.c_void_p), ("signo", ctypes.c_int),
+                    ("notify", ctypes.c_int), ("function", ctypes.c_void_p),
+                    ("attributes", ctypes.c_void_p),
+                    ("pad", ctypes.c_byte * (64 - 3 * ptr - 8))]
+
+    class TimeSpec(ctypes.Structure):
+        _fields_ = [("sec", ctypes.c_long), ("nsec", ctypes.c_long)]
+
+    class ITimerSpec(ctypes.Structure):
+        _fields_ = [("interval", TimeSpec), ("value", TimeSpec)]
+
+    sigev_thread, clock_monotonic = 2, 1
+    for lib in (None, "librt.so.1"):        # glibc < 2.34 keeps timer_create in librt
+        try:
+            libc = ctypes.CDLL(lib)
+            create, settime = libc.timer_create, libc.timer_settime
+            exit_fn = ctypes.cast(ctypes.CDLL(None)._exit, ctypes.c_void_p).value
+        except (OSError, AttributeError):
+            continue
+        event = SigEvent(value=code or None, notify=sigev_thread, function=exit_fn)
+        timer = ctypes.c_void_p()
+        if create(clock_monotonic, ctypes.byref(event), ctypes.byref(timer)) != 0:
+            return False
+        whole = int(seconds)
+        spec = ITimerSpec(value=TimeSpec(whole, max(int((seconds - whole) * 1e9), 1)))
+        return settime(timer, 0, ctypes.byref(spec), None) == 0
+    return False
 
 
 #: Seconds after the Python forced exit at which the C-level one ends a stuck interpreter.
