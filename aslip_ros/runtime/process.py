@@ -279,9 +279,9 @@ class _ForcedExit:
         self.code = code
         if not self.dump:
             return
-        at = max(self.deadline - time.monotonic(), 0.0) + C_EXIT_MARGIN_S
-        if _c_exit_later(at, code):
-            _dump_stacks_later(max(at - C_EXIT_MARGIN_S / 2, 0.01), exit=False)
+        left = max(self.deadline - time.monotonic(), 0.0)
+        if _c_exit_later(left + TEARDOWN_C_EXIT_S, code):
+            _dump_stacks_later(left + TEARDOWN_DUMP_S, exit=False)
 
 
 def _dump_stacks_later(seconds: float, exit: bool) -> bool:
@@ -336,6 +336,15 @@ def _c_exit_later(seconds: float, code: int) -> bool:
 
 #: Seconds after the Python forced exit at which the C-level one ends a stuck interpreter.
 C_EXIT_MARGIN_S = 0.5
+
+#: Once the node's own work is done (``_ForcedExit.work_done``): seconds after the Python
+#: forced exit at which a stuck teardown's stacks are dumped, then the C exit comes. Both
+#: exits then give the same code, so the C one need not wait ``C_EXIT_MARGIN_S``: the
+#: earlier it comes, the further it stays from the launch's SIGTERM, 5 s after its SIGINT
+#: (a node exiting as that signal is sent may be reaped by the signal's ``Popen.poll``;
+#: asyncio's child watcher then reports 255: seen once by hand, cause not confirmed).
+TEARDOWN_DUMP_S = 0.05
+TEARDOWN_C_EXIT_S = 0.15
 
 
 def ready(node, detail: str = "") -> None:
