@@ -276,6 +276,23 @@ def test_threshold_is_chosen_for_the_false_alarm_rate():
     assert t == 0.5
 
 
+def test_validation_trials_without_slip_give_no_recall_and_no_nan():
+    """Validation trials with no slip frame (background only, or a tiny set): the threshold
+    is still chosen on their false alarms, and the sweep says there is no recall to report
+    (None) rather than a NaN from the mean of nothing (numpy warned in make test)."""
+    import warnings
+
+    from aslip_ros.learn.training.stream import select_threshold
+    slip = np.zeros(3000, bool)
+    p = np.full(3000, 0.1)
+    p[[500, 1500]] = 0.8
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        t, table, _ = select_threshold([p], [slip], 0.01, fa_per_min=1.0)
+    assert t == 0.85
+    assert all(r["frame_recall"] is None for r in table)
+
+
 def test_a_threshold_chosen_on_too_little_quiet_audio_is_said_to_be():
     """The demo set's stream part chose its threshold on 1.75 min of validation audio
     without slip, where one false alarm is 0.57 a minute against a target of 2: 0.70 or 0.95

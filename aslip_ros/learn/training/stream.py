@@ -167,19 +167,21 @@ def select_threshold(p: list[np.ndarray], slip: list[np.ndarray], hop_s: float,
     """The lowest threshold (0.5 .. 0.95) whose false alarms per minute over the
     validation trials stay at or below ``fa_per_min`` (else the one with the fewest), the
     sweep, and the minutes of validation audio without slip the rates are counted on.
+    The sweep's ``frame_recall`` is None where the validation trials hold no slip frame.
 
     A per-hop decision is taken 20 times as often as a 200 ms window's with a 100 ms hop;
     at the window models' 0.5 it fires on brief noise, so the threshold is chosen here,
     on validation trials, for a false-alarm rate rather than frame accuracy."""
     table, minutes = [], 0.0
+    p_slip = np.concatenate(p)[np.concatenate(slip)]       # empty: no slip to recall
     for t in np.round(np.arange(0.5, 0.96, 0.05), 2):
         fa = [false_alarms_per_min(a, b, float(t), hop_s) for a, b in zip(p, slip)]
         minutes = sum(m for _, m in fa)
         n = sum(k for k, _ in fa)
-        recall = float(np.mean(np.concatenate(p)[np.concatenate(slip)] >= t))
+        recall = round(float(np.mean(p_slip >= t)), 3) if p_slip.size else None
         table.append({"threshold": float(t), "false_alarms": int(n),
                       "fa_per_min": round(n / max(minutes, 1e-9), 2),
-                      "frame_recall": round(recall, 3)})
+                      "frame_recall": recall})
     ok = [r for r in table if r["fa_per_min"] <= fa_per_min]
     best = ok[0] if ok else min(table, key=lambda r: r["fa_per_min"])
     return best["threshold"], table, minutes
