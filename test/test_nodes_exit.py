@@ -138,3 +138,25 @@ def test_a_teardown_stuck_after_the_nodes_work_exits_with_the_nodes_code(ros_env
     assert "most recent call first" in out and "destroy_node" in out, out
     assert took >= EXIT_GRACE_S, took
     assert took < EXIT_GRACE_S + C_EXIT_MARGIN_S + 30.0, took
+
+
+def test_a_teardown_waiting_with_the_gil_free_exits_with_the_nodes_code_and_names_the_step(
+        ros_env):
+    """The Python timer's exit, once the node's work is done: the node's code, and the line
+    says which step of the shutdown hung."""
+    from aslip_ros.runtime.process import EXIT_GRACE_S
+    rc, out, took = _run_stuck_node(ros_env, "teardown_waits", "3")
+    assert "teardown_waits: sleeping with the GIL free" in out, out
+    assert rc == 3, out
+    assert "shutdown took over" in out and "in destroy_node" in out, out
+    assert took >= EXIT_GRACE_S, took
+
+
+def test_a_slow_shutdown_says_where_its_time_went(ros_env):
+    """A shutdown over ``SLOW_SHUTDOWN_S`` that still ends by itself writes one line with
+    each step's seconds: where CI's launch logs showed nodes taking 2-4 s to exit, they did
+    not say in which step."""
+    rc, out, took = _run_stuck_node(ros_env, "teardown_slow")
+    assert rc == 0, out
+    line = next((ln for ln in out.splitlines() if "shutdown took" in ln), "")
+    assert "destroy_node 1." in line and "before_shutdown 0.0" in line, out

@@ -7,7 +7,9 @@ only an exit armed in C ends the process.
 
 ``stuck_node.py [where [code]]``: ``where`` is ``before_shutdown`` (default: the node's own
 shutdown work hangs) or ``teardown`` (its work is done, then ``destroy_node`` hangs, as the
-middleware's node teardown once did in CI); ``code`` is the node's ``exit_code``.
+middleware's node teardown once did in CI); ``teardown_waits``: ``destroy_node`` hangs with
+the GIL free (``time.sleep``); ``teardown_slow``: it takes 1.5 s, then goes on. ``code`` is
+the node's ``exit_code``.
 """
 
 import sys
@@ -24,9 +26,13 @@ def main() -> int:
     code = int(sys.argv[2]) if len(sys.argv) > 2 else 0
 
     def stick(step: str) -> None:
+        import time
         if step == where:
             print(f"{step}: sleeping with the GIL held", flush=True)
             ctypes.PyDLL(None).sleep(120)
+        elif step == "teardown" and where in ("teardown_waits", "teardown_slow"):
+            print(f"{where}: sleeping with the GIL free", flush=True)
+            time.sleep(120 if where == "teardown_waits" else 1.5)
 
     class StuckNode(Node):
         def __init__(self) -> None:
