@@ -95,26 +95,24 @@ def run_node(factory: Callable[[], Any], args: Optional[list] = None,
     finally:
         # However the loop ended (a signal, the node done, an exception), the cleanup below
         # gets EXIT_GRACE_S in an executable: a hung destructor must not keep it alive.
-        steps = ShutdownSteps()
         if exit_process and not stop.is_set():
             on_signal(0)
-        if forced:
-            forced[0].steps = steps
-        _shut_down(node, executor, steps, _name(factory),
-                   forced[0] if forced and exit_process else None, code)
+        _shut_down(node, executor, _name(factory), forced[0] if forced else None, code)
     if exit_process:
         _leave(code)
     return code
 
 
-def _shut_down(node, executor, steps: "ShutdownSteps", name: str,
-               forced: Optional["_ForcedExit"], code: int) -> None:
+def _shut_down(node, executor, name: str, forced: Optional["_ForcedExit"],
+               code: int) -> None:
     """The node's ``before_shutdown`` (its own work), then the middleware's teardown; with
-    ``forced`` (an executable's forced exit) the work's end is told to it. Each step is
-    marked in ``steps``; a shutdown over ``SLOW_SHUTDOWN_S`` says where its time went."""
+    ``forced`` (the armed forced exit) the step under way is known to it and the work's
+    end is told to it. A shutdown over ``SLOW_SHUTDOWN_S`` says where its time went."""
+    steps = ShutdownSteps("before_shutdown")
+    if forced is not None:
+        forced.steps = steps
     if node is not None:
         hook = getattr(node, "before_shutdown", None)
-        steps.begin("before_shutdown")
         if hook is not None and rclpy.ok():
             try:
                 hook()
@@ -144,10 +142,10 @@ class ShutdownSteps:
     and the step the forced exit names. CI's launch logs showed nodes taking 2-4 s to exit
     after SIGINT (most take under 0.3 s) without saying in which step."""
 
-    def __init__(self) -> None:
+    def __init__(self, first: str) -> None:
         import time
         self._clock = time.monotonic
-        self.marks = [("start", self._clock())]
+        self.marks = [(first, self._clock())]
 
     def begin(self, name: str) -> None:
         self.marks.append((name, self._clock()))
@@ -161,11 +159,9 @@ class ShutdownSteps:
         return f"{name}, {self._clock() - t:.1f} s in"
 
     def summary(self) -> str:
-        """``2.05 s: before_shutdown 0.00 s, executor.shutdown 2.00 s, ...`` (the first
-        mark's own span, before any step, left out when it is under 10 ms)."""
+        """``2.05 s: before_shutdown 0.00 s, executor.shutdown 2.00 s, ...``."""
         ends = [t for _, t in self.marks[1:]] + [self._clock()]
-        parts = [f"{name} {end - t:.2f} s" for (name, t), end in zip(self.marks, ends)
-                 if name != "start" or end - t >= 0.01]
+        parts = [f"{name} {end - t:.2f} s" for (name, t), end in zip(self.marks, ends)]
         return f"{self.total():.2f} s: " + ", ".join(parts)
 
 
