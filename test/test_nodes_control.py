@@ -66,6 +66,20 @@ class SlipSource:
         self.thread.join(2)
 
 
+@pytest.fixture
+def slip_source(rclpy_context):
+    """Makes SlipSources, and closes them before the test's context shuts down, also when
+    a check failed (a thread left publishing raised into the next test's warnings)."""
+    made = []
+
+    def make(bus, **kwargs) -> SlipSource:
+        made.append(SlipSource(bus, **kwargs))
+        return made[-1]
+    yield make
+    for src in made:
+        src.close()
+
+
 def _listen(bus):
     from geometry_msgs.msg import PoseStamped, TwistStamped
     from std_msgs.msg import String
@@ -122,11 +136,15 @@ def _track_scene_arm(bus, ros_env) -> None:
         assert np.dot(moved, v / np.linalg.norm(v)) / dt == pytest.approx(0.02, abs=0.006)
         ctl.proc.send_signal(signal.SIGINT)
         assert ctl.proc.wait(10) == 0, ctl.output
-        last = bus.messages(CMD)[-1]
-        assert np.linalg.norm(_v(last)) == 0.0, "no stop command at shutdown"
+        # The node's exit waits for the readers' acknowledgement of its final stop, which
+        # comes before this process's executor has run the stop's callback: wait for it.
+        # One writer and reliable delivery keep the order, so once the last command received
+        # is a stop, no moving command followed it.
+        assert bus.wait(lambda: _speed(bus.messages(CMD)[-1]) == 0.0, 10), \
+            f"no stop command at shutdown:\n{ctl.output}"
 
 
-def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros_env):
+def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros_env, slip_source):
     from std_srvs.srv import Trigger
     bus = Bus(rclpy_context)
     _listen(bus)
@@ -138,14 +156,14 @@ def test_slip_track_moves_the_scene_arm_and_stops_on_shutdown(rclpy_context, ros
         return response
     # slip_inference's service: the task start (a new grasp) restarts its calibration.
     bus.node.create_service(Trigger, "/slip_inference/recalibrate", recalibrate)
-    src = SlipSource(bus, velocity=(0.02, 0.0))
+    src = slip_source(bus, velocity=(0.02, 0.0))
     _track_scene_arm(bus, ros_env)
     assert len(calls) == 1, calls
     src.close()
     bus.close()
 
 
-def test_watchdog_stops_the_arm_when_slip_goes_stale(rclpy_context, ros_env):
+def test_watchdog_stops_the_arm_when_slip_goes_stale(rclpy_context, ros_env, slip_source):
     """No scene: the test plays the arm (TCP poses) and the slip source."""
     from geometry_msgs.msg import PoseStamped
 
@@ -165,7 +183,7 @@ def test_watchdog_stops_the_arm_when_slip_goes_stale(rclpy_context, ros_env):
 
     t = threading.Thread(target=tcp_loop, daemon=True)
     t.start()
-    src = SlipSource(bus, velocity=(0.0, -0.03))
+    src = slip_source(bus, velocity=(0.0, -0.03))
     try:
         # Position term off: with the TCP held still by the test, integrated slip would grow
         # the command without bound (up to its clip), so the feed-forward alone is checked.
@@ -207,7 +225,7 @@ def test_watchdog_stops_the_arm_when_slip_goes_stale(rclpy_context, ros_env):
         bus.close()
 
 
-def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env):
+def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env, slip_source):
     """Retract, settle, approach (direction from the scene metadata), stop on slip."""
     from std_msgs.msg import String
 
@@ -215,7 +233,7 @@ def test_slip_stop_wall_push_through_the_scene(rclpy_context, ros_env):
     bus = Bus(rclpy_context)
     _listen(bus)
     bus.listen(String, "/aslip/slip_stop/result", LATCHED_QOS)
-    src = SlipSource(bus, velocity=(0.0, 0.0))
+    src = slip_source(bus, velocity=(0.0, 0.0))
     params = {"retract_distance_m": 0.01, "retract_speed_m_s": 0.05, "settle_s": 0.1,
               "approach_speed_m_s": 0.05, "max_approach_distance_m": 0.03,
               "debounce_count": 2, "settle_result_s": 0.2, "pose_timeout_s": POSE_TIMEOUT_S,
@@ -323,10 +341,10 @@ def test_slip_stop_declares_the_rotation_parameters_with_their_ranges():
     assert thr.check(ROTATION_EPSILON_RAD_S) is None
 
 
-def test_unreachable_xarm_is_reported_and_the_node_stays_safe(rclpy_context, ros_env):
+def test_unreachable_xarm_is_reported_and_the_node_stays_safe(rclpy_context, ros_env, slip_source):
     bus = Bus(rclpy_context)
     _listen(bus)
-    src = SlipSource(bus, velocity=(0.02, 0.0))
+    src = slip_source(bus, velocity=(0.02, 0.0))
     params = {"arm": "xarm", "xarm_ip": "192.0.2.1", "xarm_connect_timeout_s": 1.0}
     with NodeProcess("slip_track", ros_env, params) as ctl:
         ctl.wait_ready(30)
