@@ -53,20 +53,22 @@ def test_an_arm_from_test_code_is_driven_within_the_limits(rclpy_context, ros_en
     # thread starved for 0.33 s on a loaded CI machine stopped the arm before it moved.
     params = {"arm": "fake_arm:make_arm", "arm_max_speed_m_s": 0.01,
               "slip_timeout_s": 1.0, "pose_timeout_s": 1.0}
-    with NodeProcess("slip_track", env, params) as ctl:
-        ctl.wait_ready()
-        moving = lambda: [k for k in _calls(log) if k["call"] == "velocity" and  # noqa: E731
-                          np.linalg.norm(k["v"]) > 0.0099]
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and len(moving()) < 5:
-            time.sleep(0.05)
-        assert len(moving()) >= 5, ctl.output
-        # The node republishes the TCP the arm measured (polled on the arm thread).
-        assert bus.wait(lambda: len(bus.messages(c.TCP_TOPIC)) > 5, 10), ctl.output
-        ctl.proc.send_signal(signal.SIGINT)
-        assert ctl.proc.wait(10) == 0, ctl.output
-    alive.clear()
-    t.join(2)
+    try:
+        with NodeProcess("slip_track", env, params) as ctl:
+            ctl.wait_ready()
+            moving = lambda: [k for k in _calls(log) if k["call"] == "velocity" and  # noqa: E731
+                              np.linalg.norm(k["v"]) > 0.0099]
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and len(moving()) < 5:
+                time.sleep(0.05)
+            assert len(moving()) >= 5, ctl.output
+            # The node republishes the TCP the arm measured (polled on the arm thread).
+            assert bus.wait(lambda: len(bus.messages(c.TCP_TOPIC)) > 5, 10), ctl.output
+            ctl.proc.send_signal(signal.SIGINT)
+            assert ctl.proc.wait(10) == 0, ctl.output
+    finally:
+        alive.clear()           # also when a check failed: no thread left publishing
+        t.join(2)
     bus.close()
     calls = _calls(log)
     names = [k["call"] for k in calls]

@@ -110,6 +110,11 @@ class _Output:
                 or None in self.lines, timeout) and \
                 all(any(ln and t in ln for ln in self.lines) for t in texts)
 
+    def wait_end(self, timeout: float) -> bool:
+        """Whether the whole output has been read (the child closed it) within ``timeout``."""
+        with self._cv:
+            return self._cv.wait_for(lambda: None in self.lines, timeout)
+
     @property
     def text(self) -> str:
         with self._cv:
@@ -138,7 +143,8 @@ def test_a_controller_from_test_code_runs_through_its_launch(ros_env, tmp_path):
                             timeout=120), out.text[-4000:]
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=60) == 0, out.text[-4000:]
-        assert out.wait_for("", timeout=10)             # the output read to its end
+        # The output read to its end: launch writes its last lines just before it exits.
+        assert out.wait_end(timeout=10), out.text[-4000:]
         assert out.text.count("process has finished cleanly") == 4, out.text[-4000:]
         assert "process has died" not in out.text, out.text[-4000:]
     finally:

@@ -229,8 +229,10 @@ def test_fifo_paced_alsa_capture_delivers_the_rigs_samples_in_real_time(
     # The rig writes a block when its first frame is due; the capture stamps its arrival:
     # within a block of it, not a block late (a stamp of the block's end, or of the next
     # block's start, would be 10 ms late). Beside busy loops the arrival itself is late by a
-    # few ms of scheduling (seen: median 6.7 ms with -n 2 and two hogs).
-    assert -0.002 < float(np.median(lag)) < 0.75 * BLOCK / FS
+    # few ms of scheduling (seen: median 6.7 ms with -n 2 and two hogs), which only ever adds:
+    # the earliest tenth of the stamps says where the stamp is taken, whatever the load.
+    assert -0.002 < float(np.median(lag))
+    assert float(np.percentile(lag, 10)) < 0.75 * BLOCK / FS
 
 
 # -- the fake xArm: the real adapter over the fake SDK ------------------------------------------

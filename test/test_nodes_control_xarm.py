@@ -112,7 +112,9 @@ def test_arm_io_never_holds_up_slip_and_pose_callbacks(ros_domain, monkeypatch):
     monkeypatch.setattr(xarm, "default_api_factory", lambda ip: sdks.append(FakeSDK(ip))
                         or sdks[-1])
     args = ["--ros-args", "-p", "arm:=xarm", "-p", "xarm_ip:=192.0.2.7",
-            "-p", "slip_timeout_s:=0.1", "-p", "pose_timeout_s:=0.5",
+            # The longest deadline the node accepts: a stall of the test's own 100 Hz slip
+            # thread on a loaded machine must not latch the stop before the first move.
+            "-p", "slip_timeout_s:=1.0", "-p", "pose_timeout_s:=0.5",
             "-p", "position_gain_1_s:=0.0"]
     rclpy.init(args=args, domain_id=ros_domain,
                signal_handler_options=SignalHandlerOptions.NO)
@@ -243,7 +245,8 @@ def test_stale_slip_stop_leaves_at_the_deadline_not_at_the_next_control_tick(
     monkeypatch.setattr(SlipTrackNode, "control_step", gated_step)
     monkeypatch.setattr(SlipTrackNode, "_on_deadline", flagged_deadline)
     args = ["--ros-args", "-p", "arm:=xarm", "-p", "xarm_ip:=192.0.2.7",
-            "-p", "control_rate_hz:=1.0", "-p", "slip_timeout_s:=0.2",
+            # (the longest slip deadline: see the test above)
+            "-p", "control_rate_hz:=1.0", "-p", "slip_timeout_s:=1.0",
             "-p", "pose_timeout_s:=1.0", "-p", "start_after_messages:=1",
             "-p", "position_gain_1_s:=0.0"]
     rclpy.init(args=args, domain_id=ros_domain,

@@ -170,6 +170,7 @@ def test_a_slow_window_model_supersedes_hops_and_keeps_their_stamps(rclpy_contex
         assert stamps and set(stamps) <= set(ends)    # each at the end of its own window
         assert stamps[-1] == ends[-1]                 # the newest window ran last
     finally:
+        gate.set()              # a failed check must not leave the model thread held
         node.destroy_node()
 
 

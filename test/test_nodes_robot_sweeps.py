@@ -153,7 +153,9 @@ def _nothing_after_the_first_stop(names: list) -> None:
 
 def test_a_stale_pose_stream_stops_the_arm_for_good(rclpy_context):
     from aslip_ros.control.sweeps import SweepEnd
-    run = InProcess(rclpy_context, pose_timeout_s=0.2, duration_s=0.0)
+    # Not shorter than the suite's: a stall of the fake arm's report thread on a loaded
+    # machine must not end the run before it has moved.
+    run = InProcess(rclpy_context, pose_timeout_s=POSE_TIMEOUT_S, duration_s=0.0)
     try:
         assert run.arm.moving.wait(20), run.arm.names()
         assert run.node.active

@@ -330,6 +330,9 @@ def test_mocap_bridge_leaves_the_bodies_to_a_driver_that_publishes_them(rclpy_co
             pub_o.publish(convert.pose_to_msg([0, 0, 0, 0, 0, 0, 1.0], stamp, "mocap"))
             return len(bus.messages(c.SLIP_TRUTH_TOPIC)) >= 5
         assert bus.wait(fed, 30), bridge.output
+        # The static frames arrive on their own topic: wait for them, do not just look.
+        assert bus.wait(lambda: set(_tree(bus)) >= {frames.GRASP_PLANE, frames.GRIPPER}, 10), \
+            bridge.output
     bus.close()
     assert bus.messages("/tf") == []
     assert set(_tree(bus)) == {frames.GRASP_PLANE, frames.GRIPPER}
