@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from aslip_ros.learn import coverage
 from aslip_ros.learn.training import allocation, folds, recipes, selection
 from aslip_ros.learn.training.data import split_windows
 
@@ -341,6 +342,13 @@ def test_validation_never_shares_a_trial_with_training(data, tmp_path):
     dev = {t for t, s in splits.items() if s in ("train", "val")}
     assert set().union(*fold_trials) == dev == set(sel["val_trials"]) == set(sel["train_trials"])
     assert not dev & set(sel["test_trials_untouched"])
+    # The slip directions the final model learns from: every trial of the folds.
+    on = np.isin(np.asarray(ds.windows["trial"]),
+                 [k for k, x in enumerate(ds.trials) if x["id"] in dev])
+    idx = np.flatnonzero(on)
+    want = coverage.direction_coverage(ds.velocity(idx), ds.slip(idx), ds.hop_s)
+    assert sel["direction_coverage"] == json.loads(json.dumps(want))
+    assert coverage.coverage_text(want) in (tmp_path / "auto.pt.selection.md").read_text()
     cfg = _cfg()
     ids = [t["id"] for t in ds.trials]
     for f in fold_trials:                 # each fold model: its validation trials unseen

@@ -105,6 +105,12 @@ def test_svm_baseline_and_single_channel(work, tmp_path):
                            str(tmp_path / "svm.pt"), "--no-progress"]) == 0
     res = evaluate.evaluate_checkpoint(tmp_path / "svm.pt", robot, "test")
     assert res["model_type"] == "svm" and res["overall"]["detection_accuracy"] > 0.8
+    # Scored per true slip direction too: every slip window in one sector, the rest apart.
+    by_dir = res["per_direction"]
+    assert sum(m["n_slip"] for k, m in by_dir.items() if k != "no slip") == \
+        res["overall"]["n_slip"] > 0
+    assert sum(m["n_windows"] for m in by_dir.values()) == res["overall"]["n_windows"]
+    assert "direction MAE by true slip direction" in evaluate.format_report(res)
     # A single-microphone model picked by name from the 4-mic dataset.
     assert cli(train_cli, ["--dataset", str(robot), "--stage", "scratch", "--channels",
                            "left_front", "--out", str(tmp_path / "one.pt"), "--epochs", "2"]

@@ -59,6 +59,7 @@ from aslip_ros.util import write_json
 from aslip_ros.learn.inference.live import load_predictor
 from aslip_ros.learn.models.registry import model_backend
 from aslip_ros.learn.checkpoint import CheckpointMismatch
+from aslip_ros.learn.coverage import NO_SLIP, direction_groups
 from aslip_ros.learn.data_io import open_dataset, select_windows
 from aslip_ros.learn.calibration.output import calibration_check, plot_reliability
 from aslip_ros.learn.metrics import ROTATION_KEYS, compute_metrics, grouped_metrics
@@ -183,6 +184,9 @@ def evaluate_checkpoint(checkpoint: str | Path, dataset: str | Path, split: str 
         "overall": _overall(p, args, rot),
         "per_object": grouped_metrics(ds.trial_field("object", idx), *args, **rot),
         "per_condition": grouped_metrics(ds.trial_field("condition", idx), *args, **rot),
+        # Where the training slip was sparse (learn/coverage.py), the direction is weaker.
+        "per_direction": grouped_metrics(direction_groups(p["true_velocity"], p["slip"]),
+                                         *args, **rot),
         "output_calibration": _output_calibration(p, getattr(pred, "sigma_model", None),
                                                   getattr(pred, "angular_sigma_model", None)),
     }
@@ -247,6 +251,11 @@ def format_report(res: dict[str, Any]) -> str:
     lines = [f"{res['model_type']} {res['checkpoint']} on {res['dataset']} [{res['split']}]",
              row("overall", res["overall"])]
     lines += [row(f"  {k}", v) for k, v in res["per_object"].items()]
+    by_dir = {k: v for k, v in (res.get("per_direction") or {}).items() if k != NO_SLIP}
+    if by_dir:
+        lines.append("direction MAE by true slip direction: " + ", ".join(
+            f"{k} {v.get('direction_mae_deg', float('nan')):.0f} deg (n={v['n_slip']})"
+            for k, v in sorted(by_dir.items(), key=lambda kv: float(kv[0].split()[0]))))
     cal = res.get("output_calibration")
     if cal is not None:
         sig = cal["sigma"]

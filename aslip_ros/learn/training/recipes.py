@@ -58,6 +58,7 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 
+from aslip_ros.learn.coverage import coverage_text, direction_coverage
 from aslip_ros.learn.data_io import WindowSet, open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ENCODER_PARTS
@@ -413,6 +414,11 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
     (``learn.training.resume``; the budget counts the interrupted calls' time).
     ValueError when the validation trials are too few or no candidate finished."""
     tr, va, folds = validation_split(ds, cfg)
+    # The slip directions the final model learns from (on folds: every trial of the folds).
+    trained_on = np.union1d(tr, va) if folds else tr
+    coverage = direction_coverage(ds.velocity(trained_on), ds.slip(trained_on), ds.hop_s)
+    if coverage["sparse"] or not coverage["slip_s"]:
+        log("warning: " + coverage_text(coverage))
     cands, skipped = plan(recipes, seeds, pretrain_ds is not None, log, cfg.calibration)
     if folds:
         log(f"choosing on {len(folds)} folds by trial: the split has fewer than "
@@ -443,6 +449,7 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
         "wall_s": round(time.perf_counter() - run.t0, 1), "dataset": str(ds.root),
         "split_seed": cfg.split_seed, "device": str(resolve_device(cfg.device)),
         "train_trials": _trial_names(ds, tr), "val_trials": _trial_names(ds, va),
+        "direction_coverage": coverage,
         "test_trials_untouched": _trial_names(
             ds, ds.dataset.select("test", seed=cfg.split_seed))}
     # Rank 0's choice under torchrun: the latencies it weighs are measured per process.
@@ -527,7 +534,9 @@ def comparison_markdown(sel: dict[str, Any]) -> str:
             + "".join(t + "\n\n" for t in (worth_text, per_output) if t) + trials_text +
             f"training trials: {len(sel['train_trials'])}; test trials, not looked at: "
             f"{len(sel['test_trials_untouched'])}. Whole call: {sel['wall_s']:.0f} s "
-            f"(budget {sel['budget_s']:.0f} s).\n")
+            f"(budget {sel['budget_s']:.0f} s).\n"
+            + (f"\n{coverage_text(sel['direction_coverage'])}\n"
+               if sel.get("direction_coverage") else ""))
 
 
 def write_comparison(out: str | os.PathLike, sel: dict[str, Any]) -> tuple[Path, Path]:
