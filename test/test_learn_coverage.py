@@ -43,6 +43,10 @@ def test_a_recording_that_never_slips_backwards_names_those_sectors():
     none = coverage.direction_coverage(v, np.zeros(len(v), bool), hop_s=0.01)
     assert none["slip_s"] == 0 and none["sparse"] == []
     assert "no slip" in coverage.coverage_text(none)
+    assert coverage.warns(cov) and coverage.warns(none)
+    even = coverage.direction_coverage(_unit(np.arange(-180, 180, 5)),
+                                       np.ones(72, bool), hop_s=0.01)
+    assert not coverage.warns(even)
 
 
 def test_direction_groups_put_windows_without_slip_apart():

@@ -99,10 +99,20 @@ def test_finetune_refuses_other_channels(work, tmp_path):
     assert cli(evaluate, ["--checkpoint", str(root / "pre.pt"), "--dataset", str(other)]) == 1
 
 
-def test_svm_baseline_and_single_channel(work, tmp_path):
+def test_svm_baseline_and_single_channel(work, tmp_path, capsys):
     root, robot, _ = work
     assert cli(train_cli, ["--dataset", str(robot), "--stage", "svm", "--out",
                            str(tmp_path / "svm.pt"), "--no-progress"]) == 0
+    # The slip directions it learned from: those of the split's training windows, in the
+    # checkpoint, and a warning exactly when a sector is sparse (learn/coverage.py).
+    from aslip_ros.learn import coverage
+    from aslip_ros.learn.training.config import TrainConfig
+    from aslip_ros.learn.training.data import split_windows
+    ds = open_dataset(robot)
+    want = coverage.of_windows(ds, split_windows(ds, TrainConfig(stage="svm"))[0])
+    got = load_checkpoint(tmp_path / "svm.pt").meta["provenance"]["direction_coverage"]
+    assert got == json.loads(json.dumps(want)) and want["slip_s"] > 0
+    assert ("warning: Slip directions" in capsys.readouterr().out) == coverage.warns(want)
     res = evaluate.evaluate_checkpoint(tmp_path / "svm.pt", robot, "test")
     assert res["model_type"] == "svm" and res["overall"]["detection_accuracy"] > 0.8
     # Scored per true slip direction too: every slip window in one sector, the rest apart.

@@ -73,6 +73,16 @@ def direction_coverage(velocity: np.ndarray, slip: np.ndarray, hop_s: float,
             "sparse": [r["sector"] for r, s in zip(rows, share) if total and s < limit]}
 
 
+def of_windows(ds: Any, idx: np.ndarray) -> dict[str, Any]:
+    """``direction_coverage`` of a dataset's (``learn.data_io.WindowSet``) windows ``idx``."""
+    return direction_coverage(ds.velocity(idx), ds.slip(idx), ds.hop_s)
+
+
+def warns(cov: dict[str, Any]) -> bool:
+    """Whether ``cov`` is worth a warning: a sparse sector, or no slip at all."""
+    return bool(cov["sparse"]) or not cov["slip_s"]
+
+
 def coverage_text(cov: dict[str, Any]) -> str:
     """One sentence on ``direction_coverage``: the sparse sectors, or that none is."""
     if not cov.get("slip_s"):

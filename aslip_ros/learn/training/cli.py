@@ -20,6 +20,7 @@ import contextlib
 import os
 import sys
 
+from aslip_ros.learn.coverage import coverage_text, of_windows, warns
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ModelConfig
@@ -32,6 +33,7 @@ from aslip_ros.learn.training.recipes import (DEFAULT_BUDGET_S, DEFAULT_RECIPES,
                                               run_selected)
 from aslip_ros.learn.training.resume import RunStates
 from aslip_ros.learn.training.stream import run_from_args
+from aslip_ros.learn.training.data import split_windows
 from aslip_ros.learn.training.train import train_backend, train_svm
 
 
@@ -220,6 +222,12 @@ def _run(args: argparse.Namespace) -> int:
         return 1
     if not distributed.is_main():
         return 0
+    # The slip directions the model learned from (learn/coverage.py). Pretraining teaches
+    # the encoder only: its sweeps need not cover the plane, so it records without warning.
+    cov = of_windows(ds, split_windows(ds, cfg)[0])
+    res.meta["provenance"]["direction_coverage"] = cov
+    if args.stage != "pretrain" and warns(cov):
+        print("warning: " + coverage_text(cov))
     res.save(args.out)
     if states is not None:
         states.finished()

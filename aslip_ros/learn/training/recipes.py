@@ -58,7 +58,7 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 
-from aslip_ros.learn.coverage import coverage_text, direction_coverage
+from aslip_ros.learn.coverage import coverage_text, of_windows, warns
 from aslip_ros.learn.data_io import WindowSet, open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ENCODER_PARTS
@@ -416,8 +416,8 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
     tr, va, folds = validation_split(ds, cfg)
     # The slip directions the final model learns from (on folds: every trial of the folds).
     trained_on = np.union1d(tr, va) if folds else tr
-    coverage = direction_coverage(ds.velocity(trained_on), ds.slip(trained_on), ds.hop_s)
-    if coverage["sparse"] or not coverage["slip_s"]:
+    coverage = of_windows(ds, trained_on)
+    if warns(coverage):
         log("warning: " + coverage_text(coverage))
     cands, skipped = plan(recipes, seeds, pretrain_ds is not None, log, cfg.calibration)
     if folds:
