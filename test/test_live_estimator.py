@@ -210,6 +210,9 @@ def _node_estimates(context, ckpt, blocks, expected_counts):
         return list(got)
     finally:
         ex.shutdown()
+        # The spin thread may still be inside a wait on the node's entities: destroying
+        # them under it raised InvalidHandle in that thread (a make test warning).
+        spin.join(5)
         node.destroy_node()
         bus.close()
 

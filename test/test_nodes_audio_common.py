@@ -53,6 +53,7 @@ def rig(rclpy_context):
     yield bus, node, acm, audio_pub, info_pub
     node.before_shutdown()
     ex.shutdown()
+    spin.join(5)                # not under a wait on the node's entities (see test_live_estimator)
     node.destroy_node()
     bus.close()
 

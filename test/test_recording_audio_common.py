@@ -81,6 +81,7 @@ def test_bag_recorder_takes_the_latched_audio_info_and_the_audio(rclpy_context, 
     finally:
         rec.before_shutdown()
         ex.shutdown()
+        spin.join(5)            # not under a wait on the node's entities (see test_live_estimator)
         rec.destroy_node()
         bus.close()
     with BagReader(bag) as r:

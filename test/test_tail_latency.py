@@ -153,6 +153,7 @@ def _diagnostics_after_estimates(context, ckpt, n_estimates: int = 5) -> dict:
         raise AssertionError(f"no diagnostics with step figures; {got['slips']} estimates")
     finally:
         ex.shutdown()
+        spin.join(5)            # not under a wait on the node's entities (see test_live_estimator)
         node.destroy_node()
         bus.close()
 
