@@ -85,6 +85,10 @@ def test_a_registered_controller_is_refused_a_package_name():
             "slip_stop", "x", "X"))
 
 
+#: What launch printed when its own SIGINT race ended it with 1 (see the test below).
+LAUNCH_RACE = "Task was destroyed but it is pending!"
+
+
 class _Output:
     """A child's merged output, read by a thread; :meth:`wait_for` waits on its lines."""
 
@@ -142,11 +146,17 @@ def test_a_controller_from_test_code_runs_through_its_launch(ros_env, tmp_path):
         assert out.wait_for("svm model", "creeping with arm sim, at most 0.04 m/s",
                             timeout=120), out.text[-4000:]
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 0, out.text[-4000:]
+        code = proc.wait(timeout=60)
         # The output read to its end: launch writes its last lines just before it exits.
         assert out.wait_end(timeout=10), out.text[-4000:]
         assert out.text.count("process has finished cleanly") == 4, out.text[-4000:]
         assert "process has died" not in out.text, out.text[-4000:]
+        # launch's own exit status: 0, but for one race of launch itself (CI, 2026-11-30, on
+        # 337b625): a SIGINT that lands while launch handles an event of a child's output
+        # left its pending event task destroyed, and launch exited 1 with every node
+        # finished cleanly and no error of its own. That signature alone is let through.
+        assert code == 0 or (code == 1 and LAUNCH_RACE in out.text
+                             and "[ERROR]" not in out.text), out.text[-4000:]
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
