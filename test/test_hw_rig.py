@@ -401,6 +401,22 @@ def test_rig_exits_on_sigterm_and_after_its_duration(start_rig):
     assert short.events("exit")[0]["scene_t"] == pytest.approx(0.5, abs=0.011)
 
 
+def test_a_rig_the_host_does_not_run_reports_a_stall(start_rig):
+    """The rehearsal tells a stalled stand-in from a failing node by this event: a rig held
+    still (SIGSTOP, as a host that does not schedule it) for 0.5 s, 50 blocks, says so once
+    it runs again, and skips the time rather than bursting it."""
+    rig = start_rig()
+    assert not rig.events("stall")
+    rig.proc.send_signal(signal.SIGSTOP)
+    try:
+        time.sleep(0.5)          # the stall itself: any longer only adds skipped blocks
+    finally:
+        rig.proc.send_signal(signal.SIGCONT)
+    stall = _wait(lambda: rig.events("stall"), 20.0, "the rig's stall event")
+    assert stall[0]["skipped_blocks"] >= 50 - 20 - 1, stall
+    assert rig.stop() == 0
+
+
 PARENT = textwrap.dedent("""\
     import subprocess, sys
     rig = subprocess.Popen(sys.argv[1:], stdout=subprocess.PIPE, text=True)
