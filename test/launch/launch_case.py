@@ -37,6 +37,18 @@ LOADED_INPUT_TIMEOUT_S = "1.0"
 _RESERVED = []
 
 
+def scratch_dir(prefix: str) -> str:
+    """A new temporary directory, removed when this process exits. Every process that imports
+    a launch test makes one (pytest's collection too), not only the one whose last test
+    could remove it."""
+    import atexit
+    import shutil
+    import tempfile
+    path = tempfile.mkdtemp(prefix=prefix)
+    atexit.register(shutil.rmtree, path, True)
+    return path
+
+
 def reserve_domain() -> int:
     """A ROS_DOMAIN_ID no other user of domain_coordinator gets while this process runs."""
     from domain_coordinator import domain_id

@@ -11,7 +11,6 @@ test/test_launch_files.py, which runs `ros2 launch` to its end.
 import os
 import shutil
 import sys
-import tempfile
 import unittest
 
 import pytest
@@ -19,7 +18,7 @@ import pytest
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import launch_case as lc  # noqa: E402
 
-OUT = tempfile.mkdtemp(prefix="aslip_launch_dc_")
+OUT = lc.scratch_dir("aslip_launch_dc_")
 BAG = os.path.join(OUT, "bag")
 
 

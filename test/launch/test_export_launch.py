@@ -9,7 +9,6 @@ A 3 s simulated bag is written first (the project's own writer); the launch must
 import os
 import shutil
 import sys
-import tempfile
 import unittest
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import pytest
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import launch_case as lc  # noqa: E402
 
-OUT = Path(tempfile.mkdtemp(prefix="aslip_launch_export_"))
+OUT = Path(lc.scratch_dir("aslip_launch_export_"))
 
 
 @pytest.mark.launch_test
