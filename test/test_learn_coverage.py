@@ -46,7 +46,8 @@ def test_a_recording_that_never_slips_backwards_names_those_sectors():
     assert coverage.warns(cov) and coverage.warns(none)
     even = coverage.direction_coverage(_unit(np.arange(-180, 180, 5)),
                                        np.ones(72, bool), hop_s=0.01)
-    assert not coverage.warns(even)
+    assert not coverage.warns(even) and coverage.warning(even) is None
+    assert coverage.warning(cov) == "warning: " + text
 
 
 def test_direction_groups_put_windows_without_slip_apart():

@@ -83,6 +83,11 @@ def warns(cov: dict[str, Any]) -> bool:
     return bool(cov["sparse"]) or not cov["slip_s"]
 
 
+def warning(cov: dict[str, Any]) -> str | None:
+    """The warning ``aslip train`` prints for ``cov``, or None when it does not warn."""
+    return "warning: " + coverage_text(cov) if warns(cov) else None
+
+
 def coverage_text(cov: dict[str, Any]) -> str:
     """One sentence on ``direction_coverage``: the sparse sectors, or that none is."""
     if not cov.get("slip_s"):

@@ -59,7 +59,7 @@ from aslip_ros.util import write_json
 from aslip_ros.learn.inference.live import load_predictor
 from aslip_ros.learn.models.registry import model_backend
 from aslip_ros.learn.checkpoint import CheckpointMismatch
-from aslip_ros.learn.coverage import NO_SLIP, direction_groups
+from aslip_ros.learn.coverage import NO_SLIP, SECTORS, direction_groups, sector_name
 from aslip_ros.learn.data_io import open_dataset, select_windows
 from aslip_ros.learn.calibration.output import calibration_check, plot_reliability
 from aslip_ros.learn.metrics import ROTATION_KEYS, compute_metrics, grouped_metrics
@@ -255,7 +255,8 @@ def format_report(res: dict[str, Any]) -> str:
     if by_dir:
         lines.append("direction MAE by true slip direction: " + ", ".join(
             f"{k} {v.get('direction_mae_deg', float('nan')):.0f} deg (n={v['n_slip']})"
-            for k, v in sorted(by_dir.items(), key=lambda kv: float(kv[0].split()[0]))))
+            for k, v in ((k, by_dir[k]) for k in map(sector_name, range(SECTORS))
+                         if k in by_dir)))
     cal = res.get("output_calibration")
     if cal is not None:
         sig = cal["sigma"]

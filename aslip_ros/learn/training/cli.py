@@ -20,7 +20,7 @@ import contextlib
 import os
 import sys
 
-from aslip_ros.learn.coverage import coverage_text, of_windows, warns
+from aslip_ros.learn.coverage import of_windows, warning
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ModelConfig
@@ -226,8 +226,8 @@ def _run(args: argparse.Namespace) -> int:
     # the encoder only: its sweeps need not cover the plane, so it records without warning.
     cov = of_windows(ds, split_windows(ds, cfg)[0])
     res.meta["provenance"]["direction_coverage"] = cov
-    if args.stage != "pretrain" and warns(cov):
-        print("warning: " + coverage_text(cov))
+    if args.stage != "pretrain" and warning(cov):
+        print(warning(cov))
     res.save(args.out)
     if states is not None:
         states.finished()

@@ -58,7 +58,7 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 
-from aslip_ros.learn.coverage import coverage_text, of_windows, warns
+from aslip_ros.learn.coverage import coverage_text, of_windows, warning
 from aslip_ros.learn.data_io import WindowSet, open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ENCODER_PARTS
@@ -417,8 +417,8 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
     # The slip directions the final model learns from (on folds: every trial of the folds).
     trained_on = np.union1d(tr, va) if folds else tr
     coverage = of_windows(ds, trained_on)
-    if warns(coverage):
-        log("warning: " + coverage_text(coverage))
+    if warning(coverage):
+        log(warning(coverage))
     cands, skipped = plan(recipes, seeds, pretrain_ds is not None, log, cfg.calibration)
     if folds:
         log(f"choosing on {len(folds)} folds by trial: the split has fewer than "
