@@ -5,7 +5,11 @@ makes that measurable inside the project: every method is trained on the externa
 trials of one scene (``--train-on``, default: the default scene) and tested on every scene in
 full, as a user's recording is: all its trials are test trials. The training scene itself is
 tested on a fresh draw of it (other seeds, ``HELD_OUT_SEED``), not on the few trials its
-split keeps back, so every test set has as many trials as a held-out variant.
+split keeps back, so every test set has as many trials as a held-out variant. A
+``one_sided`` training draw gives each trial the preferred slip direction its seed draws,
+which may leave a side of the circle without any (docs/results.md, "Why the folds' figure
+misses the test there"); ``--headings even`` spreads its trials' directions evenly instead,
+as a lab that follows the quickstart records. Test draws always keep the seeds' directions.
 
 Scenes (``aslip simulate --variant``, ``scene/variants.py``, docs/scene.md): ``default``
 (per-grasp coupling of +-3 dB); ``coupling`` (+-6 dB, hand-noise path +-2 dB); ``one_sided``
@@ -91,6 +95,10 @@ class TransferConfig:
     n_boot: int = 500
     progress: bool = True
     merge: bool = False             # keep other methods' cached predictions in the tables
+    #: The one_sided training draw's preferred slip directions: each trial's from its seed
+    #: ("random"), or spread evenly round the circle over its trials ("even", as a lab that
+    #: follows the quickstart records). The test draws are always "random".
+    headings: str = "random"
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -103,13 +111,23 @@ def scene_root(cfg: TransferConfig) -> Path:
     return cfg.data / f"scene-v{SCENE_VERSION}"
 
 
+def draw_name(cfg: TransferConfig, scene: str, held_out: bool = False) -> str:
+    """The name of a draw of ``scene`` in the caches and tables: ``-held-out`` for its fresh
+    draw, ``-even-headings`` for a one_sided training draw with ``headings="even"``."""
+    if held_out:
+        return scene + "-held-out"
+    return scene + ("-even-headings" if scene == "one_sided" and cfg.headings == "even"
+                    else "")
+
+
 def scene_dataset(cfg: TransferConfig, scene: str, log: Callable[[str], None],
                   held_out: bool = False) -> Path:
     """The externally induced dataset of ``scene`` (with ``held_out``: its fresh draw, other
     seeds): simulated and exported once, then reused."""
     from aslip_ros.data.export import export
     from aslip_ros.scene.simulate import simulate
-    name = scene + ("-held-out" if held_out else "")
+    name = draw_name(cfg, scene, held_out)
+    headings = "even" if name.endswith("-even-headings") else "random"
     bags = scene_root(cfg) / "bags" / name
     ds = scene_root(cfg) / "datasets" / name
     if (ds / "manifest.json").is_file():
@@ -118,7 +136,8 @@ def scene_dataset(cfg: TransferConfig, scene: str, log: Callable[[str], None],
     simulate(bags, "external", objects=cfg.objects, conditions=CONDITIONS, trials=cfg.trials,
              duration_s=cfg.duration_s,
              seed=cfg.seed + SCENE_SEED[scene] + (HELD_OUT_SEED if held_out else 0),
-             variant=None if scene == "default" else scene, progress=cfg.progress)
+             variant=None if scene == "default" else scene, progress=cfg.progress,
+             headings=headings)
     log(f"{name}: exporting")
     recorded = ds.with_name(name + "-recorded")
     if not (recorded / "manifest.json").is_file():
@@ -265,7 +284,8 @@ def score(cfg: TransferConfig, p: dict[str, np.ndarray]) -> dict[str, Any]:
 # --- the protocol -------------------------------------------------------------------------
 
 def _predictions_path(cfg: TransferConfig, train: str, test: str, method: str) -> Path:
-    return scene_root(cfg) / "predictions" / f"{train}--{test}" / f"{cached_name(method)}.npz"
+    return (scene_root(cfg) / "predictions" / f"{draw_name(cfg, train)}--{test}"
+            / f"{cached_name(method)}.npz")
 
 
 def _save_predictions(path: Path, p: dict[str, np.ndarray]) -> None:
@@ -298,8 +318,8 @@ def run_protocol(cfg: TransferConfig, log: Callable[[str], None] = print) -> dic
         tests = test_sets(cfg, train, log)
         for method in cfg.methods:
             t0 = time.perf_counter()
-            model = train_method(cfg, method, train_ds, scene_root(cfg) / "models" / train,
-                                 log)
+            model = train_method(cfg, method, train_ds,
+                                 scene_root(cfg) / "models" / draw_name(cfg, train), log)
             log(f"trained {method} on {train} ({time.perf_counter() - t0:.0f} s)")
             for test, ds in tests.items():
                 p = predict(cfg, method, model, ds, "all")
@@ -316,7 +336,7 @@ def write_tables(cfg: TransferConfig) -> dict[str, Any]:
     preds: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     for train in cfg.train_on:
         for test in cfg.test_on:
-            cell = f"{train} -> {test}"
+            cell = f"{draw_name(cfg, train)} -> {test}"
             for method in (m for m in METHODS if cfg.merge or m in cfg.methods):
                 path = _predictions_path(cfg, train, test, method)
                 if path.is_file():
@@ -409,6 +429,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="aslip train's --time-budget [s] (default: aslip train's own)")
     p.add_argument("--epochs", type=int, default=25, help="plain CNN epochs")
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--headings", choices=("random", "even"), default="random",
+                   help="one_sided training draw: each trial's preferred slip direction from "
+                        "its seed, or the trials' spread evenly round the circle (the test "
+                        "draws: always from the seeds)")
     p.add_argument("--quick", action="store_true",
                    help="smoke run: 2 objects, 4 s trials, 1 trial each, short training")
     p.add_argument("--no-progress", action="store_true")
@@ -427,7 +451,11 @@ def config_from_args(args: argparse.Namespace) -> TransferConfig:
                          methods=names(args.methods, METHODS, "method"), trials=args.trials,
                          duration_s=args.duration, time_budget_s=args.time_budget,
                          epochs=args.epochs, threads=args.threads,
-                         progress=not args.no_progress, merge=args.merge)
+                         progress=not args.no_progress, merge=args.merge,
+                         headings=args.headings)
+    if cfg.headings != "random" and "one_sided" not in cfg.train_on:
+        raise SystemExit("transfer: --headings applies to a one_sided training draw: "
+                         "add one_sided to --train-on")
     if args.quick:
         cfg.objects, cfg.trials, cfg.duration_s = OBJECTS[:2], 1, 4.0
         cfg.time_budget_s, cfg.epochs, cfg.n_boot = 20.0, 2, 50

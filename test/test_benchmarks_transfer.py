@@ -236,3 +236,46 @@ def test_a_revised_method_is_never_read_from_the_old_cache():
     cfg = transfer.TransferConfig(out=None)
     assert transfer._predictions_path(cfg, "default", "coupling", "plain_svm").name == \
         f"{transfer.cached_name('plain_svm')}.npz"
+
+
+def test_a_one_sided_training_draw_with_even_headings_is_its_own_draw(tmp_path, monkeypatch):
+    """``--headings even`` simulates the one_sided training draw with the trials' preferred
+    directions spread evenly, under a name of its own in the caches and the tables (a model
+    of the random draw is never read for it); the test draw stays the seeds' own."""
+    fake_scenes(tmp_path, monkeypatch)
+    cfg = transfer.TransferConfig(out=tmp_path / "out", data=tmp_path / "data",
+                                  train_on=("one_sided",), test_on=("one_sided",),
+                                  methods=("plain_svm",), n_boot=20, progress=False,
+                                  headings="even")
+    assert transfer.draw_name(cfg, "one_sided") == "one_sided-even-headings"
+    assert transfer.draw_name(cfg, "one_sided", held_out=True) == "one_sided-held-out"
+    assert transfer.draw_name(cfg, "default") == "default"
+    res = transfer.run_protocol(cfg, log=lambda s: None)
+    assert set(res["cells"]) == {"one_sided-even-headings -> one_sided"}
+    assert (transfer.scene_root(cfg) / "models" / "one_sided-even-headings").is_dir()
+    assert not (transfer.scene_root(cfg) / "models" / "one_sided").exists()
+    p = transfer.add_arguments
+    import argparse
+    parser = argparse.ArgumentParser()
+    p(parser)
+    with pytest.raises(SystemExit, match="one_sided"):
+        transfer.config_from_args(parser.parse_args(["--headings", "even"]))
+
+
+def test_scene_dataset_asks_simulate_for_even_headings_on_the_training_draw_only(
+        tmp_path, monkeypatch):
+    import aslip_ros.scene.simulate as sim
+    asked = []
+
+    def fake_simulate(out, kind, **kw):
+        asked.append((out.name, kw["variant"], kw["headings"]))
+        raise RuntimeError("stop here")
+    monkeypatch.setattr(sim, "simulate", fake_simulate)
+    cfg = transfer.TransferConfig(out=tmp_path / "out", data=tmp_path / "data",
+                                  progress=False, headings="even")
+    for scene, held_out in (("one_sided", False), ("one_sided", True), ("default", False)):
+        with pytest.raises(RuntimeError):
+            transfer.scene_dataset(cfg, scene, lambda s: None, held_out=held_out)
+    assert asked == [("one_sided-even-headings", "one_sided", "even"),
+                     ("one_sided-held-out", "one_sided", "random"),
+                     ("default", None, "random")]

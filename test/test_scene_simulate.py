@@ -144,3 +144,29 @@ def test_simulate_refuses_bags_recorded_with_other_parameters(tmp_path, capsys):
     assert cli.main(base + ["--duration", "0.8", "--layout", "4mic", "--overwrite"]) == 0
     with bags.BagReader(bag) as r:
         assert r.metadata["layout"] == "4mic" and r.metadata["duration_s"] == 0.8
+
+
+def test_even_headings_spread_a_one_sided_draw_round_the_circle(tmp_path):
+    """``--headings even``: the trials' preferred directions 360/n degrees apart, each world
+    slipping mostly that way, recorded in the metadata; a random draw (the default) leaves
+    them to the seeds, and the option is refused without the one_sided variant."""
+    from aslip_ros.scene.simulate import _trials, even_headings
+    h = even_headings(6, seed=4)
+    gaps = np.diff(np.sort(np.degrees(h)))
+    assert np.allclose(gaps, 60.0) and np.all(np.abs(h) <= np.pi)
+    assert np.array_equal(h, even_headings(6, seed=4))
+    assert not np.allclose(np.sort(h), np.sort(even_headings(6, seed=5)))
+    plan = plan_trials("external", ["chips_can", "cracker_box"], ["robot_off", "robot_moving"],
+                       1, 4, None, None, 1.0)
+    worlds, extras = _trials("external", plan, 1.0, "one_sided", 0.0, None, None, "even", 4)
+    got = [w.scenario.one_sided_direction_rad for w in worlds]
+    assert np.allclose(got, even_headings(len(plan), 4))
+    assert [ex["one_sided_heading_deg"] for ex in extras] == pytest.approx(np.degrees(got),
+                                                                           abs=1e-3)
+    drawn, extras = _trials("external", plan, 1.0, "one_sided", 0.0, None, None, "random", 4)
+    assert all("one_sided_heading_deg" not in ex for ex in extras)
+    assert [w.scenario.one_sided_direction_rad for w in drawn] != pytest.approx(got)
+    with pytest.raises(ValueError, match="one_sided variant only"):
+        _trials("external", plan, 1.0, None, 0.0, None, None, "even", 4)
+    with pytest.raises(ValueError, match="one_sided_heading_rad"):
+        worlds[0].scenario.with_(one_sided_heading_rad=4.0)

@@ -52,6 +52,9 @@ class Scenario:
     drag_hold_s: float = 1.0
     one_sided_fraction: float = 0.0
     one_sided_spread_rad: float = np.pi / 6.0
+    #: The preferred slip direction of a one-sided trial [rad, grasp-plane angle]; None:
+    #: drawn from the seed (``one_sided_direction_rad``).
+    one_sided_heading_rad: float | None = None
     no_slip_touch_fraction: float = 0.2
     #: external_induced: share of the agent's slipping pushes that twist the object about
     #: the pad normal, half of them pure twists and half twists with the push (docs/scene.md,
@@ -123,6 +126,11 @@ class Scenario:
         if not 0.0 <= self.one_sided_spread_rad <= np.pi:
             raise ValueError(f"one_sided_spread_rad must lie in [0, pi], got "
                              f"{self.one_sided_spread_rad}")
+        if self.one_sided_heading_rad is not None and not (
+                np.isfinite(self.one_sided_heading_rad)
+                and -np.pi <= self.one_sided_heading_rad <= np.pi):
+            raise ValueError(f"one_sided_heading_rad must lie in [-pi, pi], got "
+                             f"{self.one_sided_heading_rad!r}")
         d = np.asarray(self.push_dir_xz, dtype=float)
         if d.shape != (2,) or not np.all(np.isfinite(d)) or np.hypot(*d) < 1e-9:
             raise ValueError(f"push_dir_xz must be a nonzero 2-vector, got {self.push_dir_xz}")
@@ -161,7 +169,10 @@ class Scenario:
 
     @property
     def one_sided_direction_rad(self) -> float:
-        """Grasp-plane angle of the preferred slip direction of this trial (one-sided variant)."""
+        """Grasp-plane angle of the preferred slip direction of this trial (one-sided variant):
+        ``one_sided_heading_rad``, or drawn from the seed."""
+        if self.one_sided_heading_rad is not None:
+            return float(self.one_sided_heading_rad)
         return float(np.random.default_rng([self.seed, 0x051D]).uniform(-np.pi, np.pi))
 
     @property

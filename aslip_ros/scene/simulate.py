@@ -45,7 +45,20 @@ VARIANTS = ("coupling", "one_sided", "contact", "confounders", "mocap", "rate", 
 
 
 #: Metadata that simulate records only when its option is given.
-_OPTIONAL_METADATA = ("twist_fraction", "variant", "robot_noise_gain")
+_OPTIONAL_METADATA = ("twist_fraction", "variant", "robot_noise_gain", "one_sided_heading_deg")
+#: How a one-sided simulation gives its trials their preferred slip directions: each drawn
+#: from its seed, or spread evenly round the circle over the trials (``even_headings``).
+HEADINGS = ("random", "even")
+
+
+def even_headings(n: int, seed: int) -> np.ndarray:
+    """``n`` preferred slip directions [rad, in -pi..pi] evenly round the circle, 360/n
+    degrees apart from an angle drawn from ``seed``, in an order drawn from it too (so no
+    object or condition of the plan owns one side)."""
+    rng = np.random.default_rng([int(seed), 0x4EAD])
+    start = rng.uniform(0.0, 2.0 * np.pi / n)
+    angles = start + 2.0 * np.pi * rng.permutation(n) / n
+    return np.angle(np.exp(1j * angles))
 
 
 def trial_seed(base_seed: int, kind: str, object: str, condition: str, index: int) -> int:
@@ -153,7 +166,8 @@ def recorded_differently(path: Path, metadata: dict, duration_s: float) -> str:
 
 def _trials(kind: str, plan: list[dict], duration_s: float, variant: str | None,
             twist_fraction: float, sample_rate: float | None,
-            robot_noise_range: tuple[float, float] | None) -> tuple[list, list[dict]]:
+            robot_noise_range: tuple[float, float] | None, headings: str = "random",
+            seed: int = 0) -> tuple[list, list[dict]]:
     """Each planned trial's world and the metadata simulate adds to its own (the options
     of :func:`simulate`, validated here)."""
     make = getattr(scenarios, KINDS[kind])
@@ -166,23 +180,32 @@ def _trials(kind: str, plan: list[dict], duration_s: float, variant: str | None,
         raise ValueError(f"sample_rate must be at least 8000 Hz, got {sample_rate!r}")
     if robot_noise_range is not None:
         _check_noise_range(*robot_noise_range)
+    if headings not in HEADINGS:
+        raise ValueError(f"headings must be one of {HEADINGS}, got {headings!r}")
+    if headings != "random" and variant != "one_sided":
+        raise ValueError("headings apply to the one_sided variant only")
+    heading = even_headings(len(plan), seed) if headings == "even" else [None] * len(plan)
     gains = [None if robot_noise_range is None else robot_noise_gain(kw["seed"],
                                                                      *robot_noise_range)
              for kw in plan]
 
-    def scene(kw, gain):
+    def scene(kw, gain, head):
         scn = make(**kw, **twist)
+        if head is not None:
+            scn = scn.with_(one_sided_heading_rad=float(head))
         if sample_rate is not None:
             scn = dataclasses.replace(scn, sample_rate=float(sample_rate))
         if gain is not None:
             ac = scn.acoustics
             scn = scn.with_(acoustics=dataclasses.replace(ac, robot_level=ac.robot_level * gain))
         return scn if variant is None else scenarios.VARIANTS[variant](scn)
-    worlds = [World(scene(kw, g)) for kw, g in zip(plan, gains)]
+    worlds = [World(scene(kw, g, h)) for kw, g, h in zip(plan, gains, heading)]
     extra = {"duration_s": float(duration_s), **twist}
     if variant is not None:
         extra["variant"] = variant
     extras = [extra if g is None else {**extra, "robot_noise_gain": round(g, 4)} for g in gains]
+    extras = [ex if h is None else {**ex, "one_sided_heading_deg": round(math.degrees(h), 3)}
+              for ex, h in zip(extras, heading)]
     return worlds, extras
 
 
@@ -193,7 +216,8 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
              overwrite: bool = False, progress: bool = True,
              variant: str | None = None, twist_fraction: float = 0.0,
              sample_rate: float | None = None,
-             robot_noise_range: tuple[float, float] | None = None) -> dict:
+             robot_noise_range: tuple[float, float] | None = None,
+             headings: str = "random") -> dict:
     """Simulate ``trials`` bags per (object, condition) into ``out_dir``.
 
     ``None`` for object/condition/layout/pad means the scenario's own default.
@@ -203,6 +227,10 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
     ``robot_noise_range``: (low, high): each trial's arm as loud as the scene's times a
     factor drawn per trial (:func:`robot_noise_gain`; recorded as ``robot_noise_gain``), so
     a model hears arms quieter and louder than one (None: every trial the scene's arm).
+    ``headings`` (``variant="one_sided"`` only): ``"even"`` spreads the trials' preferred
+    slip directions evenly round the circle (:func:`even_headings`; recorded as
+    ``one_sided_heading_deg``), as a lab that slips the object every way over its session;
+    ``"random"`` draws each from its trial's seed.
     Existing bags
     of the same trials are kept (so an interrupted run resumes) unless ``overwrite``; an
     existing bag recorded with other parameters (duration, layout, pad, seed, scene
@@ -214,7 +242,7 @@ def simulate(out_dir: str | Path, kind: str, *, objects: Sequence[str | None] = 
     plan = plan_trials(kind, objects, conditions, trials, seed, layout, pad, duration_s)
     out = Path(out_dir)
     worlds, extras = _trials(kind, plan, duration_s, variant, twist_fraction, sample_rate,
-                             robot_noise_range)
+                             robot_noise_range, headings, seed)
     if not overwrite:
         for kw, world, ex in zip(plan, worlds, extras):
             path = out / kw["trial_id"]
@@ -296,6 +324,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="each trial's arm noise the scene's times a factor drawn per "
                              "trial, log-uniform in LOW..HIGH, e.g. 0.5,2 (default: the "
                              "scene's arm in every trial)")
+    parser.add_argument("--headings", choices=HEADINGS, default="random",
+                        help="--variant one_sided: each trial's preferred slip direction drawn "
+                             "from its seed, or the trials' spread evenly round the circle "
+                             "(default %(default)s)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -310,7 +342,8 @@ def run(args: argparse.Namespace) -> int:
                            overwrite=args.overwrite, progress=not args.no_progress,
                            variant=args.variant, twist_fraction=args.twist_fraction,
                            sample_rate=args.sample_rate,
-                           robot_noise_range=args.robot_noise_range)
+                           robot_noise_range=args.robot_noise_range,
+                           headings=args.headings)
     except (ValueError, OSError) as exc:
         print(f"aslip simulate: error: {exc}", file=sys.stderr)
         return 1
