@@ -29,7 +29,8 @@ calibration ``background``) and ``paper_svm`` (``--stage svm``); with ``--method
 the plain baselines of ``learn.baselines`` (a plain log-mel CNN and an RBF SVM on
 time-averaged log-mel).
 
-Every metric carries a 95 % interval from a bootstrap over test trials; the table marks the
+Every metric carries a 95 % interval from a bootstrap over test trials (and the direction
+error is also given by true slip direction, ``per_direction``); the table marks the
 best method of each column and every method whose interval overlaps the best one's (those
 cannot be told apart on these trials). ``transfer_targets`` compares ``aslip`` with the best
 baseline of each cell on the same trial resamples.
@@ -273,6 +274,22 @@ def predict(cfg: TransferConfig, method: str, model, test_ds: Path, split: str
             "window_s": ds.window_s}
 
 
+def per_direction(p: dict[str, np.ndarray]) -> dict[str, float | None]:
+    """Direction MAE [deg] of ``p``'s slip windows by their true slip direction (the sectors
+    of ``learn.coverage``; None where a sector holds no slip window): where a method fails,
+    e.g. in directions its training trials hardly slipped in."""
+    from aslip_ros.learn.coverage import SECTORS, direction_groups, sector_name
+    from aslip_ros.learn.metrics import compute_metrics
+    groups = direction_groups(p["true_velocity"], p["slip"])
+    out: dict[str, float | None] = {}
+    for name in map(sector_name, range(SECTORS)):
+        m = groups == name
+        out[name] = None if not m.any() else compute_metrics(
+            p["prob"][m], p["raw_velocity"][m], p["true_velocity"][m], p["slip"][m],
+            float(p["window_s"]))["direction_mae_deg"]
+    return out
+
+
 def score(cfg: TransferConfig, p: dict[str, np.ndarray]) -> dict[str, Any]:
     from aslip_ros.learn.stats import bootstrap_metrics
     res = bootstrap_metrics(p["trial"], p["prob"], p["raw_velocity"], p["true_velocity"],
@@ -334,9 +351,12 @@ def write_tables(cfg: TransferConfig) -> dict[str, Any]:
     from benchmarks.transfer_targets import PLAIN, targets
     cells: dict[str, dict[str, dict[str, Any]]] = {}
     preds: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+    fresh: list[str] = []
     for train in cfg.train_on:
         for test in cfg.test_on:
             cell = f"{draw_name(cfg, train)} -> {test}"
+            if train == test:
+                fresh.append(cell)
             for method in (m for m in METHODS if cfg.merge or m in cfg.methods):
                 path = _predictions_path(cfg, train, test, method)
                 if path.is_file():
@@ -345,7 +365,9 @@ def write_tables(cfg: TransferConfig) -> dict[str, Any]:
     result = {"format": "aslip-transfer", "version": 2,
               "config": {k: (str(v) if isinstance(v, Path) else v)
                          for k, v in asdict(cfg).items()},
-              "aslip_method": aslip_recipe(), "cells": cells,
+              "aslip_method": aslip_recipe(), "cells": cells, "fresh_draw_cells": fresh,
+              "per_direction": {c: {m: per_direction(p) for m, p in ps.items()}
+                                for c, ps in preds.items()},
               "targets": {c: targets(p, cfg.n_boot, cfg.seed) for c, p in preds.items()},
               "targets_plain": {c: targets(p, cfg.n_boot, cfg.seed, PLAIN)
                                 for c, p in preds.items()}}
@@ -393,7 +415,9 @@ def table_markdown(result: dict[str, Any]) -> str:
     for cell, rows in result["cells"].items():
         n = max((r.get("n_trials", 0) for r in rows.values()), default=0)
         train, test = cell.split(" -> ")
-        what = "fresh draw of the training scene, " if train == test else ""
+        fresh = cell in result["fresh_draw_cells"] if "fresh_draw_cells" in result \
+            else train == test
+        what = "fresh draw of the training scene, " if fresh else ""
         lines += [f"## {cell} ({what}{n} test trials)", "",
                   "| method | " + " | ".join(h for _, h, _ in KEYS) + " |",
                   "|---|" + "---|" * len(KEYS)]
@@ -406,6 +430,16 @@ def table_markdown(result: dict[str, Any]) -> str:
                 out.append(f"**{s}**" if m == best else f"*{s}*" if m in ties else s)
             lines.append(f"| {m} | " + " | ".join(out) + " |")
         lines.append("")
+        by_dir = result.get("per_direction", {}).get(cell)
+        if by_dir:
+            sectors = list(next(iter(by_dir.values())))
+            lines += ["Direction MAE (deg) by true slip direction:", "",
+                      "| method | " + " | ".join(sectors) + " |",
+                      "|---|" + "---|" * len(sectors)]
+            for m, d in by_dir.items():
+                row = ("-" if v is None else f"{v:.0f}" for v in d.values())
+                lines.append(f"| {m} | " + " | ".join(row) + " |")
+            lines.append("")
     lines += targets_markdown(result.get("targets", {}))
     lines += targets_markdown(result.get("targets_plain", {}),
                               "the better plain baseline (plain CNN, plain SVM)")

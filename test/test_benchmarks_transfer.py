@@ -62,6 +62,13 @@ def test_protocol_on_synthetic_scenes(tmp_path, monkeypatch):
     md = (cfg.out / "transfer.md").read_text()
     assert "## default -> coupling (20 test trials)" in md and "**" in md
     assert "## default -> default (fresh draw of the training scene, 20 test trials)" in md
+    # Where each method fails in direction: its error per true slip direction, per cell.
+    assert set(saved["per_direction"]) == set(res["cells"])
+    for by_method in saved["per_direction"].values():
+        assert set(by_method) == set(cfg.methods)
+        for d in by_method.values():
+            assert len(d) == 8 and all(v is None or 0 <= v <= 180 for v in d.values())
+    assert md.count("Direction MAE (deg) by true slip direction") == 2
     # Calibrated and uncalibrated checkpoints differ only in that.
     from aslip_ros.learn.checkpoint import load_checkpoint
     models = transfer.scene_root(cfg) / "models" / "default"
@@ -252,6 +259,8 @@ def test_a_one_sided_training_draw_with_even_headings_is_its_own_draw(tmp_path, 
     assert transfer.draw_name(cfg, "default") == "default"
     res = transfer.run_protocol(cfg, log=lambda s: None)
     assert set(res["cells"]) == {"one_sided-even-headings -> one_sided"}
+    md = (cfg.out / "transfer.md").read_text()
+    assert "## one_sided-even-headings -> one_sided (fresh draw of the training scene," in md
     assert (transfer.scene_root(cfg) / "models" / "one_sided-even-headings").is_dir()
     assert not (transfer.scene_root(cfg) / "models" / "one_sided").exists()
     p = transfer.add_arguments
@@ -279,3 +288,17 @@ def test_scene_dataset_asks_simulate_for_even_headings_on_the_training_draw_only
     assert asked == [("one_sided-even-headings", "one_sided", "even"),
                      ("one_sided-held-out", "one_sided", "random"),
                      ("default", None, "random")]
+
+
+def test_per_direction_scores_each_true_direction_apart():
+    """Windows slipping at 0 deg estimated 10 deg off, at 90 deg estimated 40 deg off, none
+    backwards: the per-direction errors say so, sector by sector."""
+    ang_true = np.radians([0.0] * 4 + [90.0] * 4)
+    ang_est = ang_true + np.radians([10.0] * 4 + [40.0] * 4)
+    unit = lambda a: np.column_stack([np.cos(a), np.sin(a)]) * 0.02     # noqa: E731
+    p = {"prob": np.ones(8), "raw_velocity": unit(ang_est), "true_velocity": unit(ang_true),
+         "slip": np.ones(8, bool), "window_s": 0.2}
+    d = transfer.per_direction(p)
+    assert d["+0 deg"] == pytest.approx(10.0, abs=0.01)
+    assert d["+90 deg"] == pytest.approx(40.0, abs=0.01)
+    assert d["+180 deg"] is None and len(d) == 8
