@@ -183,8 +183,11 @@ def _run_on_rig(name: str, body: str, env: dict, cwd: Path, start_rig, timeout: 
         except AssertionError as exc:
             rig.stop()                     # the status file is complete once it has exited
             stalls = rig.stalls()
-            if attempt == 2 or not stalls:
+            if not stalls:
                 raise
+            if attempt == 2:
+                raise AssertionError(f"{exc}\n(the stand-in rig stalled in this run too: "
+                                     f"{stalls})") from None
             print(f"step {name}: the stand-in rig stalled ({stalls}); the failure it caused, "
                   f"recorded again on a new rig:\n{str(exc)[-1500:]}", flush=True)
             if STEP_OUTPUTS.get(name):

@@ -414,6 +414,8 @@ def test_a_rig_the_host_does_not_run_reports_a_stall(start_rig):
         rig.proc.send_signal(signal.SIGCONT)
     stall = _wait(lambda: rig.events("stall"), 20.0, "the rig's stall event")
     assert stall[0]["skipped_blocks"] >= 50 - 20 - 1, stall
+    # It says how long its loop stood and that it used no CPU meanwhile (held, not busy).
+    assert stall[0]["gap_s"] >= 0.5 and stall[0]["cpu_s_in_gap"] < stall[0]["gap_s"] / 2, stall
     assert rig.stop() == 0
 
 

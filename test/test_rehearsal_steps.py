@@ -59,6 +59,7 @@ def test_a_failure_in_a_rig_stall_runs_once_more_on_a_new_rig_without_its_bags(
 
 def test_a_second_failure_fails_even_in_a_rig_stall(tmp_path: Path):
     start, started = _starter(stalls=[{"event": "stall", "skipped_blocks": 80}])
-    with pytest.raises(AssertionError, match="step slip-stop failed"):
+    with pytest.raises(AssertionError, match="step slip-stop failed") as err:
         _run_on_rig("slip-stop", FAILS, _env(), tmp_path, start, timeout=30)
     assert len(started) == 2
+    assert "stalled in this run too" in str(err.value) and "skipped_blocks" in str(err.value)

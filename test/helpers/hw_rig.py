@@ -52,7 +52,8 @@ Runs an :class:`aslip_ros.scene.World` in real time and speaks what the real cel
 Other outputs: one JSON line on stdout when ready (``{"ready": true, "xarm_port": P, ...}``)
 and, with ``--status PATH``, JSON-line events (``start`` with ``wall0``, ``audio_connected``
 with the world sample index that the reader's first block starts at, ``audio_disconnected``,
-``stall``, ``exit`` with counters). Nothing on ``/aslip/*``: a real cell has no scene.
+``stall`` with the wall and CPU seconds of the loop's gap and the load average, ``exit``
+with counters). Nothing on ``/aslip/*``: a real cell has no scene.
 
 Exits on SIGINT/SIGTERM, after ``--duration-s`` of scene time, and when its parent process
 goes (the parent pid is polled every block; ``PR_SET_PDEATHSIG`` is not used because it
@@ -438,11 +439,16 @@ class Rig:
         pending: deque = deque()           # (monotonic due, stamp, mocap sample)
         k = 0                              # blocks stepped
         max_catch_up = 20
+        last, last_cpu = time.monotonic(), time.process_time()
         while not self.stopping.is_set():
             if os.getppid() != parent:
                 self.events.write({"event": "parent_gone"})
                 break
-            now = time.monotonic()
+            now, cpu = time.monotonic(), time.process_time()
+            # Since the loop last came here: wall time, and this process's CPU time in it
+            # (about none: the host did not run it; about as much: a busy thread held it).
+            gap_s, gap_cpu_s = now - last, cpu - last_cpu
+            last, last_cpu = now, cpu
             while pending and pending[0][0] <= now:
                 _, stamp, m = pending.popleft()
                 self.pub_finger.publish(self._pose_msg(m.finger_pose, stamp))
@@ -465,7 +471,10 @@ class Rig:
                 self.wall0 += skip * block_s
                 self.skipped_blocks += skip
                 self.events.write({"event": "stall", "skipped_blocks": skip,
-                                   "world_index": self.world.sample_index})
+                                   "world_index": self.world.sample_index,
+                                   "gap_s": round(gap_s, 3),
+                                   "cpu_s_in_gap": round(gap_cpu_s, 3),
+                                   "loadavg": os.getloadavg()})
             with self.lock:
                 chunk = self.world.step(block)
             k += 1
