@@ -30,7 +30,9 @@ the plain baselines of ``learn.baselines`` (a plain log-mel CNN and an RBF SVM o
 time-averaged log-mel).
 
 Every metric carries a 95 % interval from a bootstrap over test trials (and the direction
-error is also given by true slip direction, ``per_direction``); the table marks the
+error is also given by true slip direction, ``per_direction``, and for a one_sided model on
+one_sided trials, whether it follows each trial's slip or the sound of its training twin,
+``follows_the_trial``); the table marks the
 best method of each column and every method whose interval overlaps the best one's (those
 cannot be told apart on these trials). ``transfer_targets`` compares ``aslip`` with the best
 baseline of each cell on the same trial resamples.
@@ -290,6 +292,69 @@ def per_direction(p: dict[str, np.ndarray]) -> dict[str, float | None]:
     return out
 
 
+#: A test trial's training twin (the training trial of its object and condition) slipped
+#: "elsewhere" when their preferred directions lie more than this apart [deg].
+TWIN_APART_DEG = 60.0
+
+
+def preferred_directions(ds_path: Path) -> dict[tuple[str, str], float]:
+    """Each trial's preferred slip direction [rad]: the direction of the sum of its slip
+    velocities, keyed by (object, condition) (one trial each in the one_sided protocol)."""
+    from aslip_ros.learn.data_io import open_dataset
+    ds = open_dataset(ds_path)
+    idx = np.arange(len(ds))
+    v, slip, trial = ds.velocity(idx), ds.slip(idx), np.asarray(ds.windows["trial"])
+    out = {}
+    for i, t in enumerate(ds.trials):
+        m = (trial == i) & slip
+        out[(str(t.get("object")), str(t.get("condition")))] = float(
+            np.angle(np.sum(v[m, 0] + 1j * v[m, 1])))
+    return out
+
+
+def follows_the_trial(p: dict[str, np.ndarray], test_keys: list[tuple[str, str]],
+                      own: dict, twin: dict) -> dict[str, Any]:
+    """Whether a method's estimates follow each test trial's slip or the sound of the training
+    trial of the same object and condition (#36: a choice must not pick a model that learns
+    each trial's direction instead of the slip's). Over the test trials whose twin slipped
+    more than ``TWIN_APART_DEG`` away: the mean angle [deg] between the trial's mean
+    estimated direction and its own preferred direction (``to_own_deg``), and its twin's
+    (``to_twin_deg``)."""
+    def apart(a: float, b: float) -> float:
+        return float(abs(np.degrees(np.angle(np.exp(1j * (a - b))))))
+    to_own, to_twin = [], []
+    for i, key in enumerate(test_keys):
+        if key not in twin or apart(own[key], twin[key]) <= TWIN_APART_DEG:
+            continue
+        m = (p["trial"] == i) & p["slip"]
+        if not m.any():
+            continue
+        est = float(np.angle(np.sum(p["raw_velocity"][m, 0] + 1j * p["raw_velocity"][m, 1])))
+        to_own.append(apart(est, own[key]))
+        to_twin.append(apart(est, twin[key]))
+    return {"n_trials": len(to_own),
+            "to_own_deg": float(np.mean(to_own)) if to_own else None,
+            "to_twin_deg": float(np.mean(to_twin)) if to_twin else None}
+
+
+def _trial_identity(cfg: TransferConfig, train: str, test: str,
+                    preds: dict[str, dict[str, np.ndarray]]) -> dict[str, Any] | None:
+    """``follows_the_trial`` of every method for a one_sided model tested on the one_sided
+    fresh draw (the only cell whose trials have a preferred direction); None elsewhere or
+    where the datasets are not in the cache."""
+    if not (train == test == "one_sided"):
+        return None
+    root = scene_root(cfg) / "datasets"
+    train_ds, test_ds = root / draw_name(cfg, train), root / draw_name(cfg, test, True)
+    if not ((train_ds / "manifest.json").is_file() and (test_ds / "manifest.json").is_file()):
+        return None
+    from aslip_ros.learn.data_io import open_dataset
+    keys = [(str(t.get("object")), str(t.get("condition")))
+            for t in open_dataset(test_ds).trials]
+    own, twin = preferred_directions(test_ds), preferred_directions(train_ds)
+    return {m: follows_the_trial(p, keys, own, twin) for m, p in preds.items()}
+
+
 def score(cfg: TransferConfig, p: dict[str, np.ndarray]) -> dict[str, Any]:
     from aslip_ros.learn.stats import bootstrap_metrics
     res = bootstrap_metrics(p["trial"], p["prob"], p["raw_velocity"], p["true_velocity"],
@@ -352,9 +417,11 @@ def write_tables(cfg: TransferConfig) -> dict[str, Any]:
     cells: dict[str, dict[str, dict[str, Any]]] = {}
     preds: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     fresh: list[str] = []
+    pairs: dict[str, tuple[str, str]] = {}
     for train in cfg.train_on:
         for test in cfg.test_on:
             cell = f"{draw_name(cfg, train)} -> {test}"
+            pairs[cell] = (train, test)
             if train == test:
                 fresh.append(cell)
             for method in (m for m in METHODS if cfg.merge or m in cfg.methods):
@@ -368,6 +435,8 @@ def write_tables(cfg: TransferConfig) -> dict[str, Any]:
               "aslip_method": aslip_recipe(), "cells": cells, "fresh_draw_cells": fresh,
               "per_direction": {c: {m: per_direction(p) for m, p in ps.items()}
                                 for c, ps in preds.items()},
+              "trial_identity": {c: t for c, ps in preds.items()
+                                 if (t := _trial_identity(cfg, *pairs[c], ps)) is not None},
               "targets": {c: targets(p, cfg.n_boot, cfg.seed) for c, p in preds.items()},
               "targets_plain": {c: targets(p, cfg.n_boot, cfg.seed, PLAIN)
                                 for c, p in preds.items()}}
@@ -440,6 +509,16 @@ def table_markdown(result: dict[str, Any]) -> str:
                 row = ("-" if v is None else f"{v:.0f}" for v in d.values())
                 lines.append(f"| {m} | " + " | ".join(row) + " |")
             lines.append("")
+        ident = result.get("trial_identity", {}).get(cell)
+        if ident:
+            n = max(r["n_trials"] for r in ident.values())
+            lines += [f"Does the estimate follow the slip or the trial's sound? On the {n} test "
+                      "trials whose training twin (the training trial of the same object and "
+                      f"condition) slipped over {TWIN_APART_DEG:.0f} deg away, the angle from "
+                      "each trial's mean estimate to its own preferred direction / to its "
+                      "twin's: " + "; ".join(
+                          f"{m} {r['to_own_deg']:.0f} / {r['to_twin_deg']:.0f} deg"
+                          for m, r in ident.items() if r["to_own_deg"] is not None) + ".", ""]
     lines += targets_markdown(result.get("targets", {}))
     lines += targets_markdown(result.get("targets_plain", {}),
                               "the better plain baseline (plain CNN, plain SVM)")

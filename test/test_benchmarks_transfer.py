@@ -69,6 +69,7 @@ def test_protocol_on_synthetic_scenes(tmp_path, monkeypatch):
         for d in by_method.values():
             assert len(d) == 8 and all(v is None or 0 <= v <= 180 for v in d.values())
     assert md.count("Direction MAE (deg) by true slip direction") == 2
+    assert saved["trial_identity"] == {}       # only a one_sided -> one_sided cell has one
     # Calibrated and uncalibrated checkpoints differ only in that.
     from aslip_ros.learn.checkpoint import load_checkpoint
     models = transfer.scene_root(cfg) / "models" / "default"
@@ -302,3 +303,16 @@ def test_per_direction_scores_each_true_direction_apart():
     assert d["+0 deg"] == pytest.approx(10.0, abs=0.01)
     assert d["+90 deg"] == pytest.approx(40.0, abs=0.01)
     assert d["+180 deg"] is None and len(d) == 8
+
+
+def test_follows_the_trial_tells_an_estimate_of_the_slip_from_one_of_the_trials_sound():
+    """Test trial a slips at 0 deg, its training twin at 90: estimated at 0 (the slip). Trial
+    b slips at 0, its twin at 180: estimated at 180 (the twin's). Trial c's twin slipped
+    10 deg away: it cannot tell the two apart and is left out."""
+    own = {("a", "x"): 0.0, ("b", "x"): 0.0, ("c", "x"): 0.0}
+    twin = {("a", "x"): np.pi / 2, ("b", "x"): np.pi, ("c", "x"): np.radians(10.0)}
+    est = np.array([[1.0, 0.0], [-1.0, 0.0], [1.0, 0.0]]).repeat(3, axis=0) * 0.01
+    p = {"trial": np.arange(3).repeat(3), "slip": np.ones(9, bool), "raw_velocity": est}
+    r = transfer.follows_the_trial(p, [("a", "x"), ("b", "x"), ("c", "x")], own, twin)
+    assert r["n_trials"] == 2
+    assert r["to_own_deg"] == pytest.approx(90.0) and r["to_twin_deg"] == pytest.approx(45.0)
