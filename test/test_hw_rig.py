@@ -406,16 +406,20 @@ def test_a_rig_the_host_does_not_run_reports_a_stall(start_rig):
     still (SIGSTOP, as a host that does not schedule it) for 0.5 s, 50 blocks, says so once
     it runs again, and skips the time rather than bursting it."""
     rig = start_rig()
-    assert not rig.events("stall")
     rig.proc.send_signal(signal.SIGSTOP)
     try:
         time.sleep(0.5)          # the stall itself: any longer only adds skipped blocks
     finally:
         rig.proc.send_signal(signal.SIGCONT)
-    stall = _wait(lambda: rig.events("stall"), 20.0, "the rig's stall event")
-    assert stall[0]["skipped_blocks"] >= 50 - 20 - 1, stall
-    # It says how long its loop stood and that it used no CPU meanwhile (held, not busy).
-    assert stall[0]["gap_s"] >= 0.5 and stall[0]["cpu_s_in_gap"] < stall[0]["gap_s"] / 2, stall
+    # The event of the hold: its loop stood at least as long and it used no CPU meanwhile
+    # (held, not busy). A loaded host may add stalls of its own: slow progress, short gaps.
+    try:
+        held = _wait(lambda: [e for e in rig.events("stall") if e["gap_s"] >= 0.5], 20.0,
+                     "a stall event with the hold's gap")
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}; the rig's stall events: {rig.events('stall')}") from None
+    assert held[0]["skipped_blocks"] >= 50 - 20 - 1, held
+    assert held[0]["cpu_s_in_gap"] < held[0]["gap_s"] / 2, held
     assert rig.stop() == 0
 
 

@@ -424,6 +424,9 @@ class Rig:
         block_s = block / fs
         parent = os.getppid()
         t0 = time.monotonic()
+        # The loop's clock for its gaps starts with its block clock, before the ready line:
+        # a stall between the two counts as a gap of the first iteration.
+        last, last_cpu = t0, time.process_time()
         self.wall0 = wall0 = time.time() - (time.monotonic() - t0)
         self.events.write({"event": "start", "wall0": wall0, "fs": fs, "block_frames": block,
                            "channels": self.a.channels, "layout": self.a.layout,
@@ -439,7 +442,6 @@ class Rig:
         pending: deque = deque()           # (monotonic due, stamp, mocap sample)
         k = 0                              # blocks stepped
         max_catch_up = 20
-        last, last_cpu = time.monotonic(), time.process_time()
         while not self.stopping.is_set():
             if os.getppid() != parent:
                 self.events.write({"event": "parent_gone"})
