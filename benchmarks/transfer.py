@@ -278,18 +278,15 @@ def predict(cfg: TransferConfig, method: str, model, test_ds: Path, split: str
 
 def per_direction(p: dict[str, np.ndarray]) -> dict[str, float | None]:
     """Direction MAE [deg] of ``p``'s slip windows by their true slip direction (the sectors
-    of ``learn.coverage``; None where a sector holds no slip window): where a method fails,
-    e.g. in directions its training trials hardly slipped in."""
+    of ``learn.coverage``, grouped as ``aslip evaluate`` groups them; None where a sector
+    holds no slip window): where a method fails, e.g. in directions its training trials
+    hardly slipped in."""
     from aslip_ros.learn.coverage import SECTORS, direction_groups, sector_name
-    from aslip_ros.learn.metrics import compute_metrics
-    groups = direction_groups(p["true_velocity"], p["slip"])
-    out: dict[str, float | None] = {}
-    for name in map(sector_name, range(SECTORS)):
-        m = groups == name
-        out[name] = None if not m.any() else compute_metrics(
-            p["prob"][m], p["raw_velocity"][m], p["true_velocity"][m], p["slip"][m],
-            float(p["window_s"]))["direction_mae_deg"]
-    return out
+    from aslip_ros.learn.metrics import grouped_metrics
+    by = grouped_metrics(direction_groups(p["true_velocity"], p["slip"]), p["prob"],
+                         p["raw_velocity"], p["true_velocity"], p["slip"], float(p["window_s"]))
+    return {name: by[name]["direction_mae_deg"] if name in by else None
+            for name in map(sector_name, range(SECTORS))}
 
 
 #: A test trial's training twin (the training trial of its object and condition) slipped
@@ -297,41 +294,39 @@ def per_direction(p: dict[str, np.ndarray]) -> dict[str, float | None]:
 TWIN_APART_DEG = 60.0
 
 
-def preferred_directions(ds_path: Path) -> dict[tuple[str, str], float]:
-    """Each trial's preferred slip direction [rad]: the direction of the sum of its slip
-    velocities, keyed by (object, condition) (one trial each in the one_sided protocol)."""
-    from aslip_ros.learn.data_io import open_dataset
-    ds = open_dataset(ds_path)
+def preferred_directions(ds) -> list[tuple[tuple[str, str], float]]:
+    """Each trial of the open dataset ``ds``, in trial order: its (object, condition) and its
+    preferred slip direction [rad], the direction of the sum of its slip velocities."""
     idx = np.arange(len(ds))
     v, slip, trial = ds.velocity(idx), ds.slip(idx), np.asarray(ds.windows["trial"])
-    out = {}
-    for i, t in enumerate(ds.trials):
-        m = (trial == i) & slip
-        out[(str(t.get("object")), str(t.get("condition")))] = float(
-            np.angle(np.sum(v[m, 0] + 1j * v[m, 1])))
-    return out
+    return [((str(t.get("object")), str(t.get("condition"))),
+             float(np.angle(np.sum(v[(trial == i) & slip, 0]
+                                   + 1j * v[(trial == i) & slip, 1]))))
+            for i, t in enumerate(ds.trials)]
 
 
-def follows_the_trial(p: dict[str, np.ndarray], test_keys: list[tuple[str, str]],
-                      own: dict, twin: dict) -> dict[str, Any]:
-    """Whether a method's estimates follow each test trial's slip or the sound of the training
-    trial of the same object and condition (#36: a choice must not pick a model that learns
-    each trial's direction instead of the slip's). Over the test trials whose twin slipped
-    more than ``TWIN_APART_DEG`` away: the mean angle [deg] between the trial's mean
-    estimated direction and its own preferred direction (``to_own_deg``), and its twin's
-    (``to_twin_deg``)."""
+def follows_the_trial(p: dict[str, np.ndarray], test: list[tuple[tuple[str, str], float]],
+                      train: list[tuple[tuple[str, str], float]]) -> dict[str, Any]:
+    """Whether a method's estimates follow each test trial's slip or the sound of its training
+    twins, the training trials of the same object and condition (#36: a choice must not pick
+    a model that learns each trial's direction instead of the slip's). ``test`` and
+    ``train`` are ``preferred_directions`` of the two datasets; ``p["trial"]`` indexes
+    ``test``. Over the test trials whose every twin slipped more than ``TWIN_APART_DEG``
+    away: the mean angle [deg] between the trial's mean estimated direction and its own
+    preferred direction (``to_own_deg``), and its nearest twin's (``to_twin_deg``)."""
     def apart(a: float, b: float) -> float:
         return float(abs(np.degrees(np.angle(np.exp(1j * (a - b))))))
     to_own, to_twin = [], []
-    for i, key in enumerate(test_keys):
-        if key not in twin or apart(own[key], twin[key]) <= TWIN_APART_DEG:
+    for i, (key, own) in enumerate(test):
+        twins = [d for k, d in train if k == key]
+        if not twins or min(apart(own, d) for d in twins) <= TWIN_APART_DEG:
             continue
         m = (p["trial"] == i) & p["slip"]
         if not m.any():
             continue
         est = float(np.angle(np.sum(p["raw_velocity"][m, 0] + 1j * p["raw_velocity"][m, 1])))
-        to_own.append(apart(est, own[key]))
-        to_twin.append(apart(est, twin[key]))
+        to_own.append(apart(est, own))
+        to_twin.append(min(apart(est, d) for d in twins))
     return {"n_trials": len(to_own),
             "to_own_deg": float(np.mean(to_own)) if to_own else None,
             "to_twin_deg": float(np.mean(to_twin)) if to_twin else None}
@@ -349,10 +344,8 @@ def _trial_identity(cfg: TransferConfig, train: str, test: str,
     if not ((train_ds / "manifest.json").is_file() and (test_ds / "manifest.json").is_file()):
         return None
     from aslip_ros.learn.data_io import open_dataset
-    keys = [(str(t.get("object")), str(t.get("condition")))
-            for t in open_dataset(test_ds).trials]
-    own, twin = preferred_directions(test_ds), preferred_directions(train_ds)
-    return {m: follows_the_trial(p, keys, own, twin) for m, p in preds.items()}
+    own, twins = (preferred_directions(open_dataset(d)) for d in (test_ds, train_ds))
+    return {m: follows_the_trial(p, own, twins) for m, p in preds.items()}
 
 
 def score(cfg: TransferConfig, p: dict[str, np.ndarray]) -> dict[str, Any]:

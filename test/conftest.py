@@ -8,6 +8,7 @@ machine cannot make a test pass or fail, and discovery stays on localhost.
 from __future__ import annotations
 
 import importlib.util
+import json
 import os
 import signal
 import sys
@@ -133,6 +134,15 @@ def rclpy_context(ros_domain):
         yield ctx
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+def json_lines(path: Path, event: str | None = None) -> list[dict]:
+    """The documents of a JSON-lines file a stand-in writes (the rig's calls log and status
+    file), those whose ``event`` is ``event`` where given; none while it does not exist."""
+    if not path.exists():
+        return []
+    docs = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+    return [d for d in docs if event is None or d.get("event") == event]
 
 
 @pytest.fixture

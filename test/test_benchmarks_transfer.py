@@ -309,10 +309,25 @@ def test_follows_the_trial_tells_an_estimate_of_the_slip_from_one_of_the_trials_
     """Test trial a slips at 0 deg, its training twin at 90: estimated at 0 (the slip). Trial
     b slips at 0, its twin at 180: estimated at 180 (the twin's). Trial c's twin slipped
     10 deg away: it cannot tell the two apart and is left out."""
-    own = {("a", "x"): 0.0, ("b", "x"): 0.0, ("c", "x"): 0.0}
-    twin = {("a", "x"): np.pi / 2, ("b", "x"): np.pi, ("c", "x"): np.radians(10.0)}
+    test = [(("a", "x"), 0.0), (("b", "x"), 0.0), (("c", "x"), 0.0)]
+    train = [(("a", "x"), np.pi / 2), (("b", "x"), np.pi), (("c", "x"), np.radians(10.0))]
     est = np.array([[1.0, 0.0], [-1.0, 0.0], [1.0, 0.0]]).repeat(3, axis=0) * 0.01
     p = {"trial": np.arange(3).repeat(3), "slip": np.ones(9, bool), "raw_velocity": est}
-    r = transfer.follows_the_trial(p, [("a", "x"), ("b", "x"), ("c", "x")], own, twin)
+    r = transfer.follows_the_trial(p, test, train)
     assert r["n_trials"] == 2
     assert r["to_own_deg"] == pytest.approx(90.0) and r["to_twin_deg"] == pytest.approx(45.0)
+
+
+def test_follows_the_trial_keeps_trials_of_one_object_and_condition_apart():
+    """With two trials per object and condition (``--trials 2``), each test trial is judged by
+    its own direction, not by the last trial of its key; a test trial with a twin slipping
+    near it is left out. Test trials a/x slip at 0 and 180 deg and are estimated so; their
+    twins slipped at 90 and at 170."""
+    test = [(("a", "x"), 0.0), (("a", "x"), np.pi)]
+    train = [(("a", "x"), np.pi / 2), (("a", "x"), np.radians(170.0))]
+    est = np.array([[1.0, 0.0], [-1.0, 0.0]]).repeat(3, axis=0) * 0.01
+    p = {"trial": np.arange(2).repeat(3), "slip": np.ones(6, bool), "raw_velocity": est}
+    r = transfer.follows_the_trial(p, test, train)
+    assert r["n_trials"] == 1                   # the 180-deg trial has a twin 10 deg away
+    assert r["to_own_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert r["to_twin_deg"] == pytest.approx(90.0)

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import HELPERS, ROOT
+from conftest import HELPERS, ROOT, json_lines
 
 pytestmark = [pytest.mark.ros, pytest.mark.install]
 
@@ -130,17 +130,12 @@ class Rig:
         return Path(self.out.name).read_text()[-3000:]
 
     def calls_log(self) -> list:
-        if not self.calls.exists():
-            return []
-        return [json.loads(x) for x in self.calls.read_text().splitlines() if x.strip()]
+        return json_lines(self.calls)
 
     def stalls(self) -> list:
         """The rig's ``stall`` events: its own loop fell more than 0.2 s behind real time
         (the host did not run it), so the streams it stands in for all paused at once."""
-        if not self.status.exists():
-            return []
-        events = [json.loads(x) for x in self.status.read_text().splitlines() if x.strip()]
-        return [e for e in events if e.get("event") == "stall"]
+        return json_lines(self.status, "stall")
 
     def stop(self) -> None:
         if self.proc.poll() is None:

@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import json_lines
+
 ROOT = Path(__file__).resolve().parents[1]
 HELPERS = ROOT / "test" / "helpers"
 RIG = HELPERS / "hw_rig.py"
@@ -90,15 +92,10 @@ class RigProcess:
         return json.loads(out[0])
 
     def events(self, name=None) -> list:
-        if not self.status.exists():
-            return []
-        docs = [json.loads(x) for x in self.status.read_text().splitlines() if x.strip()]
-        return [d for d in docs if name is None or d.get("event") == name]
+        return json_lines(self.status, name)
 
     def calls_log(self) -> list:
-        if not self.calls.exists():
-            return []
-        return [json.loads(x) for x in self.calls.read_text().splitlines() if x.strip()]
+        return json_lines(self.calls)
 
     def stop(self, timeout: float = 20.0) -> int:
         if self.proc.poll() is None:

@@ -226,8 +226,8 @@ def _run(args: argparse.Namespace) -> int:
     # the encoder only: its sweeps need not cover the plane, so it records without warning.
     cov = of_windows(ds, split_windows(ds, cfg)[0])
     res.meta["provenance"]["direction_coverage"] = cov
-    if args.stage != "pretrain" and warning(cov):
-        print(warning(cov))
+    if args.stage != "pretrain" and (note := warning(cov)):
+        print(note)
     res.save(args.out)
     if states is not None:
         states.finished()

@@ -417,8 +417,8 @@ def train_selected(ds: WindowSet, cfg: TrainConfig, *, pretrain_ds: WindowSet | 
     # The slip directions the final model learns from (on folds: every trial of the folds).
     trained_on = np.union1d(tr, va) if folds else tr
     coverage = of_windows(ds, trained_on)
-    if warning(coverage):
-        log(warning(coverage))
+    if note := warning(coverage):
+        log(note)
     cands, skipped = plan(recipes, seeds, pretrain_ds is not None, log, cfg.calibration)
     if folds:
         log(f"choosing on {len(folds)} folds by trial: the split has fewer than "
