@@ -65,8 +65,9 @@ DEFAULT_METHODS = ("aslip", "aslip_scratch", "paper_svm", "plain_cnn", "plain_sv
 #: 2: the SVMs regress the speed and the direction's cosine and sine, not vx and vz;
 #: ``aslip`` takes each output from the candidate that gives it best (per_output).
 #: 3: ``aslip``'s per-output choice also weighs blends (the mean of two candidates).
-REVISION = {"plain_svm": 2, "paper_svm": 2, "paper_svm_uncalibrated": 2, "aslip": 3,
-            "aslip_uncalibrated": 3}
+#: 4: a final model chosen on folds averages its last half of epochs (``average_last``).
+REVISION = {"plain_svm": 2, "paper_svm": 2, "paper_svm_uncalibrated": 2, "aslip": 4,
+            "aslip_uncalibrated": 4}
 OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pla_rod")
 CONDITIONS = ("robot_stationary", "robot_moving", "robot_off")
 #: Seed offset per scene, so no held-out scene replays the training scene's motions.

@@ -1,6 +1,7 @@
 """Choosing on folds by trial (learn/training/folds.py) where the split holds fewer than
 ``K_FOLD_BELOW`` validation trials."""
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -118,8 +119,9 @@ def test_folds_choose_the_model_that_holds_on_every_trial_not_the_one_that_fits_
 
 def test_a_cnn_without_validation_trains_its_epochs_and_keeps_the_last(ds, tmp_path):
     """The final model of a cross-validated choice: no validation windows, so neither early
-    stopping nor a best epoch; ``epochs`` ends it and the last epoch's weights are kept."""
-    cfg = _cfg(epochs=2, patience=1, val_trials=())
+    stopping nor a best epoch; ``epochs`` ends it and, without ``average_last``, the last
+    epoch's weights are kept."""
+    cfg = _cfg(epochs=2, patience=1, val_trials=(), average_last=0.0)
     tr, va = split_windows(ds, cfg)
     assert va.size == 0
     job = aslip_cnn_fit.scratch(ds, cfg, feature_config=FeatureConfig(n_mels=32),
@@ -138,3 +140,35 @@ def test_a_cnn_without_validation_trains_its_epochs_and_keeps_the_last(ds, tmp_p
     assert load_checkpoint(path).meta["provenance"]["training"]["best_epoch"] == 1
     with pytest.raises(ValueError, match="held out"):
         split_windows(ds, dataclasses.replace(cfg, val_trials=tuple(range(len(ds.trials)))))
+
+
+def test_a_cnn_without_validation_averages_its_last_epochs_weights_and_resumes_the_mean(ds):
+    """``average_last``: the final model of a cross-validated choice holds the mean of its
+    last epochs' weights (here the last 2 of 4), BatchNorm statistics included; a run paused
+    inside the averaged epochs and resumed from its state ends with the same mean."""
+    cfg = _cfg(epochs=4, patience=1, val_trials=(), average_last=0.5)
+
+    def job():
+        return aslip_cnn_fit.scratch(ds, cfg, feature_config=FeatureConfig(n_mels=32),
+                                     model_options=SMALL_MODEL, log=lambda m: None)
+
+    run, seen = job(), []
+    for _ in range(4):
+        run.advance(0.0)                                    # one epoch a slice
+        seen.append({k: v.detach().clone() for k, v in run.model.state_dict().items()})
+        if len(seen) == 3:
+            paused = copy.deepcopy(run.run.state_dict())
+    res = run.result()
+    floats = [k for k, v in seen[-1].items() if v.is_floating_point()]
+    assert any(not torch.equal(seen[2][k], seen[3][k]) for k in floats)     # it trained
+    for k in floats:
+        torch.testing.assert_close(res.tensors[k], ((seen[2][k] + seen[3][k]) / 2).cpu())
+    assert res.meta["provenance"]["training"]["best_epoch"] == 3
+    again = job()
+    again.run.load_state_dict(paused)
+    again.advance(0.0)
+    resumed = again.result()
+    for k in floats:
+        torch.testing.assert_close(resumed.tensors[k], res.tensors[k])
+    with pytest.raises(ValueError, match="average_last"):
+        _cfg(average_last=1.5)

@@ -39,6 +39,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
+from torch.optim.swa_utils import AveragedModel
 
 from aslip_ros.learn.calibration.frames import training_calibration
 from aslip_ros.learn.calibration.output import checkpoint_fields
@@ -200,6 +201,11 @@ class EpochRun:
                                     lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.feat_mean = model.feat_mean.detach().cpu().numpy().copy()
         self.best = (math.inf, -1, copy.deepcopy(model.state_dict()))
+        # A run without validation (a refit) averages its last epochs' weights from here on
+        # (``cfg.average_last``; torch's stochastic weight averaging).
+        self.average_from = (cfg.epochs - max(1, round(cfg.average_last * cfg.epochs))
+                             if va.size == 0 and cfg.average_last > 0 else None)
+        self.average: AveragedModel | None = None
         self.history: list[dict[str, float]] = []
         self.train_time_s = 0.0
         self.stop_reason = ""           # set once no epoch is left: max_epochs | early_stopping
@@ -229,9 +235,10 @@ class EpochRun:
                      + ("-" if val_loss is None else f"{val_loss:.4f}"))
         if val_loss is None:
             # No validation (the final model of a cross-validated choice): ``cfg.epochs``,
-            # chosen on the folds, sets the stop, and the last epoch is the model; no loss
-            # to record (None, not NaN: the checkpoint is strict JSON).
-            self.best = (None, epoch, self.model.state_dict())
+            # chosen on the folds, sets the stop, and the last epoch is the model, or the
+            # mean of the last epochs' weights; no loss to record (None, not NaN: the
+            # checkpoint is strict JSON).
+            self.best = (None, epoch, self._averaged(epoch))
         elif val_loss < self.best[0]:
             self.best = (val_loss, epoch, copy.deepcopy(self.model.state_dict()))
         elif epoch - self.best[1] >= self.cfg.patience:
@@ -239,10 +246,21 @@ class EpochRun:
         if not self.stop_reason and epoch + 1 >= self.cfg.epochs:
             self.stop_reason = "max_epochs"
 
+    def _averaged(self, epoch: int) -> dict[str, Any]:
+        """The weights of a run without validation after ``epoch``: the epoch's own, or from
+        ``average_from`` on their running mean (BatchNorm statistics averaged with them)."""
+        if self.average_from is None or epoch < self.average_from:
+            return self.model.state_dict()
+        if self.average is None:
+            self.average = AveragedModel(self.model, use_buffers=True)
+        self.average.update_parameters(self.model)
+        return self.average.module.state_dict()
+
     def state_dict(self) -> dict[str, Any]:
         """Everything the next epoch depends on: weights, optimiser, best epoch, history,
         time trained, stop reason and both random streams (learn/training/resume.py)."""
         return {"model": self.model.state_dict(), "opt": self.opt.state_dict(),
+                "average": None if self.average is None else self.average.state_dict(),
                 "best": self.best, "history": self.history,
                 "train_time_s": self.train_time_s, "stop_reason": self.stop_reason,
                 "rng": self.rng.bit_generator.state, "torch_rng": torch.get_rng_state()}
@@ -251,6 +269,9 @@ class EpochRun:
         """Go on from ``state_dict()``'s epoch."""
         self.model.load_state_dict(state["model"])
         self.opt.load_state_dict(state["opt"])
+        if state.get("average") is not None:
+            self.average = AveragedModel(self.model, use_buffers=True)
+            self.average.load_state_dict(state["average"])
         self.best = tuple(state["best"])
         self.history = list(state["history"])
         self.train_time_s = float(state["train_time_s"])

@@ -95,6 +95,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seed of the by-trial split (keep fixed across training seeds)")
     p.add_argument("--epochs", type=int, default=d.epochs, help="maximum epochs")
     p.add_argument("--patience", type=int, default=d.patience, help="early-stopping epochs")
+    p.add_argument("--average-last", type=float, default=d.average_last,
+                   help="share of the final model's epochs, when chosen on folds (trained "
+                        "without validation), whose weights are averaged (stochastic weight "
+                        "averaging); 0: its last epoch's weights")
     p.add_argument("--time-budget", type=float, default=None,
                    help="seconds of training after which the best epoch is kept (default "
                         f"{d.time_budget_s:g}); --stage auto: the whole call's budget, "
@@ -180,7 +184,7 @@ def _run(args: argparse.Namespace) -> int:
         cfg = TrainConfig(stage=args.stage, epochs=args.epochs, batch_size=args.batch_size,
                           lr=args.lr, weight_decay=args.weight_decay, patience=args.patience,
                           seed=args.seed, split_seed=args.split_seed,
-                          noslip_ratio=args.noslip_ratio,
+                          average_last=args.average_last, noslip_ratio=args.noslip_ratio,
                           time_budget_s=args.time_budget or TrainConfig.time_budget_s,
                           gain_db=args.gain_db, channel_gain_db=args.channel_gain_db,
                           freq_mask=args.freq_mask, time_mask=args.time_mask,

@@ -87,6 +87,12 @@ class TrainConfig:
     # validation trials. () trains on all of them and validates on none: the final model
     # of a cross-validated choice (learn/training/folds.py). None: the split's.
     val_trials: tuple[int, ...] | None = None
+    # Share of a run without validation (``val_trials=()``: the final model of a choice on
+    # folds) whose last epochs' weights are averaged into the model (stochastic weight
+    # averaging); 0: the last epoch's weights. Measured (docs/results.md, "Averaging the
+    # final model's last epochs"): one refit's test direction moved by up to 20 degrees
+    # with its seed; averaging its last half kept it within the folds' interval.
+    average_last: float = 0.5
 
     def __post_init__(self) -> None:
         if self.stage not in STAGES and fit_stage(self.stage) is None:
@@ -105,6 +111,8 @@ class TrainConfig:
             raise ValueError("noslip_ratio must be positive")
         if self.freq_mask < -1 or self.time_mask < 0:
             raise ValueError("freq_mask must be >= -1 and time_mask >= 0")
+        if not 0.0 <= self.average_last <= 1.0:
+            raise ValueError("average_last must be within [0, 1]")
         if not (self.gain_db >= 0 and self.channel_gain_db >= 0):
             raise ValueError("gain_db and channel_gain_db must be >= 0")
 
