@@ -323,15 +323,16 @@ class _ForcedExit:
         middleware's teardown (``destroy_node``, ``rclpy.try_shutdown``). That teardown
         once held the GIL past the grace in CI (mocap_bridge in ``destroy_node``, exit 1
         from faulthandler): a hang there now ends in ``code``, the node's own exit code,
-        from a C timer that needs no GIL (:func:`_c_exit_later`), its stacks dumped just
-        before. Where the C library has no such timer, faulthandler's exit 1 stays."""
+        from a C timer that needs no GIL (:func:`_c_exit_later`), its stacks dumped
+        ``TEARDOWN_DUMP_LEAD_S`` before the deadline. Where the C library has no such
+        timer, faulthandler's exit 1 stays."""
         import time
         self.code = code
         if not self.dump:
             return
         left = max(self.deadline - time.monotonic(), 0.0)
         if _c_exit_later(left + TEARDOWN_C_EXIT_S, code):
-            _dump_stacks_later(left + TEARDOWN_DUMP_S, exit=False)
+            _dump_stacks_later(max(left - TEARDOWN_DUMP_LEAD_S, 0.01), exit=False)
 
 
 def _dump_stacks_later(seconds: float, exit: bool) -> bool:
@@ -387,13 +388,18 @@ def _c_exit_later(seconds: float, code: int) -> bool:
 #: Seconds after the Python forced exit at which the C-level one ends a stuck interpreter.
 C_EXIT_MARGIN_S = 0.5
 
-#: Once the node's own work is done (``_ForcedExit.work_done``): seconds after the Python
-#: forced exit at which a stuck teardown's stacks are dumped, then the C exit comes. Both
-#: exits then give the same code, so the C one need not wait ``C_EXIT_MARGIN_S``: the
-#: earlier it comes, the further it stays from the launch's SIGTERM, 5 s after its SIGINT
-#: (a node exiting as that signal is sent may be reaped by the signal's ``Popen.poll``;
-#: asyncio's child watcher then reports 255: seen once by hand, cause not confirmed).
-TEARDOWN_DUMP_S = 0.05
+#: Once the node's own work is done (``_ForcedExit.work_done``): a teardown still running
+#: ``TEARDOWN_DUMP_LEAD_S`` before the Python forced exit has its stacks dumped then, and
+#: the C exit comes ``TEARDOWN_C_EXIT_S`` after that forced exit. Both exits then give the
+#: same code, so the C one need not wait ``C_EXIT_MARGIN_S``: the earlier it comes, the
+#: further it stays from the launch's SIGTERM, 5 s after its SIGINT (a node exiting as that
+#: signal is sent may be reaped by the signal's ``Popen.poll``; asyncio's child watcher then
+#: reports 255: seen once by hand, cause not confirmed). The dump and the exit run on two
+#: threads of their own, each woken by its own timer: 0.1 s apart (the dump after the
+#: deadline), a loaded machine once woke the exit first and the dump never came
+#: (``make test``, 2026-11-30); 0.65 s apart it has that long to be scheduled. A teardown
+#: that ends between the dump and the deadline leaves the dump on stderr: it was slow.
+TEARDOWN_DUMP_LEAD_S = 0.5
 TEARDOWN_C_EXIT_S = 0.15
 
 
