@@ -47,6 +47,17 @@ class Log:
 
 # --- datasets -----------------------------------------------------------------------------
 
+def scene_cache(root: Path) -> Path:
+    """Where a benchmark keeps what it simulated, exported and trained under ``root``: one
+    directory per scene version and label setting (``scene-v4-labels150ms``), so a scene
+    whose defaults changed or an export that labels otherwise starts afresh, never mixing
+    old models with new datasets."""
+    from aslip_ros.data.labels import DEFAULT_LABEL_SMOOTHING_S
+    from aslip_ros.scene.physics import SCENE_VERSION
+    ms = round(DEFAULT_LABEL_SMOOTHING_S * 1e3)
+    return Path(root) / (f"scene-v{SCENE_VERSION}" + (f"-labels{ms}ms" if ms else ""))
+
+
 @dataclass
 class DataPlan:
     """Where the datasets of an experiment live and how to build the missing ones.

@@ -40,6 +40,7 @@ import numpy as np
 from aslip_ros.learn.models.per_output import blend, combine, role_outputs
 from aslip_ros.util import write_json, write_text
 
+from .common import scene_cache
 from .magnitude_where import cell_breakdown, where_markdown
 from .transfer import KEYS, format_ci, metrics_cell
 
@@ -76,8 +77,7 @@ _IGNORED = ("threads", "progress")
 
 def default_data() -> Path:
     """Where ``make transfer`` exports the scenes of the current scene version."""
-    from aslip_ros.scene.physics import SCENE_VERSION
-    return Path("data/transfer") / f"scene-v{SCENE_VERSION}" / "datasets"
+    return scene_cache(Path("data/transfer")) / "datasets"
 
 
 @dataclass

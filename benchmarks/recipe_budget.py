@@ -33,6 +33,8 @@ from typing import Any
 from aslip_ros.learn.stats import KEYS
 from aslip_ros.util import read_json, write_json, write_text
 
+from .common import scene_cache
+
 #: Whole-call budgets [s]: 4, 8, 16 (the default) and 32 min.
 BUDGETS = (240.0, 480.0, 960.0, 1920.0)
 CANDIDATE_KEYS = ("name", "status", "val", "score", "train_s", "stop_reason")
@@ -191,12 +193,13 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--budgets must be positive seconds")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    data = ensure_data(Path(args.data))
+    root = scene_cache(Path(args.data))
+    data = ensure_data(root)
     before = read_json(out / "budget.json") if (out / "budget.json").is_file() else {}
     kept = {r["budget_s"]: r for r in before.get("rows", [])}
     baselines = before.get("baselines")
     for b in budgets:
-        kept[b] = run_budget(data, b, out, Path(args.data) / "models", args.n_boot)
+        kept[b] = run_budget(data, b, out, root / "models", args.n_boot)
         log(f"budget {b:g} s: {kept[b]['winner']} in {kept[b]['wall_s']:.0f} s, test "
             + ", ".join(f"{k} {kept[b]['test'][k]:.3g}" for k in KEYS))
         write_json(out / "budget.json", {"rows": [kept[k] for k in sorted(kept)],

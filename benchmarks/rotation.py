@@ -37,6 +37,8 @@ import numpy as np
 
 from aslip_ros.util import write_json, write_text
 
+from .common import scene_cache
+
 #: 1, 2 and 4 microphones; the two-microphone layouts differ in where the pair sits.
 LAYOUTS = ("4mic", "2mic_corners", "2mic_same_finger", "2mic_centered", "1mic")
 OBJECTS = ("chips_can", "cracker_box", "glass_cleaner", "mustard_container", "pla_rod")
@@ -79,8 +81,7 @@ def log(msg: str) -> None:
 # --- data ---------------------------------------------------------------------------------
 
 def root(cfg: RotationConfig) -> Path:
-    from aslip_ros.scene.physics import SCENE_VERSION
-    return cfg.data / f"scene-v{SCENE_VERSION}"
+    return scene_cache(cfg.data)
 
 
 def _draw(cfg: RotationConfig, test: bool) -> str:

@@ -53,6 +53,8 @@ import numpy as np
 
 from aslip_ros.util import atomic_path, write_json, write_text
 
+from .common import scene_cache
+
 SCENES = ("default", "coupling", "one_sided", "contact", "confounders", "mocap", "rate",
           "speed", "path")
 METHODS = ("aslip", "aslip_uncalibrated", "aslip_scratch", "paper_svm",
@@ -111,8 +113,7 @@ class TransferConfig:
 def scene_root(cfg: TransferConfig) -> Path:
     """Where this scene version's bags, datasets, models and predictions are cached: a scene
     whose defaults changed (``SCENE_VERSION``) is simulated again, never mixed with the old."""
-    from aslip_ros.scene.physics import SCENE_VERSION
-    return cfg.data / f"scene-v{SCENE_VERSION}"
+    return scene_cache(cfg.data)
 
 
 def draw_name(cfg: TransferConfig, scene: str, held_out: bool = False) -> str:

@@ -185,7 +185,8 @@ def test_inconsistent_sample_rate_or_channels(tmp_path):
 def test_bad_parameters_and_existing_output(tmp_path):
     write_synthetic_bag(tmp_path / "a", duration_s=0.5)
     for kw in ({"window_s": 0}, {"hop_s": -1}, {"epsilon_m_s": -0.1},
-               {"label_source": "vision"}):
+               {"label_source": "vision"}, {"label_smoothing_s": -0.1},
+               {"label_smoothing_s": float("nan")}):
         with pytest.raises(ValueError):
             export([tmp_path / "a"], tmp_path / "ds", progress=False, **kw)
     export([tmp_path / "a"], tmp_path / "ds", progress=False)

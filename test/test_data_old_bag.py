@@ -110,8 +110,10 @@ def test_old_definition_bag_exports_with_wy_labels(tmp_path):
     vx, vz, wy = expected_labels()
     w = np.asarray(ds.windows)
     np.testing.assert_allclose(w["wy"], wy, atol=1e-5)
-    np.testing.assert_allclose(w["vx"], vx, atol=1e-5)
-    np.testing.assert_allclose(w["vz"], vz, atol=1e-5)
+    # The pad centre's point runs on a circle, which the labels' quadratic smoothing of the
+    # poses follows to 0.01 mm/s (the first window, where the fit meets the track's start).
+    np.testing.assert_allclose(w["vx"], vx, atol=5e-5)
+    np.testing.assert_allclose(w["vz"], vz, atol=5e-5)
     assert w["slip"].all()             # 42 mm/s at the pad centre: planar slip as well
     # The streaming labels' track has the rotation columns and gives the same motion.
     tr = load_track(tmp_path / "ds", 0)

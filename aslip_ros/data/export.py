@@ -20,7 +20,9 @@ has a label; otherwise it is dropped and counted under one reason:
 
 Labels (``data.labels``): the planar slip velocity (``vx``, ``vz``: the pad centre's, m/s),
 the rotational slip ``wy`` about the pad normal (rad/s), the planar speed and
-``slip = speed > epsilon``.
+``slip = speed > epsilon``. Motion-capture labels read the window's ends from the object's
+pose relative to the finger smoothed over ``label_smoothing_s`` (150 ms; the manifest
+records it); robot-state labels from the arm's own poses as reported.
 
 Audio time: the block stamps (time of each block's first sample) are fitted by a line in
 the sample index, which averages out host-clock jitter and follows a slightly off nominal
@@ -53,7 +55,8 @@ from aslip_ros.data.dataset import WINDOW_DTYPE, DatasetWriter
 from aslip_ros.data.export_bench import measure_export_speed  # noqa: F401 (public name)
 from aslip_ros.data.export_read import (AudioClock, BagStreams, StreamFormat, WindowGrid,
                                         fit_clock, read_streams, window_grid)
-from aslip_ros.data.labels import (DEFAULT_EPSILON_M_S, DEFAULT_HOP_S, DEFAULT_MAX_GAP_S,
+from aslip_ros.data.labels import (DEFAULT_EPSILON_M_S, DEFAULT_HOP_S,
+                                   DEFAULT_LABEL_SMOOTHING_S, DEFAULT_MAX_GAP_S,
                                    DEFAULT_WINDOW_S, IDENTITY_POSE, OK, REASONS,
                                    mocap_window_velocity, robot_window_velocity)
 from aslip_ros.data.stream_labels import export_track, write_track
@@ -73,6 +76,8 @@ class ExportConfig:
     epsilon_m_s: float = DEFAULT_EPSILON_M_S
     label_source: str = "auto"
     max_gap_s: float = DEFAULT_MAX_GAP_S
+    # Motion-capture labels read from poses smoothed over this long (0: the raw poses).
+    label_smoothing_s: float = DEFAULT_LABEL_SMOOTHING_S
     topics: Topics = DEFAULT_TOPICS
     topics_given: tuple = ()    # pose topics given: the others as a bag's metadata names them
     # The finger's and object's bodies in a topic of mocap4r2 RigidBodies ('': as a bag's
@@ -93,6 +98,10 @@ class ExportConfig:
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
         if not (math.isfinite(self.epsilon_m_s) and self.epsilon_m_s >= 0):
             raise ValueError(f"epsilon_m_s must be >= 0 m/s, got {self.epsilon_m_s!r}")
+        if not (isinstance(self.label_smoothing_s, (int, float))
+                and 0 <= self.label_smoothing_s <= 1):
+            raise ValueError(f"label_smoothing_s must be in [0, 1] s, got "
+                             f"{self.label_smoothing_s!r}")
         if not (isinstance(self.jobs, int) and self.jobs >= 1):
             raise ValueError(f"jobs must be a whole number >= 1, got {self.jobs!r}")
         if self.label_source not in LABEL_SOURCES:
@@ -203,7 +212,7 @@ def _window_labels(rec: BagStreams, meta: dict, cfg: ExportConfig, source: str,
     else:
         calib = _calibration(meta, "grasp_plane_in_finger", path)
         labels = mocap_window_velocity(track["finger"], track["object"], t0, t1,
-                                       calib, cfg.max_gap_s)
+                                       calib, cfg.max_gap_s, cfg.label_smoothing_s)
         rate = track["finger"].rate_hz
     # The object-relative pose track on the audio file's sample axis: streaming labels.
     s_first = int(rec.seg_start[0])
@@ -491,9 +500,9 @@ def export(bags: Sequence[str | os.PathLike], out: str | os.PathLike,
             layout=summary.layout, window_s=cfg.window_s, hop_s=cfg.hop_s,
             n_window_samples=n_win, hop_samples=int(round(cfg.hop_s * stream.sample_rate)),
             epsilon_m_s=cfg.epsilon_m_s, max_gap_s=cfg.max_gap_s,
-            label_source=cfg.label_source, topics=asdict(cfg.topics),
-            dropped=summary.dropped, skipped_bags=[b.bag for b in summary.bags if b.error],
-            created_by="aslip export")
+            label_smoothing_s=cfg.label_smoothing_s, label_source=cfg.label_source,
+            topics=asdict(cfg.topics), dropped=summary.dropped,
+            skipped_bags=[b.bag for b in summary.bags if b.error], created_by="aslip export")
     summary.elapsed_s = time.perf_counter() - t_start
     return summary
 
@@ -520,6 +529,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-gap", type=float, default=DEFAULT_MAX_GAP_S,
                         help="longest pose dropout bridged by interpolation in s "
                              "(default %(default)s)")
+    parser.add_argument("--label-smoothing", type=float, default=DEFAULT_LABEL_SMOOTHING_S,
+                        metavar="S", help="motion-capture labels from poses smoothed over S "
+                        "seconds (a quadratic fit; 0: the raw poses at each window's ends; "
+                        "default %(default)s)")
     for name in ("audio", "metadata", "finger", "object", "tcp"):     # poses: as recorded
         pose, default = name in POSE_TOPICS, getattr(DEFAULT_TOPICS, name)
         parser.add_argument(f"--{name}-topic", default=None if pose else default, help=(
@@ -556,6 +569,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = ExportConfig(
         window_s=args.window, hop_s=args.hop, epsilon_m_s=args.epsilon,
         label_source=args.labels, max_gap_s=args.max_gap,
+        label_smoothing_s=args.label_smoothing,
         topics=Topics(**{k: getattr(args, f"{k}_topic") or getattr(DEFAULT_TOPICS, k)
                          for k in ("audio", "metadata") + POSE_TOPICS}),
         topics_given=tuple(k for k in POSE_TOPICS if getattr(args, f"{k}_topic")),

@@ -19,6 +19,14 @@ object's material point at the grasp-plane origin, the pad centre:
 ``(r(t1) - r(t0)) / (t1 - t0)``, whatever happens inside the window; a pure rotation about
 the pad centre gives ``v_c = 0`` wherever the object's own origin lies.
 
+The export reads ``r`` and ``Q`` at the window's ends from the relative track smoothed by a
+quadratic fit over ``smoothing_s`` (150 ms, :data:`DEFAULT_LABEL_SMOOTHING_S`;
+:func:`smoothed_window_twist`), not from two raw poses: differencing two poses 200 ms apart
+puts the poses' noise into the label, amplified by sqrt(2) / 0.2 s (0.15 mm of marker
+noise: about 2 mm/s; 0.3 mm: about 4 mm/s, near the 5 mm/s slip threshold). The fit keeps
+a motion of constant acceleration exactly and spreads a step of velocity over 75 ms either
+side.
+
 Robot state (``robot_window_velocity``, robot-induced data): the probe is fixed in the
 world and its pose is not recorded; its motion relative to the grasp plane is the inverse
 of the grasp plane's own, ``G(t1)^-1 G(t0)``, read by the same :func:`mean_twist`. The
@@ -42,6 +50,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from aslip_ros.data.stream_labels import (DEFAULT_SMOOTHER, Smoother, relative_track,
+                                          smooth_positions)
 from aslip_ros.slip import ANGULAR_AXIS, VELOCITY_AXES
 from aslip_ros.poses import IDENTITY_POSE, as_pose, compose, invert, quat_ok
 
@@ -53,6 +63,12 @@ DEFAULT_HOP_S = 0.1
 # sub-millimetre motion capture differenced over a window (about 1-3 mm/s), and the size
 # of the paper's magnitude error, so "slip" means motion the sensor can be asked to see.
 DEFAULT_EPSILON_M_S = 0.005
+#: Motion-capture window labels: the ends are read from the relative pose track smoothed by
+#: the streaming labels' fit (a quadratic over 150 ms), not from two raw poses. Against the
+#: scene's true slip (``python -m benchmarks.label_smoother --windows``) that cuts the label
+#: noise 2.8x at the default mocap noise and 2.5x at a lab's (docs/results.md, "Window
+#: labels from smoothed poses"); 0 reads the raw poses at the window's ends.
+DEFAULT_LABEL_SMOOTHING_S = DEFAULT_SMOOTHER.window_s
 
 # Per-window reason codes returned with the labels.
 OK, COVERAGE, GAP = 0, 1, 2
@@ -242,11 +258,34 @@ class WindowLabels:
         return self.omega[:, ANGULAR_AXIS]
 
 
+def smoothed_window_twist(track: np.ndarray, t0, t1, smoother: Smoother
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`mean_twist` over each window [t0, t1] between the poses of a relative track
+    (``stream_labels.relative_track``: t [s], r, a) smoothed by ``smoother``
+    (``stream_labels.smooth_positions``); the turn over the window is the change of the
+    accumulated rotation ``a``. Returns ``(v, w, valid)``: valid where both ends are
+    (no pose gap longer than ``smoother.max_gap_s`` within half a smoother window)."""
+    t0, t1 = _window_times(t0, t1)
+    t, cols = track[:, 0], track[:, 1:7]
+    e0, ok0 = smooth_positions(t, cols, t0, smoother)
+    e1, ok1 = smooth_positions(t, cols, t1, smoother)
+    turn = Rotation.from_rotvec(e1[:, 3:] - e0[:, 3:]) if t0.size else Rotation.identity(0)
+    v, w = mean_twist(e0[:, :3], Rotation.identity(t0.size), e1[:, :3], turn, t1 - t0)
+    return v, w, ok0 & ok1
+
+
 def mocap_window_velocity(finger: PoseTrack, obj: PoseTrack, t0, t1,
                           grasp_plane_in_finger=IDENTITY_POSE,
-                          max_gap_s: float = DEFAULT_MAX_GAP_S) -> WindowLabels:
+                          max_gap_s: float = DEFAULT_MAX_GAP_S,
+                          smoothing_s: float = 0.0) -> WindowLabels:
     """Mean motion of the object relative to the finger over each window, from motion
-    capture: the pad-centre velocity and the angular velocity (:func:`mean_twist`)."""
+    capture: the pad-centre velocity and the angular velocity (:func:`mean_twist`).
+
+    ``smoothing_s`` > 0: the ends are read from the relative track smoothed over that long
+    (:func:`smoothed_window_twist`; the export's default, :data:`DEFAULT_LABEL_SMOOTHING_S`),
+    and from the raw poses where a gap is too near an end. 0: the raw poses at the ends,
+    which is all a live reader has (``mocap_bridge``: the poses after "now" are not in yet).
+    """
     t0, t1 = _window_times(t0, t1)
     calib = as_pose(grasp_plane_in_finger, "grasp_plane_in_finger")
     reason = np.maximum(finger.check(t0, t1, max_gap_s), obj.check(t0, t1, max_gap_s))
@@ -260,6 +299,11 @@ def mocap_window_velocity(finger: PoseTrack, obj: PoseTrack, t0, t1,
         ends.append((rg.inv().apply(po - pg), rg.inv() * ro))
     (r0, q0), (r1, q1) = ends
     vel, omega = mean_twist(r0, q0, r1, q1, t1 - t0)
+    if smoothing_s > 0:
+        smoother = Smoother(smoothing_s, DEFAULT_SMOOTHER.polyorder, max_gap_s)
+        sv, sw, ok = smoothed_window_twist(relative_track("mocap", finger, calib, obj),
+                                           t0, t1, smoother)
+        vel[ok], omega[ok] = sv[ok], sw[ok]
     vel[reason != OK] = 0.0
     omega[reason != OK] = 0.0
     return WindowLabels(vel, reason, omega)

@@ -128,14 +128,14 @@ def load_track(dataset_root: str | Path, k: int) -> np.ndarray:
     return a
 
 
-def smooth_velocity(t: np.ndarray, r: np.ndarray, tq: np.ndarray,
-                    smoother: Smoother = DEFAULT_SMOOTHER) -> tuple[np.ndarray, np.ndarray]:
-    """Velocity ``(M, D)`` of positions ``r (N, D)`` at ``t`` (s), evaluated at ``tq``.
+def _savgol_at(t: np.ndarray, r: np.ndarray, tq: np.ndarray, smoother: Smoother,
+               deriv: int) -> tuple[np.ndarray, np.ndarray]:
+    """The Savitzky-Golay fit (``deriv`` 0: the values, 1: the velocity) of positions
+    ``r (N, D)`` at ``t`` (s), evaluated at ``tq``, and its validity mask.
 
     The track is put on a uniform grid at its median rate (linear interpolation across
-    dropped frames), differentiated by Savitzky-Golay and interpolated to ``tq``. The
-    second result is a validity mask: ``tq`` inside the track and no gap longer than
-    ``max_gap_s`` within half a smoother window of it.
+    dropped frames), filtered and interpolated to ``tq``. Valid: ``tq`` inside the track and
+    no gap longer than ``max_gap_s`` within half a smoother window of it.
     """
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64).reshape(t.size, -1)
@@ -150,15 +150,29 @@ def smooth_velocity(t: np.ndarray, r: np.ndarray, tq: np.ndarray,
     if grid.size < n_win:
         return out, np.zeros(tq.size, bool)
     rg = np.column_stack([np.interp(grid, t, r[:, j]) for j in range(r.shape[1])])
-    vg = savgol_filter(rg, n_win, smoother.polyorder, deriv=1, delta=dt, axis=0,
+    fg = savgol_filter(rg, n_win, smoother.polyorder, deriv=deriv, delta=dt, axis=0,
                        mode="interp")
-    out = np.column_stack([np.interp(tq, grid, vg[:, j]) for j in range(r.shape[1])])
+    out = np.column_stack([np.interp(tq, grid, fg[:, j]) for j in range(r.shape[1])])
     half = 0.5 * n_win * dt
     valid = (tq >= t[0]) & (tq <= t[-1])
     gaps = np.flatnonzero(np.diff(t) > smoother.max_gap_s + 1e-9)
     for g in gaps:
         valid &= ~((tq > t[g] - half) & (tq < t[g + 1] + half))
     return out, valid
+
+
+def smooth_velocity(t: np.ndarray, r: np.ndarray, tq: np.ndarray,
+                    smoother: Smoother = DEFAULT_SMOOTHER) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity ``(M, D)`` of positions ``r (N, D)`` at ``t`` (s), evaluated at ``tq``, and
+    its validity mask (:func:`_savgol_at`)."""
+    return _savgol_at(t, r, tq, smoother, 1)
+
+
+def smooth_positions(t: np.ndarray, r: np.ndarray, tq: np.ndarray,
+                     smoother: Smoother = DEFAULT_SMOOTHER) -> tuple[np.ndarray, np.ndarray]:
+    """Positions ``r (N, D)`` at ``t`` (s) smoothed by the same fit and evaluated at ``tq``,
+    with the validity mask (the window labels' ends, ``data.labels``)."""
+    return _savgol_at(t, r, tq, smoother, 0)
 
 
 def track_velocity(track: np.ndarray, tq: np.ndarray,

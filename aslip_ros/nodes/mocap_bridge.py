@@ -10,7 +10,10 @@ and publishes the mean slip over the window ``[t - window_s, t]`` ending at the 
 instant both streams cover -- the planar velocity and, not gated by ``slipping``, the
 angular velocity about the pad normal (``angular_velocity``; its sigma -1) -- computed by
 :func:`aslip_ros.data.labels.mocap_window_velocity`, the same function the training export
-labels windows with.
+labels windows with. The export reads each window's ends from poses smoothed over 150 ms
+both ways in time; the bridge reads the raw poses at the ends, as a window ending "now"
+has no later poses to smooth with (its truth carries the motion capture's noise: about
+2 mm/s at 0.15 mm, docs/results.md, "Window labels from smoothed poses").
 
 The grasp plane's pose in the finger's rigid body comes from ``calibration``:
 ``param`` (``grasp_plane_in_finger``), ``metadata`` (the key of the same name on
