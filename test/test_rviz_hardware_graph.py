@@ -79,6 +79,32 @@ def _wait(predicate, timeout: float):
 def test_every_frame_the_view_displays_joins_world_on_a_hardware_graph(ros_env,
                                                                        rclpy_context,
                                                                        tmp_path):
+    """Runs once more, on a new rig and graph, only when the stand-in rig itself stalled
+    (``Rig.stalls``, as the rehearsal does): its poses and the arm's reports then stopped
+    together, the arm's watchdog ended the sweep and with it the graph, before every
+    display had a message; a failure without a rig stall fails at once, as does a second."""
+    import test_hardware_rehearsal as hr
+    cell = tmp_path / "cell.yaml"
+    _cell(cell)
+    env = dict(ros_env, ROS_HOME=str(tmp_path / "ros_home"),
+               ALSA_CONFIG_PATH=str(tmp_path / "asound.conf"))
+    env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
+    env["PYTHONPATH"] = os.pathsep.join([str(HELPERS / "fake_xarm_sdk"), env["PYTHONPATH"]])
+    hr._ros2_available(env)
+    for attempt in (1, 2):
+        failure, stalls = _view_on_a_graph(rclpy_context, tmp_path, env, cell, attempt)
+        if failure is None:
+            return
+        if not stalls or attempt == 2:
+            pytest.fail(failure + (f"\n(the stand-in rig stalled: {stalls})" if stalls else ""))
+        print(f"the stand-in rig stalled ({stalls}); the failure it caused, run again on a "
+              f"new rig:\n{failure[-1500:]}", flush=True)
+
+
+def _view_on_a_graph(rclpy_context, tmp_path: Path, env: dict, cell: Path,
+                     attempt: int) -> tuple:
+    """One run of the rig, the graph and the view: (None, stalls) when every displayed
+    frame joined the view's fixed frame, else (what was not placed, the rig's stalls)."""
     from geometry_msgs.msg import PoseStamped
     from tf2_msgs.msg import TFMessage
     from visualization_msgs.msg import MarkerArray
@@ -90,26 +116,21 @@ def test_every_frame_the_view_displays_joins_world_on_a_hardware_graph(ros_env,
     from aslip_ros.launch_support.rviz_view import display_topic, displays
     from aslip_ros.nodes.tf_frames import transform_pose
     from aslip_ros.runtime.qos import TF_QOS, TF_STATIC_LISTENER_QOS
-    cell = tmp_path / "cell.yaml"
-    _cell(cell)
-    env = dict(ros_env, ROS_HOME=str(tmp_path / "ros_home"),
-               ALSA_CONFIG_PATH=str(tmp_path / "asound.conf"))
-    env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
-    env["PYTHONPATH"] = os.pathsep.join([str(HELPERS / "fake_xarm_sdk"), env["PYTHONPATH"]])
-    hr._ros2_available(env)
+    work = tmp_path / f"try{attempt}"
+    work.mkdir()
     bus = Bus(rclpy_context)
     bus.listen(TFMessage, "/tf", TF_QOS)
     bus.listen(TFMessage, "/tf_static", TF_STATIC_LISTENER_QOS)
-    rig = hr.Rig(tmp_path, env, hr.SETUPS["2mic"][0], 2, "robot_induced", seed=3)
+    rig = hr.Rig(work, env, hr.SETUPS["2mic"][0], 2, "robot_induced", seed=3)
     launches = []
     try:
         (tmp_path / "asound.conf").write_text(rig.info["alsa_config"])
         env["ASLIP_FAKE_XARM_PORT"] = str(rig.info["xarm_port"])
         launches.append(Launch("rviz", ["rviz.launch.py", "sim:=false", f"cell:={cell}"],
-                               env, tmp_path))
+                               env, work))
         launches.append(Launch("graph", [
             "data_collection.launch.py", "sim:=false", f"cell:={cell}", "induced:=robot",
-            "object:=probe", "record:=false", "duration_s:=0"], env, tmp_path))
+            "object:=probe", "record:=false", "duration_s:=0"], env, work))
         found = _wait(lambda: re.search(r"rviz view: (\S+\.rviz)", launches[0].text()), 60)
         assert found, launches[0].text()[-3000:]
         doc = yaml.safe_load(Path(found.group(1)).read_text())
@@ -148,10 +169,15 @@ def test_every_frame_the_view_displays_joins_world_on_a_hardware_graph(ros_env,
             return missing + [(t, f) for t, fs in got.items() for f in fs
                               if not frames.connected(f, fixed, edges)]
         if not _wait(lambda: not unplaced(), TIMEOUT_S):
-            pytest.fail(f"not placed in {fixed!r}: {unplaced()} (TF {tree()})\n"
-                        + "\n".join(x.text()[-2000:] for x in launches))
+            failure = (f"not placed in {fixed!r}: {unplaced()} (TF {tree()})\n"
+                       + "\n".join(x.text()[-2000:] for x in launches))
+            for launch in reversed(launches):
+                launch.stop()
+            rig.stop()                     # the status file is complete once it has exited
+            return failure, rig.stalls()
         # The poses are the driver's, in its own frame, joined to world by mocap_bridge.
         assert tree()[frames.FINGER] == "mocap" and tree()["mocap"] == frames.WORLD
+        return None, []
     finally:
         for launch in reversed(launches):
             launch.stop()
