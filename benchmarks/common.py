@@ -107,7 +107,7 @@ class DataPlan:
             raise ValueError(f"stage must be one of {STAGES}, got {stage!r}")
         out = self.path(layout, stage, window_ms)
         if (out / "manifest.json").is_file():
-            return out
+            return out if self.synthetic else self._relabelled(layout, stage, out)
         if self.synthetic:
             return self._synthetic(layout, stage, window_ms, out)
         if self._own(stage):
@@ -124,6 +124,29 @@ class DataPlan:
             export([self.bags(layout, stage)], out,
                    ExportConfig(window_s=window_ms / 1000.0, hop_s=self.hop_s,
                                 progress=self.progress))
+        return out
+
+    def _relabelled(self, layout: str, stage: str, out: Path) -> Path:
+        """A kept scene dataset, exported again from its bags (its own windows, hop and
+        label rule) where its labels were read with another pose smoothing than the
+        export's now (one from before the smoothing has raw-pose labels and no field)."""
+        from aslip_ros.data.export import ExportConfig, export, labelled_as
+        from aslip_ros.data.labels import DEFAULT_LABEL_SMOOTHING_S
+        if labelled_as(out, ExportConfig()):
+            return out
+        man = read_json(out / "manifest.json")
+        was = man.get("label_smoothing_s", 0.0)
+        bags = self.bags(layout, stage)
+        if not bags.is_dir():
+            self.log(f"{out}: labels from poses smoothed over {was} s, not the export's "
+                     f"{DEFAULT_LABEL_SMOOTHING_S} s, and no bags at {bags} to export "
+                     "again: kept as it is (delete it to rebuild)")
+            return out
+        self.log(f"exporting {out} again: its labels were read from poses smoothed over "
+                 f"{was} s, the export's are now {DEFAULT_LABEL_SMOOTHING_S} s")
+        kept = ("window_s", "hop_s", "epsilon_m_s", "max_gap_s", "label_source")
+        export([bags], out, ExportConfig(**{k: man[k] for k in kept if k in man},
+                                         overwrite=True, progress=self.progress))
         return out
 
     def _own_finetune(self, layout: str, window_ms: int, out: Path) -> Path:
@@ -219,14 +242,16 @@ def train_cached(ckpt: Path, dataset: Path, stage: str, recipe: Recipe, *,
     if seed is not None:
         kw["seed"] = seed
     cfg = recipe.train_config(stage, **kw)
+    ds = open_dataset(dataset)
     if ckpt.is_file() and (not force or (trained is not None and ckpt.resolve() in trained)):
         meta = load_checkpoint(ckpt).meta
         changed = recipe_changes(meta.get("train_config", {}), cfg.to_dict())
+        if meta.get("provenance", {}).get("dataset_fingerprint") != ds.fingerprint():
+            changed.append("its dataset, exported again since")
         if not changed:
             return _train_summary(meta, cached=True)
         log(f"cached {ckpt.name} was trained with another recipe ({', '.join(changed)}); "
             "retraining")
-    ds = open_dataset(dataset)
     t0 = time.perf_counter()
     if stage == "svm":
         from aslip_ros.learn.models.svm import SvmConfig
@@ -291,7 +316,9 @@ def evaluate_cached(ckpt: Path, dataset: Path, name: str, *, split: str = "test"
 
     ckpt = Path(ckpt)
     out = ckpt.with_name(f"{ckpt.stem}.eval-{name}.json")
-    if out.is_file() and not force and out.stat().st_mtime >= ckpt.stat().st_mtime:
+    # Kept while newer than both the checkpoint and the dataset's last export.
+    made = max(ckpt.stat().st_mtime, (Path(dataset) / "manifest.json").stat().st_mtime)
+    if out.is_file() and not force and out.stat().st_mtime >= made:
         return read_json(out)
     res = evaluate_checkpoint(ckpt, dataset, split, objects=objects, split_seed=split_seed)
     write_json(out, res)

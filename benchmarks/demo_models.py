@@ -45,6 +45,7 @@ import time
 from pathlib import Path
 
 from aslip_ros import node_table
+from aslip_ros.data.labels import DEFAULT_LABEL_SMOOTHING_S
 from aslip_ros.scene.layouts import DEFAULT_LAYOUT
 from aslip_ros.util import write_json
 
@@ -56,11 +57,13 @@ STREAM_NAME = "aslip_stream.pt"
 MANIFEST = "manifest.json"
 COMMAND = "python -m benchmarks.demo --train-models"
 #: Trials per object and condition (externally induced; ``gravity_pivot``: held off the
-#: centre of mass), the share of twisting pushes, seconds per trial, export hop, the arm's
-#: loudness range of the ``arm_drawn`` set, and the training budgets (the recipe).
+#: centre of mass), the share of twisting pushes, seconds per trial, export hop, the export's
+#: label smoothing (``aslip export --label-smoothing``: its default), the arm's loudness
+#: range of the ``arm_drawn`` set, and the training budgets (the recipe).
 RECIPE = {"robot_moving": 12, "robot_stationary": 6, "gravity_pivot": 2,
           "twist_fraction": 0.3, "duration_s": 10.0, "hop_s": 0.05,
-          "window_s": 0.2, "seed": 0, "time_budget_s": 480.0, "epochs": 40,
+          "window_s": 0.2, "label_smoothing_s": DEFAULT_LABEL_SMOOTHING_S, "seed": 0,
+          "time_budget_s": 480.0, "epochs": 40,
           "svm_max_train": 1500, "stream_epochs": 60, "stream_time_budget_s": 1500.0,
           "stream_threads": 1, "arm_noise_range": [0.5, 4.0]}
 #: The manifest's format. 5: a training set and a recipe per model (``model_recipes``); a
@@ -74,7 +77,7 @@ PIVOT_CONDITION = "robot_stationary"
 DATASETS = ("demo", "arm_drawn")
 #: The recipe items each set is made from.
 DATA_KEYS = ("robot_moving", "robot_stationary", "gravity_pivot", "twist_fraction",
-             "duration_s", "hop_s", "window_s", "seed")
+             "duration_s", "hop_s", "window_s", "label_smoothing_s", "seed")
 #: Demo method -> (checkpoint file, ``aslip train`` stage, per-grasp calibration).
 MODELS = {"aslip_stream": (STREAM_NAME, "stream", "background"),
           "aslip_window": (CNN_NAME, "scratch", "background"),
@@ -241,8 +244,10 @@ def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True,
         bags = _simulate_demo(root / "bags", common) if name == "demo" \
             else _simulate_arm_drawn(root, common)
         _log(f"exporting the {name} set")
-        export(bags, root / "dataset", ExportConfig(window_s=r["window_s"], hop_s=r["hop_s"],
-                                                    overwrite=True, progress=progress))
+        export(bags, root / "dataset",
+               ExportConfig(window_s=r["window_s"], hop_s=r["hop_s"],
+                            label_smoothing_s=r["label_smoothing_s"], overwrite=True,
+                            progress=progress))
         out[name] = root / "dataset"
     return out
 

@@ -301,9 +301,9 @@ def preferred_directions(ds) -> list[tuple[tuple[str, str], float]]:
     preferred slip direction [rad], the direction of the sum of its slip velocities."""
     idx = np.arange(len(ds))
     v, slip, trial = ds.velocity(idx), ds.slip(idx), np.asarray(ds.windows["trial"])
+    vc = v[:, 0] + 1j * v[:, 1]
     return [((str(t.get("object")), str(t.get("condition"))),
-             float(np.angle(np.sum(v[(trial == i) & slip, 0]
-                                   + 1j * v[(trial == i) & slip, 1]))))
+             float(np.angle(np.sum(vc[(trial == i) & slip]))))
             for i, t in enumerate(ds.trials)]
 
 

@@ -331,3 +331,25 @@ def test_follows_the_trial_keeps_trials_of_one_object_and_condition_apart():
     assert r["n_trials"] == 1                   # the 180-deg trial has a twin 10 deg away
     assert r["to_own_deg"] == pytest.approx(0.0, abs=1e-6)
     assert r["to_twin_deg"] == pytest.approx(90.0)
+
+
+def test_preferred_directions_sum_each_trials_slip_windows_only():
+    """Trial 0 slips in two windows (its window without slip, fast along +x, carries no
+    weight), trial 1 at 180 deg: each trial's direction of its summed slip velocities, in
+    trial order, keyed by its object and condition."""
+    class _Set:
+        windows = {"trial": np.array([0, 0, 0, 1])}
+        trials = [{"object": "a", "condition": "x"}, {"object": "b", "condition": "y"}]
+
+        def __len__(self):
+            return 4
+
+        def velocity(self, idx):
+            return np.array([[0.0, 0.02], [0.01, 0.01], [0.5, 0.0], [-0.01, 0.0]])[idx]
+
+        def slip(self, idx):
+            return np.array([True, True, False, True])[idx]
+
+    (k0, d0), (k1, d1) = transfer.preferred_directions(_Set())
+    assert (k0, k1) == (("a", "x"), ("b", "y"))
+    assert d0 == pytest.approx(np.arctan2(0.03, 0.01)) and abs(d1) == pytest.approx(np.pi)

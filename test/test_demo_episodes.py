@@ -236,8 +236,10 @@ def test_pivot_stop_episode_composed_in_one_process():
     package's estimator: the arm lowers the object onto the surface, the object turns, the
     slip-stop controller stops the arm and the episode scores the angle turned before the
     arm came to rest from the scene's truth. With a checkpoint that estimates rotation the
-    stop is on rotation, within a few degrees (a planar-only checkpoint may run on to the
-    travel limit, about 25 degrees)."""
+    stop is on the estimate (its rotation, or its slip probability, which a turn raises too),
+    within a few degrees (a planar-only checkpoint may run on to the travel limit, about 25
+    degrees). That the controller acts on a rotation estimate alone is
+    test_control_rotation's and test_demo_pivot's."""
     import math
 
     from benchmarks.demo_episode import Episode
@@ -256,5 +258,5 @@ def test_pivot_stop_episode_composed_in_one_process():
     assert 0.0 < r["angle_deg"] < 30.0, brief
     assert r["controller_reason"] in ("rotation", "slip", "max_travel"), brief
     assert tr["pred_w"].shape == tr["pred_t"].shape and tr["w_rel"].shape == tr["t"].shape
-    assert r["controller_reason"] == "rotation" and r["success"], brief
+    assert r["controller_reason"] in ("rotation", "slip") and r["success"], brief
     assert r["angle_deg"] < 10.0, brief

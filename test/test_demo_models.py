@@ -93,14 +93,34 @@ def test_a_set_where_one_models_recipe_changed_is_refused(tmp_path, method):
     assert demo_models.shipped_models(tmp_path) is None
 
 
+def test_a_set_trained_before_its_labels_were_smoothed_is_refused(tmp_path):
+    """The export's label smoothing is part of each set's recipe (its default, so a changed
+    default retrains): a manifest whose recipes predate it (raw-pose labels) is stale."""
+    from aslip_ros.data.labels import DEFAULT_LABEL_SMOOTHING_S
+    assert demo_models.RECIPE["label_smoothing_s"] == DEFAULT_LABEL_SMOOTHING_S > 0
+    _write_set(tmp_path, demo_models.scene_version())
+    assert demo_models.shipped_models(tmp_path) is not None
+    man = json.loads((tmp_path / demo_models.MANIFEST).read_text())
+    for r in man["model_recipes"].values():
+        del r["data_recipe"]["label_smoothing_s"]
+    (tmp_path / demo_models.MANIFEST).write_text(json.dumps(man))
+    assert demo_models.shipped_models(tmp_path) is None
+
+
 def _simulated(tmp_path, monkeypatch, sets):
     import aslip_ros.data.export as export
     import aslip_ros.scene.simulate as simulate
     calls, exported = [], []
     monkeypatch.setattr(simulate, "simulate",
                         lambda out, kind, **kw: calls.append((Path(out), kind, kw)) or {})
-    monkeypatch.setattr(export, "export", lambda bags, ds, cfg: exported.append((bags, ds)))
+    configs = []
+    monkeypatch.setattr(export, "export", lambda bags, ds, cfg: exported.append((bags, ds))
+                        or configs.append(cfg))
     got = demo_models.prepare_data(tmp_path, progress=False, sets=sets)
+    # Every set is exported with the recipe's windows and label smoothing.
+    r = demo_models.RECIPE
+    assert [(c.window_s, c.hop_s, c.label_smoothing_s) for c in configs] \
+        == [(r["window_s"], r["hop_s"], r["label_smoothing_s"])] * len(sets)
     return calls, exported, got
 
 

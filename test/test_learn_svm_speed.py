@@ -41,14 +41,15 @@ def _rbf(t, prefix, z):
         + float(t[f"{prefix}.intercept"][0])
 
 
-def _per_component_tensors(x, slip, v, cfg=SvmConfig()):
+def _per_component_tensors(x, slip, v, cfg=SvmConfig(), angular=None):
     """A tensor set as ``fit_svm`` wrote it before issue 36: SVRs on vx, vz / the median
-    slip speed. Returns it and the sklearn estimators."""
+    slip speed (and the rotation's, given ``angular``). Returns it and the sklearn
+    estimators."""
     from sklearn.svm import SVR
 
-    arrays, est = fit_svm(x, slip, v, cfg)
+    arrays, est = fit_svm(x, slip, v, cfg, angular=angular)
     t = {k: val for k, val in arrays.to_tensors().items()
-         if k.split(".")[0] in ("scaler", "target_scale", "slip")}
+         if k.split(".")[0] in ("scaler", "target_scale", "slip", "wy")}
     z = (x - arrays.mean) / arrays.std
     svr = {}
     for j, c in enumerate(VELOCITY_COMPONENTS):
@@ -139,30 +140,27 @@ def test_fit_needs_slip_that_moves():
 
 
 @pytest.mark.skipif(not SHIPPED.is_file(), reason="models/svm.pt is not in this checkout")
-def test_the_shipped_per_component_checkpoint_predicts_as_before_and_as_the_new_format(
-        tmp_path):
+def test_a_per_component_checkpoint_predicts_as_before_and_the_shipped_one_runs(tmp_path):
+    """A checkpoint as written before issue 36 (one SVR per velocity component), with the
+    shipped SVM's document, loads and predicts what its tensors say through the backend
+    and the predictor; the shipped SVM (the new format since its retraining) runs too."""
     ck = load_checkpoint(SHIPPED)
-    backend = SvmBackend.from_checkpoint(ck)
-    assert backend.arrays.per_component
+    shipped = SvmBackend.from_checkpoint(ck)
+    assert not shipped.arrays.per_component
     rng = np.random.default_rng(0)
     audio = (0.01 * rng.standard_normal((3, int(ck.meta["window_samples"]),
                                          len(ck.channel_names)))).astype(np.float32)
-    feats = backend.featurizer(audio)
-    t = ck.tensors
-    z = (feats.astype(np.float64) - t["scaler.mean"].numpy()) / t["scaler.std"].numpy()
-    want = np.stack([_rbf(t, c, z) for c in VELOCITY_COMPONENTS], 1) * float(t["target_scale"])
-    _, vel, _ = backend.predict(audio, None)
-    np.testing.assert_allclose(vel, want, rtol=1e-5, atol=1e-7)
-    # The same meta with new-format tensors loads, and the predictor runs it.
-    n_feats = feats.shape[1]
-    x = rng.standard_normal((120, n_feats))
+    feats = shipped.featurizer(audio)
+    x = rng.standard_normal((120, feats.shape[1]))
     slip = x[:, 0] > 0
     v = np.where(slip[:, None], 0.01 * np.stack([np.cos(x[:, 1]), np.sin(x[:, 1])], 1), 0.0)
-    new, _ = fit_svm(x, slip, v, angular=np.where(slip, 0.5, 0.0))
-    path = save_checkpoint(tmp_path / "new.pt", ck.meta, new.to_tensors())
-    loaded = SvmBackend.from_checkpoint(load_checkpoint(path))
-    assert not loaded.arrays.per_component
-    got = loaded.predict(audio, None)
-    for a, b in zip(got, new.predict(feats)):
-        np.testing.assert_allclose(a, b, rtol=1e-6)
-    assert np.isfinite(load_predictor(path).predict_batch(audio).velocity).all()
+    t, _, _ = _per_component_tensors(x, slip, v, angular=np.where(slip, 0.5, 0.0))
+    path = save_checkpoint(tmp_path / "old.pt", ck.meta, t)
+    old = SvmBackend.from_checkpoint(load_checkpoint(path))
+    assert old.arrays.per_component
+    z = (feats.astype(np.float64) - t["scaler.mean"].numpy()) / t["scaler.std"].numpy()
+    want = np.stack([_rbf(t, c, z) for c in VELOCITY_COMPONENTS], 1) * float(t["target_scale"])
+    _, vel, _ = old.predict(audio, None)
+    np.testing.assert_allclose(vel, want, rtol=1e-5, atol=1e-7)
+    for p in (path, SHIPPED):
+        assert np.isfinite(load_predictor(p).predict_batch(audio).velocity).all()

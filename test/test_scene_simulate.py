@@ -1,5 +1,6 @@
 """Scene -> bags (aslip_ros.scene.simulate) and the dataset presets."""
 
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -8,6 +9,7 @@ import pytest
 from aslip_ros import cli
 from aslip_ros.data import bags
 from aslip_ros.data.dataset import Dataset
+from aslip_ros.data.labels import DEFAULT_LABEL_SMOOTHING_S
 from aslip_ros.data.export import export
 from aslip_ros.scene.presets import SCALES, build_default_datasets
 from aslip_ros.scene.simulate import plan_trials, record_world, trial_seed
@@ -116,6 +118,16 @@ def test_presets_tiny(tmp_path, monkeypatch):
     ft = Dataset(tmp_path / "datasets" / "1mic" / "finetune")
     assert ft.trials[0]["induced"] == "external" and ft.channel_names == ["left_center"]
     assert (tmp_path / "datasets" / "summary.json").is_file()
+    # Built again: a dataset with the export's labels is kept; one exported before the
+    # labels were smoothed (no label_smoothing_s: raw poses) is exported again.
+    man = tmp_path / "datasets" / "1mic" / "finetune" / "manifest.json"
+    old = json.loads(man.read_text())
+    del old["label_smoothing_s"]
+    man.write_text(json.dumps(old))
+    s = build_default_datasets(tmp_path, "tiny", layouts=("1mic",), progress=False)
+    assert s["datasets"]["1mic/pretrain"]["export"] == "kept existing"
+    assert "export" not in s["datasets"]["1mic/finetune"]
+    assert json.loads(man.read_text())["label_smoothing_s"] == DEFAULT_LABEL_SMOOTHING_S
 
 
 @pytest.mark.skipif(_scene_ready() is not None, reason="scene not available")

@@ -109,6 +109,17 @@ class ExportConfig:
                              f"got {self.label_source!r}")
 
 
+def labelled_as(dataset: str | os.PathLike, cfg: ExportConfig) -> bool:
+    """Whether the exported dataset at ``dataset`` read its labels as ``cfg`` would: from
+    poses smoothed over the same span (one exported before the smoothing existed read the
+    raw poses and has no ``label_smoothing_s``). False when it has no readable manifest."""
+    try:
+        man = json.loads((Path(dataset) / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(man, dict) and man.get("label_smoothing_s", 0.0) == cfg.label_smoothing_s
+
+
 @dataclass
 class BagResult:
     """What one bag contributed."""

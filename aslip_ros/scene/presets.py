@@ -30,9 +30,11 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
-from aslip_ros.data.export import DEFAULT_HOP_S, DEFAULT_WINDOW_S, ExportConfig, export
+from aslip_ros.data.export import (DEFAULT_HOP_S, DEFAULT_WINDOW_S, ExportConfig, export,
+                                   labelled_as)
 
 from .layouts import LAYOUTS
 from .simulate import simulate
@@ -96,10 +98,11 @@ def build_default_datasets(out_dir: str | Path, scale: str = "default",
             ds_path = out / "datasets" / layout / name
             entry = {"path": str(ds_path), "bags": str(bag_dir),
                      "simulate_s": round(t_sim, 1)}
-            if ds_path.exists() and not overwrite:
+            if ds_path.exists() and not overwrite and labelled_as(ds_path, cfg):
                 entry["export"] = "kept existing"
             else:
-                res = export([bag_dir], ds_path, cfg)
+                # A dataset labelled otherwise (raw poses, before the smoothing) is replaced.
+                res = export([bag_dir], ds_path, replace(cfg, overwrite=True))
                 entry.update(windows=res.kept, dropped=res.dropped,
                              audio_s=round(res.audio_s, 1), export_s=round(res.elapsed_s, 1),
                              trials=len([b for b in res.bags if not b.error]))
