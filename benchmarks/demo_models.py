@@ -202,11 +202,14 @@ def _simulate_demo(bags: Path, common: dict) -> list[Path]:
     return [bags]
 
 
-def _simulate_arm_drawn(root: Path, common: dict) -> list[Path]:
-    """The demo set's trials with the arm still, and its arm-moving trials plus arm-moving
-    gravity pivots with each trial's arm drawn in ``arm_noise_range`` (a folder each)."""
+def simulate_arm_drawn(root: Path, common: dict, factor: int = 1) -> list[Path]:
+    """``factor`` times the demo set's trials with the arm still, and its arm-moving trials
+    plus arm-moving gravity pivots with each trial's arm drawn in ``arm_noise_range`` (a
+    folder each); with another seed in ``common``, a fresh draw of the set
+    (``benchmarks.stream_false_alarms``)."""
     from aslip_ros.scene.simulate import simulate
-    r = RECIPE
+    r = {**RECIPE, **{c: RECIPE[c] * int(factor)
+                      for c in ("robot_moving", "robot_stationary", "gravity_pivot")}}
     lo, hi = r["arm_noise_range"]
     moving, still = root / "bags_moving", root / "bags_still"
     _log(f"simulating the arm-moving trials with the arm {lo:g}-{hi:g} times as loud")
@@ -242,7 +245,7 @@ def prepare_data(data_dir: str | Path = "data/demo", progress: bool = True,
     for name in sets:
         root = data if name == "demo" else data / name
         bags = _simulate_demo(root / "bags", common) if name == "demo" \
-            else _simulate_arm_drawn(root, common)
+            else simulate_arm_drawn(root, common)
         _log(f"exporting the {name} set")
         export(bags, root / "dataset",
                ExportConfig(window_s=r["window_s"], hop_s=r["hop_s"],
