@@ -79,8 +79,8 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
     from aslip_ros.learn.data_io import open_dataset
     from aslip_ros.learn.features import FeatureConfig
     from aslip_ros.learn.models.aslip_stream import StreamBackend
-    from aslip_ros.learn.training.stream import (false_alarms_per_min, select_threshold,
-                                                 trial_sequences)
+    from aslip_ros.learn.training.stream import (StreamTrainConfig, false_alarms_per_min,
+                                                 select_threshold, trial_sequences)
 
     ck = stream_part(checkpoint)
     meta = ck.meta
@@ -96,7 +96,7 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
     p = [model.offline(x)[0] for x in seqs.frames]
     hop_s = fcfg.hop / fcfg.sample_rate
     chosen = meta.get("threshold_selection") or {}
-    target = float(chosen.get("fa_per_min_target", 2.0))
+    target = float(chosen.get("fa_per_min_target", StreamTrainConfig.fa_per_min))
     rule, table, minutes = select_threshold(p, seqs.slip, hop_s, target)
     own = float(meta["threshold"])
     by_condition: dict[str, list[tuple[int, float]]] = {}
