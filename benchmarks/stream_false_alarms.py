@@ -28,8 +28,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from aslip_ros.util import write_json
 
 #: The fresh draw's default seed: not the demo recipe's (0).
@@ -79,6 +77,7 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
     from aslip_ros.learn.data_io import open_dataset
     from aslip_ros.learn.features import FeatureConfig
     from aslip_ros.learn.models.aslip_stream import StreamBackend
+    from aslip_ros.learn.stats import rate_interval
     from aslip_ros.learn.training.stream import (StreamTrainConfig, false_alarms_per_min,
                                                  select_threshold, trial_sequences)
 
@@ -111,7 +110,8 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
             "validation_fa_per_min": None if val is None else val["fa_per_min"],
             "fa_per_min": round(sum(n for n, _ in per_trial)
                                 / max(sum(m for _, m in per_trial), 1e-9), 2),
-            "fa_per_min_ci": rate_interval(per_trial),
+            "fa_per_min_ci": _rounded(rate_interval([n for n, _ in per_trial],
+                                                    [m for _, m in per_trial])),
             "at_threshold": {c: {"false_alarms": sum(n for n, _ in v),
                                  "quiet_minutes": round(sum(m for _, m in v), 3),
                                  "fa_per_min": round(sum(n for n, _ in v)
@@ -119,20 +119,8 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
                              for c, v in sorted(by_condition.items())}}
 
 
-def rate_interval(per_trial: list[tuple[int, float]], n_boot: int = 1000,
-                  level: float = 0.95) -> list[float] | None:
-    """The false alarms a minute over ``per_trial`` (false alarms, quiet minutes), with the
-    ``level`` interval of a bootstrap over whole trials (``learn.stats.resamples``: a trial's
-    arm and grasp are shared by its frames); None with fewer than two trials."""
-    from aslip_ros.learn.stats import resamples
-    n = np.array([a for a, _ in per_trial], float)
-    m = np.array([b for _, b in per_trial], float)
-    if n.size < 2:
-        return None
-    draws = resamples(np.arange(n.size), n_boot, seed=0)
-    rates = [n[i].sum() / max(m[i].sum(), 1e-9) for i in draws]
-    bounds = np.percentile(rates, [50 * (1 - level), 50 * (1 + level)])
-    return [round(float(v), 2) for v in bounds]
+def _rounded(interval: tuple[float, float] | None) -> list[float] | None:
+    return None if interval is None else [round(v, 2) for v in interval]
 
 
 def report(res: dict) -> str:

@@ -276,6 +276,22 @@ def test_threshold_is_chosen_for_the_false_alarm_rate():
     assert t == 0.5
 
 
+def test_the_chosen_thresholds_rate_comes_with_its_interval_over_trials():
+    """Two quiet trials, one with four false alarms and one with none: the pooled rate, and
+    an interval over trials from none to twice it (a trial drawn twice); one trial: none."""
+    from aslip_ros.learn.training.stream import chosen_rate
+    n = 6000                                     # a minute of 10 ms hops each
+    loud, quiet = np.full(n, 0.1), np.full(n, 0.1)
+    loud[[1000, 2000, 3000, 4000]] = 0.8
+    slip = [np.zeros(n, bool)] * 2
+    got = chosen_rate([loud, quiet], slip, 0.7, 0.01)
+    assert got["fa_per_min"] == 2.0
+    assert got["fa_per_min_interval"] == [0.0, 4.0]
+    assert chosen_rate([loud], slip[:1], 0.7, 0.01)["fa_per_min_interval"] is None
+    none = chosen_rate([loud, quiet], slip, 0.9, 0.01)
+    assert none == {"fa_per_min": 0.0, "fa_per_min_interval": [0.0, 0.0]}
+
+
 def test_validation_trials_without_slip_give_no_recall_and_no_nan():
     """Validation trials with no slip frame (background only, or a tiny set): the threshold
     is still chosen on their false alarms, and the sweep says there is no recall to report

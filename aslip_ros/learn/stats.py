@@ -69,3 +69,19 @@ def paired_difference(trial: np.ndarray, metric: Callable[[np.ndarray], float],
     diffs = [metric(idx) - other(idx) for idx in resamples(trial, n_boot, seed)]
     lo, hi = np.percentile(diffs, [50.0 * (1.0 - level), 50.0 * (1.0 + level)])
     return est, float(lo), float(hi)
+
+
+def rate_interval(events, exposure, *, n_boot: int = 1000, seed: int = 0,
+                  level: float = 0.95) -> tuple[float, float] | None:
+    """The ``level`` interval of ``sum(events) / sum(exposure)`` (a rate: false alarms a
+    minute of audio without slip, say) over a bootstrap of whole trials, one entry of each
+    per trial; None with fewer than two trials. A trial's events share its grasp and its
+    arm, so they are not independent events."""
+    n = np.asarray(events, float)
+    m = np.asarray(exposure, float)
+    if n.size < 2:
+        return None
+    rates = [n[i].sum() / max(m[i].sum(), 1e-9)
+             for i in resamples(np.arange(n.size), n_boot, seed)]
+    lo, hi = np.percentile(rates, [50.0 * (1.0 - level), 50.0 * (1.0 + level)])
+    return float(lo), float(hi)

@@ -187,6 +187,19 @@ def select_threshold(p: list[np.ndarray], slip: list[np.ndarray], hop_s: float,
     return best["threshold"], table, minutes
 
 
+def chosen_rate(p: list[np.ndarray], slip: list[np.ndarray], threshold: float,
+                hop_s: float) -> dict[str, Any]:
+    """The false alarms a minute at ``threshold`` over the trials, with the 95 % interval of
+    a bootstrap over whole trials (``learn.stats.rate_interval``; None with one trial): how
+    far the rate the threshold was chosen for may be off on other audio."""
+    from aslip_ros.learn.stats import rate_interval
+    per_trial = [false_alarms_per_min(a, b, threshold, hop_s) for a, b in zip(p, slip)]
+    n, m = [k for k, _ in per_trial], [q for _, q in per_trial]
+    interval = rate_interval(n, m)
+    return {"fa_per_min": round(sum(n) / max(sum(m), 1e-9), 2),
+            "fa_per_min_interval": interval and [round(v, 2) for v in interval]}
+
+
 def threshold_support(quiet_min: float, fa_per_min: float) -> str | None:
     """A warning when the validation audio without slip is too short for the false-alarm
     target: one false alarm there counts for more than a quarter of the target, so a few
@@ -309,8 +322,13 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
     out_val = [offline_outputs(model, x) for x in va.frames]     # (p, v, w) per trial
     threshold, sweep, quiet_min = select_threshold([o[0] for o in out_val], va.slip,
                                                    fcfg.hop / fcfg.sample_rate, cfg.fa_per_min)
+    rate = chosen_rate([o[0] for o in out_val], va.slip, threshold,
+                       fcfg.hop / fcfg.sample_rate)
+    ci = rate["fa_per_min_interval"]
     log(f"threshold {threshold:.2f} (validation false alarms per minute <= "
-        f"{cfg.fa_per_min:g} where reachable, on {quiet_min:.1f} min without slip)")
+        f"{cfg.fa_per_min:g} where reachable, on {quiet_min:.1f} min without slip): "
+        f"{rate['fa_per_min']:g} a minute"
+        + ("" if ci is None else f", 95 % interval over trials [{ci[0]:g}, {ci[1]:g}]"))
     thin = threshold_support(quiet_min, cfg.fa_per_min)
     if thin is not None:
         log(f"warning: {thin}")
@@ -320,7 +338,7 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
     meta.update(threshold=threshold, **sequence_fields(out_val, va, threshold))
     meta["threshold_selection"] = {"fa_per_min_target": cfg.fa_per_min, "sweep": sweep,
                                    "quiet_minutes": round(quiet_min, 3),
-                                   "thin": thin is not None}
+                                   "thin": thin is not None, **rate}
     meta["provenance"].update(
         metrics={"val": fit["val_metrics"], "best_val_loss": fit["best_val_loss"]},
         training={**fit["training"], "feature_time_s": t_feat, "train_trials": tr.trials,
