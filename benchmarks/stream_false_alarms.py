@@ -14,8 +14,9 @@ calibration) and gives:
 - the same sweep as the trainer's, on this audio: false alarms, their rate a minute and the
   frame recall of slip at each threshold, and the threshold the trainer's rule would choose
   here;
-- the rate at the checkpoint's own threshold, for all trials and per condition (the arm
-  moving or still), beside the rate its validation trials gave.
+- the rate at the checkpoint's own threshold with a 95 % bootstrap interval over trials,
+  for all trials and per condition (the arm moving or still), beside the rate its
+  validation trials gave.
 
 A false alarm is a rising edge of ``p >= threshold`` with no labelled slip in the 0.35 s
 before (``false_alarms_per_min``). A hybrid checkpoint (``aslip``) is read through its
@@ -77,9 +78,9 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
     from aslip_ros.learn.data_io import open_dataset
     from aslip_ros.learn.features import FeatureConfig
     from aslip_ros.learn.models.aslip_stream import StreamBackend
-    from aslip_ros.learn.stats import rate_interval
     from aslip_ros.learn.training.stream import (StreamTrainConfig, false_alarms_per_min,
-                                                 select_threshold, trial_sequences)
+                                                 pooled_rate, select_threshold,
+                                                 trial_sequences)
 
     ck = stream_part(checkpoint)
     meta = ck.meta
@@ -103,24 +104,18 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
     for k, got in zip(seqs.trials, per_trial):
         by_condition.setdefault(str(ds.trials[k].get("condition")), []).append(got)
     val = next((r for r in chosen.get("sweep", []) if abs(r["threshold"] - own) < 1e-9), None)
+    overall = pooled_rate(per_trial)
     return {"checkpoint": str(checkpoint), "dataset": str(dataset), "trials": len(seqs.trials),
             "quiet_minutes": round(minutes, 3), "fa_per_min_target": target,
             "sweep": table, "rule_threshold": rule, "threshold": own,
             "validation_quiet_minutes": chosen.get("quiet_minutes"),
             "validation_fa_per_min": None if val is None else val["fa_per_min"],
-            "fa_per_min": round(sum(n for n, _ in per_trial)
-                                / max(sum(m for _, m in per_trial), 1e-9), 2),
-            "fa_per_min_ci": _rounded(rate_interval([n for n, _ in per_trial],
-                                                    [m for _, m in per_trial])),
+            "fa_per_min": overall["fa_per_min"],
+            "fa_per_min_ci": overall["fa_per_min_interval"],
             "at_threshold": {c: {"false_alarms": sum(n for n, _ in v),
                                  "quiet_minutes": round(sum(m for _, m in v), 3),
-                                 "fa_per_min": round(sum(n for n, _ in v)
-                                                     / max(sum(m for _, m in v), 1e-9), 2)}
+                                 **pooled_rate(v)}
                              for c, v in sorted(by_condition.items())}}
-
-
-def _rounded(interval: tuple[float, float] | None) -> list[float] | None:
-    return None if interval is None else [round(v, 2) for v in interval]
 
 
 def report(res: dict) -> str:

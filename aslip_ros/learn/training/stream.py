@@ -190,10 +190,17 @@ def select_threshold(p: list[np.ndarray], slip: list[np.ndarray], hop_s: float,
 def chosen_rate(p: list[np.ndarray], slip: list[np.ndarray], threshold: float,
                 hop_s: float) -> dict[str, Any]:
     """The false alarms a minute at ``threshold`` over the trials, with the 95 % interval of
-    a bootstrap over whole trials (``learn.stats.rate_interval``; None with one trial): how
-    far the rate the threshold was chosen for may be off on other audio."""
+    a bootstrap over whole trials (``pooled_rate``): how far the rate the threshold was
+    chosen for may be off on other audio."""
+    return pooled_rate([false_alarms_per_min(a, b, threshold, hop_s)
+                        for a, b in zip(p, slip)])
+
+
+def pooled_rate(per_trial: Sequence[tuple[int, float]]) -> dict[str, Any]:
+    """False alarms a minute pooled over trials' ``(false alarms, quiet minutes)``, with the
+    95 % interval of a bootstrap over whole trials (``learn.stats.rate_interval``; None with
+    one trial)."""
     from aslip_ros.learn.stats import rate_interval
-    per_trial = [false_alarms_per_min(a, b, threshold, hop_s) for a, b in zip(p, slip)]
     n, m = [k for k, _ in per_trial], [q for _, q in per_trial]
     interval = rate_interval(n, m)
     return {"fa_per_min": round(sum(n) / max(sum(m), 1e-9), 2),
@@ -320,10 +327,9 @@ def train_stream(ds: WindowSet, cfg: StreamTrainConfig, *,
     t_feat = time.perf_counter() - t0
     model, fit = fit_stream(tr, va, cfg, model_config=model_config, log=log)
     out_val = [offline_outputs(model, x) for x in va.frames]     # (p, v, w) per trial
-    threshold, sweep, quiet_min = select_threshold([o[0] for o in out_val], va.slip,
-                                                   fcfg.hop / fcfg.sample_rate, cfg.fa_per_min)
-    rate = chosen_rate([o[0] for o in out_val], va.slip, threshold,
-                       fcfg.hop / fcfg.sample_rate)
+    p_val, hop_s = [o[0] for o in out_val], fcfg.hop / fcfg.sample_rate
+    threshold, sweep, quiet_min = select_threshold(p_val, va.slip, hop_s, cfg.fa_per_min)
+    rate = chosen_rate(p_val, va.slip, threshold, hop_s)
     ci = rate["fa_per_min_interval"]
     log(f"threshold {threshold:.2f} (validation false alarms per minute <= "
         f"{cfg.fa_per_min:g} where reachable, on {quiet_min:.1f} min without slip): "
