@@ -21,13 +21,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from aslip_ros import node_table
 from node_support import Bus, NodeProcess
 
 pytestmark = pytest.mark.ros
 
 ROOT = Path(__file__).resolve().parents[1]
 CNN = ROOT / "models" / "aslip_cnn.pt"                # the 200 ms window CNN (aslip_window)
-STREAM = ROOT / "models" / "aslip_stream.pt"          # the package's estimator (aslip)
+STREAM = ROOT / "models" / "aslip_stream.pt"          # the streaming model (aslip_stream)
+#: The package's estimator (aslip): the one model both closed-loop launch files run.
+DEFAULT = ROOT / "models" / node_table.DEFAULT_MODEL
 STOP_ERROR_BOUND_M = 0.015
 # Below the paper's A-SLIP overall pose RMSE (15.8 mm); the demo's aim (8 mm) is not met.
 TRACK_RMSE_BOUND_M = 0.015
@@ -198,10 +201,10 @@ def test_slip_track_episode_composed_follows_the_object(composed_track):
 
 
 def test_slip_track_episode_with_the_package_estimator():
-    """The composed demo path runs the shipped streaming checkpoint: estimates at its 100 Hz
-    hop all episode long, the per-grasp calibration converged within 2 s of the grasp (while
+    """The composed demo path runs the package's estimator (the hybrid of the streaming
+    model and the window CNN): estimates at its 100 Hz hop all episode long, the per-grasp calibration converged within 2 s of the grasp (while
     the agent holds the object still), the agent drags the object and the arm follows."""
-    r = _track_episode(str(STREAM))
+    r = _track_episode(str(DEFAULT))
     assert r["ended"] == "duration", r
     assert r["n_slip_msgs"] > 200, r
     cal = r["calibration"]
@@ -245,9 +248,9 @@ def test_pivot_stop_episode_composed_in_one_process():
     from benchmarks.demo_episode import Episode
     from aslip_ros.learn.checkpoint import estimates_rotation, load_checkpoint
 
-    assert STREAM.is_file(), STREAM
-    assert estimates_rotation(load_checkpoint(STREAM).meta), "the shipped model is planar"
-    r = _run_as_the_demo_does(Episode("pivot_stop", "aslip", str(STREAM), "cracker_box", 0,
+    assert DEFAULT.is_file(), DEFAULT
+    assert estimates_rotation(load_checkpoint(DEFAULT).meta), "the shipped model is planar"
+    r = _run_as_the_demo_does(Episode("pivot_stop", "aslip", str(DEFAULT), "cracker_box", 0,
                                       3201))
     brief = {k: v for k, v in r.items() if k != "trace"}
     assert r["ended"] == "controller_result" and r["arm"] == "rotation_aware", brief
