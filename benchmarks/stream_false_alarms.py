@@ -20,7 +20,16 @@ calibration) and gives:
 
 A false alarm is a rising edge of ``p >= threshold`` with no labelled slip in the 0.35 s
 before (``false_alarms_per_min``). A hybrid checkpoint (``aslip``) is read through its
-streaming part, which decides when a slip starts. ``--json`` writes the figures.
+streaming part, which decides when a slip starts.
+
+- what stops the arm: the slip-stop controller stops on ``debounce_count`` consecutive
+  estimates that slip (``p >= threshold``) or turn (``|wy| >=
+  rotation_threshold_rad_s``, the controller's defaults, ``SlipStopConfig``). Its stops
+  a minute on the same audio, with no labelled slip or turn in the 0.35 s before
+  (``controller_stops``), for the two together and for each alone, so that a rate shows
+  which of the two decisions fires where nothing slips.
+
+``--json`` writes the figures.
 """
 
 from __future__ import annotations
@@ -28,6 +37,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from aslip_ros.util import write_json
 
@@ -93,7 +104,8 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
                            calibration=cal)
     if not seqs.trials:
         raise ValueError(f"{dataset}: no trial without audio gaps to run")
-    p = [model.offline(x)[0] for x in seqs.frames]
+    outs = [model.offline(x) for x in seqs.frames]
+    p = [o[0] for o in outs]
     hop_s = fcfg.hop / fcfg.sample_rate
     chosen = meta.get("threshold_selection") or {}
     target = float(chosen.get("fa_per_min_target", StreamTrainConfig.fa_per_min))
@@ -101,6 +113,7 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
     own = float(meta["threshold"])
     by_condition: dict[str, list[tuple[int, float]]] = {}
     per_trial = [false_alarms_per_min(a, s, own, hop_s) for a, s in zip(p, seqs.slip)]
+    stops = controller_stops(p, [o[2] for o in outs], seqs, own, hop_s)
     for k, got in zip(seqs.trials, per_trial):
         by_condition.setdefault(str(ds.trials[k].get("condition")), []).append(got)
     val = next((r for r in chosen.get("sweep", []) if abs(r["threshold"] - own) < 1e-9), None)
@@ -112,10 +125,45 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
             "validation_fa_per_min": None if val is None else val["fa_per_min"],
             "fa_per_min": overall["fa_per_min"],
             "fa_per_min_ci": overall["fa_per_min_interval"],
+            "controller_stops": stops,
             "at_threshold": {c: {"false_alarms": sum(n for n, _ in v),
                                  "quiet_minutes": round(sum(m for _, m in v), 3),
                                  **pooled_rate(v)}
                              for c, v in sorted(by_condition.items())}}
+
+
+def debounced(flags: np.ndarray, count: int) -> np.ndarray:
+    """Where ``flags`` has held for ``count`` consecutive hops (the controller's debounce)."""
+    run = np.zeros(flags.size, np.int64)
+    for i, f in enumerate(flags):
+        run[i] = run[i - 1] + 1 if f and i else int(f)
+    return run >= count
+
+
+def controller_stops(p: list[np.ndarray], wy: list[np.ndarray | None], seqs, threshold: float,
+                     hop_s: float) -> dict:
+    """The slip-stop controller's stops where nothing slips or turns (the module docstring):
+    for ``either`` decision (what the controller does), ``slip`` alone and ``rotation``
+    alone, the pooled rate a minute with its trial interval; ``rotation`` is None for a
+    checkpoint without the rotational output."""
+    from aslip_ros.control.slip_stop import SlipStopConfig
+    from aslip_ros.learn.training.stream import false_alarms_per_min, pooled_rate
+    from aslip_ros.slip import ROTATION_EPSILON_RAD_S
+
+    cfg = SlipStopConfig()
+    k, w_thr = cfg.debounce_count, cfg.rotation_threshold_rad_s
+    counts: dict[str, list] = {"either": [], "slip": [], "rotation": []}
+    for a, w, slip, w_true in zip(p, wy, seqs.slip, seqs.w):
+        moving = slip | (np.nan_to_num(np.abs(w_true)) > ROTATION_EPSILON_RAD_S)
+        sl = a >= threshold
+        rot = np.zeros_like(sl) if w is None else np.abs(w) >= w_thr
+        for name, flags in (("either", sl | rot), ("slip", sl), ("rotation", rot)):
+            stop = debounced(flags, k).astype(np.float32)
+            counts[name].append(false_alarms_per_min(stop, moving, 0.5, hop_s))
+    rot_model = any(w is not None for w in wy)
+    return {"debounce_count": k, "rotation_threshold_rad_s": w_thr,
+            **{n: pooled_rate(c) if (n != "rotation" or rot_model) else None
+               for n, c in counts.items()}}
 
 
 def report(res: dict) -> str:
@@ -141,7 +189,19 @@ def report(res: dict) -> str:
                   f"{c} {v['fa_per_min']:.2f} a minute ({v['false_alarms']} in "
                   f"{v['quiet_minutes']:.1f} min)" for c, v in res["at_threshold"].items())
               + "."]
+    st = res["controller_stops"]
+    lines += ["", f"The slip-stop controller's stops without slip or turn "
+              f"({st['debounce_count']} consecutive estimates that slip or turn at "
+              f"|wy| >= {st['rotation_threshold_rad_s']:g} rad/s), a minute: " + "; ".join(
+                  f"{n} {_rate(st[n])}" for n in ("either", "slip", "rotation")) + "."]
     return "\n".join(lines) + "\n"
+
+
+def _rate(r: dict | None) -> str:
+    if r is None:
+        return "- (no rotational output)"
+    ci = r["fa_per_min_interval"]
+    return f"{r['fa_per_min']:.2f}" + ("" if ci is None else f" [{ci[0]:.2f}, {ci[1]:.2f}]")
 
 
 def main(argv: list[str] | None = None) -> int:

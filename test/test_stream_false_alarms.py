@@ -28,9 +28,11 @@ def dataset(tmp_path_factory):
     return root / "ds"
 
 
-def _pulses(monkeypatch, heights: dict[str, list[float]], ds_root):
+def _pulses(monkeypatch, heights: dict[str, list[float]], ds_root, turns=None):
     """The model's p(slip): zero, with one 0.1 s pulse of each height in ``heights[cond]``
-    on the trials of that condition without slip, and 0.92 throughout a slipping trial."""
+    on the trials of that condition without slip, and 0.92 throughout a slipping trial.
+    ``turns``: condition -> [(first frame, frames, |wy| rad/s)] of the rotational output
+    on its trials without slip (None: a planar model)."""
     from aslip_ros.learn.data_io import open_dataset
     ds = open_dataset(ds_root)
     slipping = {k for k in range(len(ds.trials))
@@ -45,7 +47,11 @@ def _pulses(monkeypatch, heights: dict[str, list[float]], ds_root):
         else:
             for j, h in enumerate(heights.get(str(ds.trials[k]["condition"]), [])):
                 p[50 + 30 * j:60 + 30 * j] = h
-        return p, np.zeros((frames.shape[0], 2), np.float32), None
+        w = None if turns is None else np.zeros(frames.shape[0], np.float32)
+        for first, n, rate in [] if k in slipping or turns is None else \
+                turns.get(str(ds.trials[k]["condition"]), []):
+            w[first:first + n] = rate
+        return p, np.zeros((frames.shape[0], 2), np.float32), w
     monkeypatch.setattr(StreamBackend, "offline", offline)
 
 
@@ -100,3 +106,31 @@ def test_the_figures_are_written(dataset, tmp_path, monkeypatch):
     doc = json.loads(out.read_text())
     assert doc["seed"] is None and doc["results"][0]["rule_threshold"] == 0.5
     assert doc["results"][0]["validation_fa_per_min"] is None
+
+
+def test_the_controllers_stops_count_slip_and_turn_after_its_debounce(
+        dataset, tmp_path, monkeypatch):
+    """What stops the arm: two consecutive estimates that slip or turn. A one-hop pulse of
+    either is no stop; a slip pulse and a turn pulse are one stop each, counted apart."""
+    from aslip_ros.control.slip_stop import SlipStopConfig
+    cfg = SlipStopConfig()
+    assert cfg.debounce_count == 2
+    w = cfg.rotation_threshold_rad_s
+    ck = make_stream(tmp_path / "s.pt", threshold=0.6)
+    _pulses(monkeypatch, {"robot_moving": [0.62]}, dataset,
+            turns={"robot_moving": [(120, 5, -1.2 * w), (160, 1, 2 * w)],
+                   "robot_stationary": [(100, 1, 3 * w), (140, 4, 0.9 * w)]})
+    st = sfa.sweep(ck, dataset)["controller_stops"]
+    quiet_min = 4.0 / 60.0              # the two trials without slip or turn label, 2 s each
+    assert st["either"]["fa_per_min"] == pytest.approx(2 / quiet_min, rel=0.05)
+    assert st["slip"]["fa_per_min"] == pytest.approx(1 / quiet_min, rel=0.05)
+    assert st["rotation"]["fa_per_min"] == pytest.approx(1 / quiet_min, rel=0.05)
+    # A slip pulse of one hop and a turn of one hop stop nothing.
+    np.testing.assert_array_equal(sfa.debounced(np.array([1, 0, 1, 1, 1, 0], bool), 2),
+                                  [False, False, False, True, True, False])
+    # A planar model has no rotation decision to count.
+    _pulses(monkeypatch, {"robot_moving": [0.62]}, dataset)
+    res = sfa.sweep(ck, dataset)
+    st = res["controller_stops"]
+    assert st["rotation"] is None and st["either"] == st["slip"]
+    assert "rotation - (no rotational output)" in sfa.report(res)
