@@ -202,8 +202,9 @@ def test_slip_track_episode_composed_follows_the_object(composed_track):
 
 def test_slip_track_episode_with_the_package_estimator():
     """The composed demo path runs the package's estimator (the hybrid of the streaming
-    model and the window CNN): estimates at its 100 Hz hop all episode long, the per-grasp calibration converged within 2 s of the grasp (while
-    the agent holds the object still), the agent drags the object and the arm follows."""
+    model and the window CNN): estimates at its 100 Hz hop all episode long, the per-grasp
+    calibration converged within 2 s of the grasp (while the agent holds the object still),
+    the agent drags the object and the arm follows."""
     r = _track_episode(str(DEFAULT))
     assert r["ended"] == "duration", r
     assert r["n_slip_msgs"] > 200, r
