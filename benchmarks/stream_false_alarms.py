@@ -69,14 +69,13 @@ def simulate_set(data: Path, seed: int, progress: bool = False) -> Path:
 
 def stream_part(path: str | Path):
     """The streaming checkpoint at ``path``, or a hybrid's streaming part."""
-    from aslip_ros.learn.checkpoint import Checkpoint, load_checkpoint
+    from aslip_ros.learn.checkpoint import load_checkpoint
     from aslip_ros.learn.models.aslip_hybrid import STREAM, HybridBackend
     from aslip_ros.learn.models.aslip_stream import StreamBackend
-    from aslip_ros.learn.models.per_output import part_tensors
 
     ck = load_checkpoint(path)
     if ck.model_type == HybridBackend.model_type:
-        ck = Checkpoint(ck.meta["parts"][STREAM], part_tensors(ck.tensors, STREAM))
+        ck = HybridBackend.from_checkpoint(ck).parts[STREAM]
     if ck.model_type != StreamBackend.model_type:
         raise ValueError(f"{path}: a {ck.model_type} checkpoint; this reads a streaming "
                          f"one ({StreamBackend.model_type}) or a hybrid's streaming part")
@@ -134,10 +133,9 @@ def sweep(checkpoint: str | Path, dataset: str | Path) -> dict:
 
 def debounced(flags: np.ndarray, count: int) -> np.ndarray:
     """Where ``flags`` has held for ``count`` consecutive hops (the controller's debounce)."""
-    run = np.zeros(flags.size, np.int64)
-    for i, f in enumerate(flags):
-        run[i] = run[i - 1] + 1 if f and i else int(f)
-    return run >= count
+    idx = np.arange(flags.size)
+    last_off = np.maximum.accumulate(np.where(flags, -1, idx))
+    return idx - last_off >= count
 
 
 def controller_stops(p: list[np.ndarray], wy: list[np.ndarray | None], seqs, threshold: float,
