@@ -44,11 +44,12 @@ def blocks(audio, n=480, start_index=1000, start_ns=5_000_000_000):
             for i in range(0, audio.shape[0], n)]
 
 
-def make_checkpoint(path, seed=0, angular=False, **meta_changes):
+def make_checkpoint(path, seed=0, angular=False, context=1, **meta_changes):
     """A tiny untrained streaming checkpoint (with ``angular``: its rotational output)."""
     torch.manual_seed(seed)
     fcfg = FeatureConfig()
-    cfg = StreamConfig(n_channels=2, n_mels=fcfg.n_mels, embed=16, hidden=8, angular=angular)
+    cfg = StreamConfig(n_channels=2, n_mels=fcfg.n_mels, embed=16, hidden=8, angular=angular,
+                       context=context)
     net = StreamNet(cfg)
     net.set_normalization(np.full(fcfg.n_mels, -8.0), np.full(fcfg.n_mels, 3.0))
     meta = {"model_type": "aslip_stream", "model_config": cfg.to_dict(),
@@ -86,9 +87,11 @@ def outputs(ests):
             np.array([[e.prediction.vx, e.prediction.vz] for e in ests]))
 
 
-def test_gru_step_equals_the_batched_forward():
+@pytest.mark.parametrize("context", [1, 4])
+def test_gru_step_equals_the_batched_forward(context):
     torch.manual_seed(1)
-    net = StreamNet(StreamConfig(n_channels=3, n_mels=10, embed=12, hidden=7)).eval()
+    net = StreamNet(StreamConfig(n_channels=3, n_mels=10, embed=12, hidden=7,
+                                 context=context)).eval()
     x = np.random.default_rng(0).standard_normal((50, 3, 10)).astype(np.float32)
     p, v, w = offline_outputs(net, x)
     assert w is None                             # no rotational output in this config
@@ -96,12 +99,32 @@ def test_gru_step_equals_the_batched_forward():
     got = [step.step(f) for f in x]
     np.testing.assert_allclose([g[0] for g in got], p, atol=1e-5)
     np.testing.assert_allclose(np.array([g[1] for g in got]), v, atol=1e-7)
+    # A reset forgets the state and the frames held for the context alike.
     step.reset()
-    np.testing.assert_allclose(step.step(x[0])[0], p[0], atol=1e-5)
+    again = [step.step(f)[0] for f in x[:context + 1]]
+    np.testing.assert_allclose(again, p[:context + 1], atol=1e-5)
 
 
-def test_streaming_over_a_recorded_stream_equals_offline(tmp_path):
-    pred = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "s.pt"))
+def test_a_wider_context_reads_the_frames_before():
+    """With ``context`` k, the newest frame's estimate moves with a frame k - 1 hops back
+    and not with one k hops back."""
+    torch.manual_seed(2)
+    net = StreamNet(StreamConfig(n_channels=2, n_mels=6, embed=8, hidden=5, context=3)).eval()
+    with torch.no_grad():                        # no memory but the context: h = n
+        net.gru.weight_hh_l0.zero_()
+        net.gru.bias_ih_l0[5:10] = -50.0         # the update gate shut
+    x = np.random.default_rng(1).standard_normal((10, 2, 6)).astype(np.float32)
+    base = offline_outputs(net, x)[0]
+    for back, moves in ((2, True), (3, False)):
+        y = x.copy()
+        y[9 - back] += 5.0
+        assert bool(abs(offline_outputs(net, y)[0][9] - base[9]) > 1e-6) is moves
+
+
+@pytest.mark.parametrize("context", [1, 5])
+def test_streaming_over_a_recorded_stream_equals_offline(tmp_path, context):
+    pred = StreamingPredictor.from_checkpoint(make_checkpoint(tmp_path / "s.pt",
+                                                              context=context))
     a = audio()
     ests = [e for b in blocks(a, 480) for e in pred.push(b)]
     p_off, v_off, w_off = pred.offline(stream_logmel(a, pred.feature_config, RATE))
@@ -248,6 +271,16 @@ def test_aslip_train_stage_stream_writes_a_streaming_checkpoint(dataset, tmp_pat
                      str(off), "--epochs", "1", "--threads", "1", "--no-progress",
                      "--calibration", "off"]) == 0
     assert "calibration" not in load_checkpoint(off).meta
+    wide = tmp_path / "wide.pt"
+    assert cli.main(["train", "--dataset", str(dataset), "--stage", "stream", "--out",
+                     str(wide), "--epochs", "1", "--threads", "1", "--no-progress",
+                     "--stream-context", "3"]) == 0
+    assert load_checkpoint(wide).meta["model_config"]["context"] == 3
+    assert ck.meta["model_config"]["context"] == 1
+    pred = StreamingPredictor.from_checkpoint(wide)
+    assert len([e for b in blocks(audio(n=9600)) for e in pred.push(b)]) == 17
+    assert cli.main(["train", "--dataset", str(dataset), "--stage", "stream", "--out",
+                     str(tmp_path / "no.pt"), "--stream-context", "0"]) == 1
 
 
 def test_guard_band_covers_the_smoothed_onset_and_end():

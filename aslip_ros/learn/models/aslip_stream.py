@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from aslip_ros.learn.checkpoint import Checkpoint, angular_problems
 from aslip_ros.learn.incremental_features import stream_meta_problems
@@ -39,7 +40,9 @@ from aslip_ros.slip import ROTATION_RADIUS_M
 class StreamConfig:
     """Architecture of the streaming net; stored in the checkpoint's ``model_config``.
     ``angular``: a fourth head output, the rotational rate (False for every checkpoint
-    trained before it existed)."""
+    trained before it existed). ``context``: how many of the newest frames the embedding
+    reads together (1, every checkpoint before it existed: the current frame alone; the
+    frames before a sequence's first read as the feature mean)."""
 
     n_channels: int = 4
     n_mels: int = 40
@@ -47,10 +50,11 @@ class StreamConfig:
     hidden: int = 96
     speed_scale: float = 0.02
     angular: bool = False
+    context: int = 1
 
     def __post_init__(self) -> None:
-        if min(self.n_channels, self.n_mels, self.embed, self.hidden) < 1:
-            raise ValueError("n_channels, n_mels, embed and hidden must be >= 1")
+        if min(self.n_channels, self.n_mels, self.embed, self.hidden, self.context) < 1:
+            raise ValueError("n_channels, n_mels, embed, hidden and context must be >= 1")
         if not self.speed_scale > 0:
             raise ValueError("speed_scale must be > 0")
 
@@ -70,7 +74,7 @@ class StreamNet(nn.Module):
     def __init__(self, cfg: StreamConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        n_in = cfg.n_channels * cfg.n_mels
+        n_in = cfg.n_channels * cfg.n_mels * cfg.context
         self.register_buffer("feat_mean", torch.zeros(cfg.n_mels))
         self.register_buffer("feat_std", torch.ones(cfg.n_mels))
         self.embed1 = nn.Linear(n_in, cfg.embed)
@@ -85,6 +89,9 @@ class StreamNet(nn.Module):
     def forward(self, x: torch.Tensor, h0: torch.Tensor | None = None):
         b, t = x.shape[:2]
         z = ((x - self.feat_mean) / self.feat_std).reshape(b, t, -1)
+        k = self.cfg.context
+        if k > 1:   # (B, T, k * F): the k newest frames, oldest first, zeros before the start
+            z = F.pad(z, (0, 0, k - 1, 0)).unfold(1, k, 1).transpose(2, 3).reshape(b, t, -1)
         z = torch.relu(self.embed2(torch.relu(self.embed1(z))))
         y, h = self.gru(z, h0)
         out = self.head(y)
@@ -113,15 +120,22 @@ class GruStepper:
         self.w_hh = np.ascontiguousarray(w("gru.weight_hh_l0").T)      # (H, 3H)
         self.b_ih, self.b_hh = w("gru.bias_ih_l0"), w("gru.bias_hh_l0")
         self.wh, self.bh = np.ascontiguousarray(w("head.weight").T), w("head.bias")
+        n = cfg.n_channels * cfg.n_mels
         self.h = np.zeros(cfg.hidden, np.float32)
+        self.z = np.zeros(n * cfg.context, np.float32)     # the newest frames, oldest first
 
     def reset(self) -> None:
         self.h = np.zeros(self.cfg.hidden, np.float32)
+        self.z[:] = 0.0
 
     def step(self, frame: np.ndarray) -> tuple[float, np.ndarray, float | None]:
         """``frame (C, M)`` raw log-mel -> (p_slip, v (2,) m/s, wy rad/s or None without
         the rotational output); advances the state."""
         z = ((frame - self.mean) * self.inv_std).reshape(-1)
+        if self.cfg.context > 1:
+            self.z[:-z.size] = self.z[z.size:]
+            self.z[-z.size:] = z
+            z = self.z
         z = np.maximum(z @ self.w1 + self.b1, 0.0)
         z = np.maximum(z @ self.w2 + self.b2, 0.0)
         hsz = self.cfg.hidden

@@ -24,6 +24,7 @@ from aslip_ros.learn.coverage import of_windows, warning
 from aslip_ros.learn.data_io import open_dataset
 from aslip_ros.learn.features import FeatureConfig
 from aslip_ros.learn.models.aslip_cnn import ModelConfig
+from aslip_ros.learn.models.aslip_stream import StreamConfig
 from aslip_ros.learn.models.registry import CNN
 from aslip_ros.learn.models.svm import FEATURES, SvmConfig
 from aslip_ros.learn.training import distributed
@@ -138,6 +139,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--head-hidden", type=int, default=m.head_hidden)
     g.add_argument("--dropout", type=float, default=m.dropout)
     g.add_argument("--gate", choices=["softmax", "sigmoid"], default=m.gate)
+    g.add_argument("--stream-context", type=int, default=StreamConfig.context,
+                   help="--stage stream: how many of the newest 10 ms frames the streaming "
+                        "net's embedding reads together (default %(default)s: the current "
+                        "frame; its GRU carries the rest; docs/streaming.md)")
     g = p.add_argument_group("svm")
     g.add_argument("--svm-c", type=float, default=SvmConfig.C)
     g.add_argument("--svm-max-train", type=int, default=SvmConfig.max_train)

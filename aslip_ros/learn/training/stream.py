@@ -472,6 +472,7 @@ def stream_meta(ds: WindowSet, cfg: StreamTrainConfig, mcfg: StreamConfig,
 def run_from_args(args: argparse.Namespace) -> int:
     """``aslip train --stage stream``: the window trainer's arguments, read here."""
     try:
+        StreamConfig(context=args.stream_context)          # refused before the features
         ds = open_dataset(args.dataset)
         cfg = StreamTrainConfig(
             epochs=args.epochs, lr=args.lr,
@@ -483,7 +484,8 @@ def run_from_args(args: argparse.Namespace) -> int:
         fcfg = FeatureConfig(sample_rate=args.feature_rate, n_fft=args.n_fft, hop=args.hop,
                              n_mels=args.n_mels, fmin=args.fmin, fmax=args.fmax)
         chans = [c for c in (args.channels or "").split(",") if c] or None
-        meta, tensors, _ = train_stream(ds, cfg, feature_config=fcfg, channels=chans)
+        meta, tensors, _ = train_stream(ds, cfg, feature_config=fcfg, channels=chans,
+                                        model_config={"context": args.stream_context})
     except (ValueError, FileNotFoundError) as exc:
         print(f"aslip train: error: {exc}", file=sys.stderr)
         return 1
