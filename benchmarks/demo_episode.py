@@ -88,11 +88,11 @@ class PivotSettings:
     surface below that meets it ``pivot_lever_m`` off the grasp axis (the scene's
     ``wall_push(push_dir_xz=(0, -1), pivot_lever_m=...)``): it turns instead of sliding.
     Retract and settle as in slip-stop; the approach turns the object at about
-    ``approach_speed_m_s / pivot_lever_m`` (0.8 rad/s, 1.6 times the rotation threshold: at
-    slip-stop's 3 cm/s it would turn at 0.3 rad/s, below the 0.5 rad/s that counts as
-    rotating). The travel limit lets an arm that ignores rotation push
-    ``overshoot_limit_m`` past the surface contact (the object then turns by about 25
-    degrees) before it stops on its own."""
+    ``approach_speed_m_s / pivot_lever_m`` (0.8 rad/s: 1.6 times the 0.5 rad/s at which a
+    window is labelled rotating and above the controller's 0.7 that stops on it; at
+    slip-stop's 3 cm/s it would turn at 0.3 rad/s, below both). The travel limit lets an
+    arm that ignores rotation push ``overshoot_limit_m`` past the surface contact (the
+    object then turns by about 25 degrees) before it stops on its own."""
 
     pivot_lever_m: float = 0.1
     retract_distance_m: float = SlipStopConfig.retract_distance_m

@@ -1,7 +1,7 @@
 """Does the estimator hear the turn in pivot-stop? ``python -m benchmarks.pivot_heard RUN``
 (a ``make demo`` ``--out`` directory with the pivot-stop traces in ``episodes/``).
 
-Pivot-stop stops on the estimated rotation (``rotation_threshold_rad_s``, 0.5 rad/s) and
+Pivot-stop stops on the estimated rotation (``rotation_threshold_rad_s``, 0.7 rad/s) and
 misses on the quiet objects (docs/results.md). This reads the traces of the arm that ignores
 rotation, so every trial turns as far as its travel limit lets it, and gives per object:
 

@@ -59,10 +59,14 @@ def _approaching(task, arm, clock):
     assert task.state is State.APPROACHING
 
 
-def test_config_defaults_to_the_labels_threshold_and_acts_on_rotation():
+def test_config_acts_on_rotation_faster_than_the_label_counts_as_turning():
+    """The default decision rate is the false-alarm rule's 0.7 rad/s, above the label's own
+    0.5 (an estimate with that much noise at 0.5 stops the arm where nothing turns)."""
+    from aslip_ros.control.slip_stop import ROTATION_STOP_RAD_S
     cfg = SlipStopConfig()
     assert cfg.stop_on_rotation is True
-    assert cfg.rotation_threshold_rad_s == ROTATION_EPSILON_RAD_S
+    assert cfg.rotation_threshold_rad_s == ROTATION_STOP_RAD_S == 0.7
+    assert cfg.rotation_threshold_rad_s > ROTATION_EPSILON_RAD_S
 
 
 @pytest.mark.parametrize("bad", [0.0, -0.5, math.nan, math.inf])

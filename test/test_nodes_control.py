@@ -329,16 +329,16 @@ def test_slip_stop_hands_the_angular_velocity_to_its_task_and_zero_without_one()
 def test_slip_stop_declares_the_rotation_parameters_with_their_ranges():
     from aslip_ros.nodes.introspect import declared_by_name
     from aslip_ros.nodes.params import descriptor
-    from aslip_ros.slip import ROTATION_EPSILON_RAD_S
+    from aslip_ros.control.slip_stop import ROTATION_STOP_RAD_S
     declared = declared_by_name("slip_stop")
     on, thr = declared["stop_on_rotation"], declared["rotation_threshold_rad_s"]
     assert on.default is True and not on.read_only
-    assert thr.default == ROTATION_EPSILON_RAD_S
+    assert thr.default == ROTATION_STOP_RAD_S
     rng = descriptor(thr).floating_point_range[0]
     assert rng.from_value > 0.0 and rng.to_value >= 10.0
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         assert thr.check(bad) is not None, bad
-    assert thr.check(ROTATION_EPSILON_RAD_S) is None
+    assert thr.check(ROTATION_STOP_RAD_S) is None
 
 
 def test_unreachable_xarm_is_reported_and_the_node_stays_safe(rclpy_context, ros_env, slip_source):
