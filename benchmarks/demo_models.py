@@ -59,13 +59,14 @@ COMMAND = "python -m benchmarks.demo --train-models"
 #: Trials per object and condition (externally induced; ``gravity_pivot``: held off the
 #: centre of mass), the share of twisting pushes, seconds per trial, export hop, the export's
 #: label smoothing (``aslip export --label-smoothing``: its default), the arm's loudness
-#: range of the ``arm_drawn`` set, and the training budgets (the recipe).
+#: range of the ``arm_drawn`` set, the training budgets and how many frames the streaming
+#: part reads at once (``aslip train --stream-context``; docs/results.md) (the recipe).
 RECIPE = {"robot_moving": 12, "robot_stationary": 6, "gravity_pivot": 2,
           "twist_fraction": 0.3, "duration_s": 10.0, "hop_s": 0.05,
           "window_s": 0.2, "label_smoothing_s": DEFAULT_LABEL_SMOOTHING_S, "seed": 0,
           "time_budget_s": 480.0, "epochs": 40,
           "svm_max_train": 1500, "stream_epochs": 60, "stream_time_budget_s": 1500.0,
-          "stream_threads": 1, "arm_noise_range": [0.5, 4.0]}
+          "stream_threads": 1, "stream_context": 5, "arm_noise_range": [0.5, 4.0]}
 #: The manifest's format. 5: a training set and a recipe per model (``model_recipes``); a
 #: set of an older format is retrained, whatever its scene version.
 MANIFEST_VERSION = 5
@@ -271,7 +272,8 @@ def train_command(method: str, dataset: str | Path, out: str | Path,
         return args + ["--svm-max-train", str(r["svm_max_train"])]
     if stage == "stream":
         return args + ["--epochs", str(r["stream_epochs"]), "--time-budget",
-                       str(r["stream_time_budget_s"]), "--threads", str(r["stream_threads"])]
+                       str(r["stream_time_budget_s"]), "--threads", str(r["stream_threads"]),
+                       "--stream-context", str(r["stream_context"])]
     return args + ["--epochs", str(r["epochs"]), "--time-budget", str(r["time_budget_s"]),
                    "--threads", str(threads)]
 
